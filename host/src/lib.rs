@@ -1,0 +1,3 @@
+//! Host-side tools for the DCFO drive (std): plant simulation, trace I/O, replay.
+#![forbid(unsafe_code)]
+#![deny(missing_docs)]
