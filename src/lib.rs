@@ -1,8 +1,45 @@
 //! # dcfo — sensorless PMSLM drive core
 //!
-//! (Crate documentation is completed with the numeric design below.)
+//! The algorithms of a sensorless field-oriented drive for a permanent-magnet
+//! synchronous linear motor, built around the *disturbance compensated flux observer*
+//! (DCFO) of Liu, Yin, Bai and Yuan (see `../shared/paper/digest.md`, the method with
+//! the paper's typos corrected). `no_std`, no allocation, no `unsafe`, no panics in
+//! per-sample code.
+//!
+//! | module | digest | contents |
+//! |---|---|---|
+//! | [`num`] | — | the [`Scalar`](num::Scalar) trait (f32, f64, [`Q24`](num::Q24)) and the binary [`Angle`](num::Angle) |
+//! | [`units`] | — | SI or per-unit working units |
+//! | [`motor`] | §1 | validated motor parameters |
+//! | [`transforms`] | §5 | Clarke, Park and inverses |
+//! | [`pi`] | §5 | PI controller with anti-windup |
+//! | [`svpwm`] | §5 | space-vector modulation |
+//! | [`observer`] | §2–3 | pure integrator, LPF (CFO) and DCFO flux observers |
+//! | [`pll`] | §4 | angle and speed from the flux |
+//!
+//! ## Numbers
+//! Every algorithm is generic over [`num::Scalar`] and instantiated three times: `f32`
+//! for Cortex-M4F, saturating fixed point [`num::Q24`] (Q8.24) for FPU-less cores, and
+//! `f64` as the host reference. Generics (rather than macros or a feature-selected type
+//! alias) keep one type-checked source, let a host test run all three side by side, and
+//! cost nothing at run time. Fixed point runs in per-unit ([`units::Base::for_motor`]),
+//! where the paper motor at twice rated current and twice its top speed stays below
+//! 1.5 in a range of +-128 with a resolution of 6e-8.
+//!
+//! ## Angles
+//! [`num::Angle`] is a 32-bit binary angle: wrapping is exact and free. Cosine and sine
+//! come from idsp's table-interpolated `cossin` (9e-6 max error, about 40 Cortex-M
+//! instructions, bounded time) for f32 and fixed point, and from libm for the f64
+//! reference.
 #![no_std]
 #![forbid(unsafe_code)]
 #![deny(missing_docs)]
 
 pub mod motor;
+pub mod num;
+pub mod observer;
+pub mod pi;
+pub mod pll;
+pub mod svpwm;
+pub mod transforms;
+pub mod units;

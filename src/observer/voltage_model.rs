@@ -1,0 +1,65 @@
+//! The part every voltage-model flux observer shares: the back-EMF increment
+//! `integral(u - Rs i)` over one period, and the inductive correction `- Ls i`.
+
+use super::ObserverInput;
+use crate::motor::MotorParams;
+use crate::num::Scalar;
+use crate::transforms::AlphaBeta;
+use crate::units::Base;
+
+/// The motor constants an observer needs, in working units.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ObserverMotor<T> {
+    /// Stator resistance (ohm).
+    pub rs: T,
+    /// Inductance used to remove the inductive flux (H): `Lq`, so that a salient motor
+    /// gives the active flux.
+    pub ls: T,
+}
+
+impl<T: Scalar> ObserverMotor<T> {
+    /// Takes `Rs` and `Lq` from `motor`, converted with `base`.
+    pub fn new(motor: &MotorParams, base: &Base) -> Self {
+        ObserverMotor { rs: base.resistance(motor.rs_ohm), ls: base.inductance(motor.lq_h) }
+    }
+}
+
+/// Per-sample voltage-model arithmetic with the one sample of current history that the
+/// trapezoidal resistive drop needs.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(super) struct VoltageModel<T> {
+    pub(super) motor: ObserverMotor<T>,
+    i_prev: Option<AlphaBeta<T>>,
+}
+
+impl<T: Scalar> VoltageModel<T> {
+    pub(super) fn new(motor: ObserverMotor<T>) -> Self {
+        VoltageModel { motor, i_prev: None }
+    }
+
+    /// `dt * (u - Rs * (i_prev + i) / 2)` per axis (Wb): the exact integral of a held
+    /// voltage less the trapezoidal integral of the resistive drop. On the first sample
+    /// after a reset the present current stands in for the previous one.
+    pub(super) fn emf_increment(&mut self, input: &ObserverInput<T>) -> AlphaBeta<T> {
+        let i = input.i_ab;
+        let prev = self.i_prev.unwrap_or(i);
+        self.i_prev = Some(i);
+        let half_rs = self.motor.rs * T::HALF;
+        AlphaBeta {
+            alpha: input.dt * (input.u_ab.alpha - half_rs * (prev.alpha + i.alpha)),
+            beta: input.dt * (input.u_ab.beta - half_rs * (prev.beta + i.beta)),
+        }
+    }
+
+    /// `psi_stator - Ls i` (Wb): the mover flux from a stator-flux-like state.
+    pub(super) fn mover_flux(&self, psi_stator: AlphaBeta<T>, i: AlphaBeta<T>) -> AlphaBeta<T> {
+        AlphaBeta {
+            alpha: psi_stator.alpha - self.motor.ls * i.alpha,
+            beta: psi_stator.beta - self.motor.ls * i.beta,
+        }
+    }
+
+    pub(super) fn reset(&mut self) {
+        self.i_prev = None;
+    }
+}

@@ -1,0 +1,80 @@
+//! Space-vector PWM: a stationary-frame voltage and the DC-bus voltage in, three duty
+//! cycles in `[0, 1]` out.
+//!
+//! Realised as min-max (zero-sequence) injection, which gives the same switching
+//! pattern as symmetric SVPWM: phase references from the inverse Clarke transform,
+//! shifted by `-(max + min) / 2` so the carrier is used symmetrically, then
+//! `duty = 1/2 + v / Vdc`. Linear for `|u| <= Vdc / sqrt(3)`; a longer vector keeps its
+//! angle and is shortened to that circle (never wrapped or clipped per phase, which
+//! would distort the angle).
+
+use crate::num::Scalar;
+use crate::transforms::{AlphaBeta, inverse_clarke};
+
+/// Duty cycles of the three half-bridges: the fraction of the PWM period each upper
+/// switch is on, dimensionless in `[0, 1]`.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Duties<T> {
+    /// Phase a upper-switch duty, `[0, 1]`.
+    pub a: T,
+    /// Phase b upper-switch duty, `[0, 1]`.
+    pub b: T,
+    /// Phase c upper-switch duty, `[0, 1]`.
+    pub c: T,
+}
+
+/// The result of one modulation.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Modulation<T> {
+    /// Duty cycles, each in `[0, 1]`.
+    pub duties: Duties<T>,
+    /// The stationary-frame voltage actually produced (V or per-unit): the command, or
+    /// the command shortened to `Vdc / sqrt(3)` when it was longer.
+    pub u_applied: AlphaBeta<T>,
+    /// `true` when the command was longer than `Vdc / sqrt(3)` and was shortened.
+    pub limited: bool,
+}
+
+/// Why modulation was refused; the bridge should be switched off.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum SvpwmError {
+    /// The DC-bus voltage is not a valid positive number.
+    BadDcBus,
+    /// The voltage command is not a valid number.
+    BadCommand,
+}
+
+impl<T: Scalar> Duties<T> {
+    /// All three duties at 1/2: zero line-to-line voltage.
+    pub fn centred() -> Self {
+        Duties { a: T::HALF, b: T::HALF, c: T::HALF }
+    }
+}
+
+/// Modulates `u` (V or per-unit) on a DC bus of `vdc` (same unit, > 0).
+pub fn svpwm<T: Scalar>(u: AlphaBeta<T>, vdc: T) -> Result<Modulation<T>, SvpwmError> {
+    if !vdc.is_valid() || vdc <= T::ZERO {
+        return Err(SvpwmError::BadDcBus);
+    }
+    if !u.is_valid() {
+        return Err(SvpwmError::BadCommand);
+    }
+    let inv_vdc = T::ONE.checked_div(vdc).ok_or(SvpwmError::BadDcBus)?;
+    let v_max = vdc * T::INV_SQRT3;
+    let m2 = u.norm_squared();
+    let (u, limited) = if m2 > v_max * v_max {
+        // |u| > v_max > 0, so the division is safe; checked anyway.
+        let k = v_max.checked_div(m2.sqrt()).ok_or(SvpwmError::BadCommand)?;
+        (u.scale(k), true)
+    } else {
+        (u, false)
+    };
+    let p = inverse_clarke(u);
+    let hi = p.a.max(p.b).max(p.c);
+    let lo = p.a.min(p.b).min(p.c);
+    let offset = -(hi + lo) * T::HALF;
+    let duty = |v: T| (T::HALF + (v + offset) * inv_vdc).clamp_to(T::ZERO, T::ONE);
+    Ok(Modulation { duties: Duties { a: duty(p.a), b: duty(p.b), c: duty(p.c) }, u_applied: u, limited })
+}
