@@ -230,3 +230,126 @@ impl<T: Scalar> FluxObserver<T> for Dcfo<T> {
         self.faulted = false;
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::motor::MotorParams;
+
+    const N: usize = 5;
+    type Matrix = [[f64; N]; N];
+
+    fn get_state(o: &Dcfo<f64>) -> [f64; N] {
+        [o.z.alpha, o.psi_i_prev.alpha, o.x1.alpha, o.x2.alpha, o.d.alpha]
+    }
+
+    fn set_state(o: &mut Dcfo<f64>, s: [f64; N]) {
+        o.z.alpha = s[0];
+        o.psi_i_prev.alpha = s[1];
+        o.x1.alpha = s[2];
+        o.x2.alpha = s[3];
+        o.d.alpha = s[4];
+    }
+
+    /// The discrete observer's one-step state matrix (alpha axis, zero input), found by
+    /// probing the real `update` with unit states: the implementation, not a model of it.
+    fn state_matrix(zeta: f64, omega: f64, eta_h: f64, dt: f64) -> Matrix {
+        let motor = ObserverMotor::new(&MotorParams::paper(), &Base::SI);
+        let mut a = [[0.0; N]; N];
+        for j in 0..N {
+            let mut o = Dcfo::<f64>::with_gains(motor, 2.0 * zeta, eta_h, 1.0);
+            // Prime the current history so the probe sees no start-up special case.
+            let zero = ObserverInput { omega_e: omega, dt, ..Default::default() };
+            o.update(&zero).unwrap();
+            let mut e = [0.0; N];
+            e[j] = 1.0;
+            set_state(&mut o, e);
+            o.update(&zero).unwrap();
+            let col = get_state(&o);
+            for i in 0..N {
+                a[i][j] = col[i];
+            }
+        }
+        a
+    }
+
+    fn mul(a: &Matrix, b: &Matrix) -> Matrix {
+        let mut c = [[0.0; N]; N];
+        for i in 0..N {
+            for j in 0..N {
+                c[i][j] = (0..N).map(|k| a[i][k] * b[k][j]).sum();
+            }
+        }
+        c
+    }
+
+    /// Asymptotically stable iff A^(2^20) has decayed (spectral radius < 1). A growing or
+    /// non-decaying power (overflow gives inf/NaN) means unstable or marginal.
+    fn is_stable(a: &Matrix) -> bool {
+        let mut p = *a;
+        for _ in 0..20 {
+            p = mul(&p, &p);
+        }
+        let norm: f64 = p.iter().flatten().map(|x| x * x).sum::<f64>().sqrt();
+        norm < 1e-6
+    }
+
+    #[test]
+    fn discrete_observer_is_stable_exactly_when_h_is_negative() {
+        let dt = 1e-4;
+        let mut cases = 0;
+        for zeta in [0.2, 0.5, 0.707, 1.0, 2.0] {
+            for f_hz in [2.0, 10.0, 50.0] {
+                let omega = 2.0 * core::f64::consts::PI * f_hz;
+                for eta_h in [-2.0, -0.5, -0.2, -0.05, 0.0, 0.05, 0.2, 1.0] {
+                    let stable = is_stable(&state_matrix(zeta, omega, eta_h, dt));
+                    assert_eq!(stable, eta_h < 0.0, "zeta {zeta}, {f_hz} Hz, h/(Ls w) {eta_h}");
+                    cases += 1;
+                }
+            }
+        }
+        assert_eq!(cases, 120);
+    }
+
+    #[test]
+    fn builder_refuses_non_negative_h_and_bad_settings() {
+        let motor = ObserverMotor::<f32>::new(&MotorParams::paper(), &Base::SI);
+        let ok = DcfoConfig::default();
+        for h in [0.0, 0.1, f32::NAN] {
+            let cfg = DcfoConfig { h_per_ls_omega: h, ..ok };
+            assert_eq!(Dcfo::new(motor, &cfg, &Base::SI).err(), Some(DcfoConfigError::GainNotNegative));
+        }
+        let cfg = DcfoConfig { zeta: 0.0, ..ok };
+        assert_eq!(Dcfo::new(motor, &cfg, &Base::SI).err(), Some(DcfoConfigError::BadDamping));
+        let cfg = DcfoConfig { omega_floor_rad_s: -1.0, ..ok };
+        assert_eq!(Dcfo::new(motor, &cfg, &Base::SI).err(), Some(DcfoConfigError::BadFloor));
+        assert!(Dcfo::new(motor, &ok, &Base::SI).is_ok());
+    }
+
+    #[test]
+    fn non_finite_input_is_refused_without_touching_the_state_and_overflow_latches() {
+        let motor = ObserverMotor::<f32>::new(&MotorParams::paper(), &Base::SI);
+        let mut o = Dcfo::new(motor, &DcfoConfig::default(), &Base::SI).unwrap();
+        let good = ObserverInput {
+            u_ab: AlphaBeta::new(10.0, -3.0),
+            i_ab: AlphaBeta::new(0.5, 0.2),
+            omega_e: 62.8,
+            dt: 1e-4,
+        };
+        o.update(&good).unwrap();
+        let before = (o.z, o.x1, o.x2, o.d);
+        let bad = ObserverInput { u_ab: AlphaBeta::new(f32::NAN, 0.0), ..good };
+        assert_eq!(o.update(&bad), Err(ObserverFault::InvalidInput));
+        let bad = ObserverInput { dt: 0.0, ..good };
+        assert_eq!(o.update(&bad), Err(ObserverFault::InvalidPeriod));
+        let bad = ObserverInput { omega_e: f32::INFINITY, ..good };
+        assert_eq!(o.update(&bad), Err(ObserverFault::InvalidInput));
+        assert_eq!(before, (o.z, o.x1, o.x2, o.d));
+        // A finite but absurd input overflows f32 in the state: latched until reset.
+        let huge = ObserverInput { u_ab: AlphaBeta::new(3e38, 3e38), dt: 1e3, ..good };
+        assert_eq!(o.update(&huge), Err(ObserverFault::StateOverflow));
+        assert_eq!(o.update(&good), Err(ObserverFault::StateOverflow));
+        o.reset();
+        assert!(o.update(&good).is_ok());
+    }
+}

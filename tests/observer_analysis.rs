@@ -1,0 +1,245 @@
+//! The flux observers measured against the digest's analysis (§2-3), in f64.
+//!
+//! Each test drives the discrete observer with synthetic inputs whose true mover flux is
+//! known exactly, and compares what it measures with a closed-form expectation.
+
+mod common;
+
+use common::*;
+use dcfo::motor::MotorParams;
+use dcfo::observer::{Dcfo, DcfoConfig, FluxObserver, LpfObserver, ObserverMotor, PureIntegrator};
+use dcfo::units::Base;
+use std::f64::consts::PI;
+
+const ZETA: f64 = 0.707;
+const ETA_H: f64 = -0.2;
+
+fn motor() -> ObserverMotor<f64> {
+    ObserverMotor::new(&MotorParams::paper(), &Base::SI)
+}
+
+fn dcfo() -> Dcfo<f64> {
+    let cfg = DcfoConfig { zeta: ZETA as f32, h_per_ls_omega: ETA_H as f32, ..DcfoConfig::default() };
+    Dcfo::new(motor(), &cfg, &Base::SI).unwrap()
+}
+
+/// The digest's H(s) = psi_hat / x at s = j w_eval, notch at w, h = eta Ls w.
+fn h_analytic(w_eval: f64, w: f64) -> (f64, f64) {
+    let h = ETA_H * LS * w;
+    // s = j we: s^2 = -we^2, s^3 = -j we^3
+    let we = w_eval;
+    let num = (-(2.0 * ZETA * w * LS) * we * we, 0.0);
+    let den = (-(2.0 * ZETA * w * LS - h) * we * we - h * w * w, -LS * we * we * we + w * w * LS * we);
+    let mag = (num.0.hypot(num.1)) / den.0.hypot(den.1);
+    let ph = num.1.atan2(num.0) - den.1.atan2(den.0);
+    (mag, ph)
+}
+
+/// Runs `obs` over `synthetic` with the notch at `w`; returns (estimates, true flux,
+/// harmonic flux) over whole fundamental periods after `settle_s`.
+fn run(
+    obs: &mut impl FluxObserver<f64>,
+    syn: &Synthetic,
+    w: f64,
+    settle_s: f64,
+    periods: usize,
+) -> Vec<([f64; 2], [f64; 2], f64)> {
+    let n_settle = (settle_s / TS).round() as usize;
+    let n_period = 2.0 * PI / syn.omega / TS;
+    let n_total = n_settle + (periods as f64 * n_period).round() as usize;
+    let mut out = Vec::new();
+    for k in 0..n_total {
+        let (u, i, t) = syn.sample(k, TS);
+        let est = obs.update(&input_f64(u, i, w, TS)).unwrap();
+        if k >= n_settle {
+            out.push(([est.psi_ab.alpha, est.psi_ab.beta], syn.psi_f_ab(t), t));
+        }
+    }
+    out
+}
+
+/// Settling time that leaves the slowest observer pole (0.37 w) at e^-30.
+fn settle_for(w: f64) -> f64 {
+    30.0 / (0.37 * w)
+}
+
+#[test]
+fn dcfo_unity_gain_and_zero_phase_at_the_fundamental_from_2_to_50_hz() {
+    println!("f_Hz   gain_err_%     phase_err_deg");
+    for f in [2.0, 3.0, 5.0, 10.0, 15.0, 20.0, 30.0, 50.0] {
+        let mut syn = Synthetic::at_hz(f);
+        syn.i_q = 0.0;
+        let w = syn.omega;
+        let mut obs = dcfo();
+        let rows = run(&mut obs, &syn, w, settle_for(w), 10);
+        let out: Vec<_> = rows.iter().map(|r| r.0).collect();
+        let truth: Vec<_> = rows.iter().map(|r| r.1).collect();
+        let (g, ph) = complex_ratio(&out, &truth);
+        println!("{f:5.1}  {:+.3e}  {:+.3e}", (g - 1.0) * 100.0, ph.to_degrees());
+        assert!((g - 1.0).abs() < 1e-3, "{f} Hz: gain {g}");
+        assert!(ph.to_degrees().abs() < 0.1, "{f} Hz: phase {} deg", ph.to_degrees());
+    }
+}
+
+#[test]
+fn dcfo_dc_flux_offset_is_attenuated_by_more_than_60_db() {
+    for f in [2.0, 10.0, 50.0] {
+        let mut syn = Synthetic::at_hz(f);
+        syn.i_q = 0.0;
+        let w = syn.omega;
+        let x0 = [0.1, -0.05]; // Wb, a step of DC flux at t = 0 (an impulse of voltage)
+        let mut obs = dcfo();
+        let n_settle = (settle_for(w) / TS) as usize;
+        let n_period = (2.0 * PI / w / TS).round() as usize;
+        let mut sum = [0.0; 2];
+        let mut count = 0;
+        for k in 0..n_settle + 10 * n_period {
+            let (mut u, i, t) = syn.sample(k, TS);
+            if k == 0 {
+                u[0] += x0[0] / TS;
+                u[1] += x0[1] / TS;
+            }
+            let est = obs.update(&input_f64(u, i, w, TS)).unwrap();
+            if k >= n_settle {
+                let truth = syn.psi_f_ab(t);
+                sum[0] += est.psi_ab.alpha - truth[0];
+                sum[1] += est.psi_ab.beta - truth[1];
+                count += 1;
+            }
+        }
+        let mean = [sum[0] / count as f64, sum[1] / count as f64];
+        let ratio = mean[0].hypot(mean[1]) / x0[0].hypot(x0[1]);
+        let db = 20.0 * ratio.log10();
+        println!("{f} Hz: DC gain {db:.1} dB");
+        assert!(db < -60.0, "{f} Hz: DC attenuation only {db:.1} dB");
+    }
+}
+
+#[test]
+fn dcfo_harmonic_gain_at_5w_and_7w_matches_the_transfer_function() {
+    for f in [5.0, 10.0, 20.0] {
+        for &n in &[-5.0, 7.0, -11.0, 13.0] {
+            let mut syn = Synthetic::at_hz(f);
+            syn.i_q = 0.0;
+            syn.psi_f = 0.0; // linear: measure the harmonic alone
+            syn.harmonics = [(n, 5.0), (0.0, 0.0)];
+            let w = syn.omega;
+            let mut obs = dcfo();
+            let n_settle = (settle_for(w) / TS) as usize;
+            let n_period = (2.0 * PI / w / TS).round() as usize;
+            let mut out = Vec::new();
+            let mut reference = Vec::new();
+            for k in 0..n_settle + 10 * n_period {
+                let (u, i, t) = syn.sample(k, TS);
+                let est = obs.update(&input_f64(u, i, w, TS)).unwrap();
+                if k >= n_settle {
+                    out.push([est.psi_ab.alpha, est.psi_ab.beta]);
+                    // the harmonic's flux: amplitude a/(|n| w), rotating at n w
+                    let wn = n * w;
+                    reference.push([5.0 / wn * (wn * t).sin(), -5.0 / wn * (wn * t).cos()]);
+                }
+            }
+            let (g, _) = complex_ratio(&out, &reference);
+            let (g_expected, _) = h_analytic(n.abs() * w, w);
+            println!("{f} Hz, n = {n}: |H| measured {g:.4}, analytic {g_expected:.4}");
+            assert!((g / g_expected - 1.0).abs() < 0.10, "{f} Hz n={n}: {g} vs {g_expected}");
+        }
+    }
+}
+
+/// The drift tests of the issue: +2 V on u_alpha and +0.2 A on i_beta at 10 Hz.
+fn dc_step_case(u_offset: [f64; 2], i_offset: [f64; 2]) {
+    let mut syn = Synthetic::at_hz(10.0);
+    syn.u_offset = u_offset;
+    syn.i_offset = i_offset;
+    syn.offset_from_s = 1.0;
+    let w = syn.omega;
+    let mut pi = PureIntegrator::new(motor());
+    pi.set_stator_flux(dcfo::transforms::AlphaBeta::new(syn.psi_s(0.0)[0], syn.psi_s(0.0)[1]));
+    let mut obs = dcfo();
+    let n = (4.0 / TS) as usize;
+    let mut pi_err_at = Vec::new();
+    let mut dcfo_err_last_period: f64 = 0.0;
+    let mut psi_i_max: f64 = 0.0;
+    let mut psi_i_offset_sum = [0.0; 2];
+    let mut count = 0;
+    let n_period = (0.1 / TS) as usize;
+    for k in 0..n {
+        let (u, i, t) = syn.sample(k, TS);
+        let inp = input_f64(u, i, w, TS);
+        let truth = syn.psi_f_ab(t);
+        let e_pi = pi.update(&inp).unwrap().psi_ab;
+        let e_d = obs.update(&inp).unwrap().psi_ab;
+        let psi_i = obs.integrator_state();
+        if (k + 1) % (5000) == 0 {
+            pi_err_at.push((e_pi.alpha - truth[0]).hypot(e_pi.beta - truth[1]));
+        }
+        if k >= n - n_period {
+            dcfo_err_last_period =
+                dcfo_err_last_period.max((e_d.alpha - truth[0]).hypot(e_d.beta - truth[1]));
+            psi_i_offset_sum[0] += psi_i.alpha - truth[0];
+            psi_i_offset_sum[1] += psi_i.beta - truth[1];
+            count += 1;
+        }
+        psi_i_max = psi_i_max.max(psi_i.alpha.hypot(psi_i.beta));
+    }
+    // Pure integrator: the error grows at every checkpoint after the step, without bound.
+    println!("pure integrator |error| every 0.5 s: {pi_err_at:?}");
+    for pair in pi_err_at[2..].windows(2) {
+        assert!(pair[1] > pair[0] * 1.1, "pure integrator should keep drifting: {pi_err_at:?}");
+    }
+    // Equivalent DC voltage on the integrator input: the voltage offset less Rs times
+    // the current offset. In equilibrium the feedback cancels it, (h/Ls) d = -dc, and
+    // psi_hat has no DC, so psi_i carries the whole of d = dc Ls / |h| (the -Ls i step
+    // of a current offset is absorbed by the integrator).
+    let dc = [u_offset[0] - RS * i_offset[0], u_offset[1] - RS * i_offset[1]];
+    let h_over_ls = ETA_H * w;
+    let expected_offset = [-dc[0] / h_over_ls, -dc[1] / h_over_ls];
+    let measured_offset = [psi_i_offset_sum[0] / count as f64, psi_i_offset_sum[1] / count as f64];
+    println!(
+        "DCFO: max |error| over the last 0.1 s {:.3e} Wb; integrator offset {:?} (analysis {:?}); max |psi_i| {psi_i_max:.4} Wb",
+        dcfo_err_last_period, measured_offset, expected_offset
+    );
+    assert!(dcfo_err_last_period < 1e-3, "DCFO error {dcfo_err_last_period}");
+    for ax in 0..2 {
+        assert!(
+            (measured_offset[ax] - expected_offset[ax]).abs() < 1e-3,
+            "{measured_offset:?} vs {expected_offset:?}"
+        );
+    }
+    let bound = PSI_F + expected_offset[0].hypot(expected_offset[1]) * 1.5;
+    assert!(psi_i_max < bound, "integrator state {psi_i_max} above {bound}");
+}
+
+#[test]
+fn dc_step_of_2_volts_on_u_alpha_pure_integrator_drifts_dcfo_recovers() {
+    dc_step_case([2.0, 0.0], [0.0, 0.0]);
+}
+
+#[test]
+fn dc_step_of_0_2_amperes_on_i_beta_pure_integrator_drifts_dcfo_recovers() {
+    dc_step_case([0.0, 0.0], [0.0, 0.2]);
+}
+
+#[test]
+fn lpf_observer_lead_and_gain_match_atan_wc_over_w() {
+    for (f, wc) in [(2.0, 5.0), (10.0, 15.7), (10.0, 62.8), (50.0, 31.4)] {
+        let mut syn = Synthetic::at_hz(f);
+        syn.i_q = 0.0;
+        let w = syn.omega;
+        let mut obs = LpfObserver::new(motor(), wc).unwrap();
+        let rows = run(&mut obs, &syn, w, 30.0 / wc, 10);
+        let out: Vec<_> = rows.iter().map(|r| r.0).collect();
+        let truth: Vec<_> = rows.iter().map(|r| r.1).collect();
+        let (g, ph) = complex_ratio(&out, &truth);
+        let g_expected = w / (w * w + wc * wc).sqrt();
+        let lead_expected = (wc / w).atan();
+        println!(
+            "{f} Hz, wc {wc}: gain {g:.5} (expected {g_expected:.5}), lead {:.4} deg (expected {:.4})",
+            ph.to_degrees(),
+            lead_expected.to_degrees()
+        );
+        assert!((g / g_expected - 1.0).abs() < 1e-3);
+        assert!((ph - lead_expected).to_degrees().abs() < 0.05);
+    }
+}
