@@ -135,14 +135,10 @@ impl Synthetic {
         }
         let mut i = i1;
         if t0 >= self.offset_from_s {
-            for ax in 0..2 {
-                u[ax] += self.u_offset[ax];
-            }
+            u.iter_mut().zip(self.u_offset).for_each(|(x, o)| *x += o);
         }
         if t1 >= self.offset_from_s {
-            for ax in 0..2 {
-                i[ax] += self.i_offset[ax];
-            }
+            i.iter_mut().zip(self.i_offset).for_each(|(x, o)| *x += o);
         }
         (u, i, t1)
     }
