@@ -28,8 +28,8 @@
 //!
 //! ## Angles
 //! [`num::Angle`] is a 32-bit binary angle: wrapping is exact and free. Cosine and sine
-//! come from idsp's table-interpolated `cossin` (9e-6 max error, about 40 Cortex-M
-//! instructions, bounded time) for f32 and fixed point, and from libm for the f64
+//! come from idsp's table-interpolated `cossin` (measured max error 1.9e-5, about 40
+//! Cortex-M instructions, bounded time) for f32 and fixed point, and from libm for the f64
 //! reference.
 #![no_std]
 #![forbid(unsafe_code)]

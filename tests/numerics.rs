@@ -1,0 +1,142 @@
+//! Each numeric function of `dcfo::num` against the accuracy its documentation states,
+//! with f64/std as the independent expectation.
+
+use dcfo::num::{Angle, Q24, Scalar};
+use std::f64::consts::PI;
+
+/// Dense sweep of binary angles: 2^20 points plus the octant boundaries.
+fn angles() -> impl Iterator<Item = Angle> {
+    let step = 1i64 << 12;
+    (0..(1i64 << 20))
+        .map(move |k| Angle::from_bits((i32::MIN as i64 + k * step) as i32))
+        .chain((0..8).map(|k| Angle::from_bits((k as u32).wrapping_mul(1 << 29) as i32)))
+}
+
+fn exact_rad(a: Angle) -> f64 {
+    a.bits() as f64 * PI / 2f64.powi(31)
+}
+
+#[test]
+fn cos_sin_within_2e_5_for_f32_and_q24() {
+    let (mut e32, mut eq) = (0.0f64, 0.0f64);
+    for a in angles() {
+        let (c, s) = (exact_rad(a).cos(), exact_rad(a).sin());
+        let (c32, s32) = f32::cos_sin(a);
+        let (cq, sq) = Q24::cos_sin(a);
+        e32 = e32.max((c32 as f64 - c).abs()).max((s32 as f64 - s).abs());
+        eq = eq.max((cq.to_f32() as f64 - c).abs()).max((sq.to_f32() as f64 - s).abs());
+    }
+    println!("cos_sin max error: f32 {e32:.2e}, Q24 {eq:.2e}");
+    assert!(e32 < 2e-5 && eq < 2e-5);
+    let (c64, s64) = f64::cos_sin(Angle::from_bits(123_456_789));
+    assert!((c64 - exact_rad(Angle::from_bits(123_456_789)).cos()).abs() < 1e-15);
+    assert!((s64 - exact_rad(Angle::from_bits(123_456_789)).sin()).abs() < 1e-15);
+}
+
+#[test]
+fn atan2_within_1_3e_5_rad_for_f32_and_q24() {
+    let (mut e32, mut eq) = (0.0f64, 0.0f64);
+    for a in angles().step_by(7) {
+        let r = exact_rad(a);
+        for mag in [1e-3, 0.16, 1.0, 50.0] {
+            let (x, y) = (mag * r.cos(), mag * r.sin());
+            let d32 = (<f32 as Scalar>::atan2(y as f32, x as f32) - a).to_radians::<f64>().abs();
+            e32 = e32.max(d32);
+            if mag < 100.0 {
+                let dq = (Q24::atan2(Q24::from_f32(y as f32), Q24::from_f32(x as f32)) - a)
+                    .to_radians::<f64>()
+                    .abs();
+                // Q24 quantises x, y to 6e-8: allow that on top of the function's error.
+                eq = eq.max(dq - 6e-8 / mag);
+            }
+        }
+    }
+    println!("atan2 max error: f32 {e32:.2e} rad, Q24 {eq:.2e} rad (beyond input quantisation)");
+    assert!(e32 < 1.3e-5 && eq < 1.3e-5);
+    assert_eq!(<f32 as Scalar>::atan2(0.0, 0.0), Angle::ZERO);
+    assert_eq!(<f32 as Scalar>::atan2(f32::NAN, 1.0), Angle::ZERO);
+}
+
+#[test]
+fn sqrt_accuracy_f32_relative_4e_7_q24_one_lsb() {
+    let mut worst = 0.0f64;
+    let mut x = 1e-30f32;
+    while x < 1e30 {
+        let r = x.sqrt() as f64; // std's correctly rounded sqrt as reference
+        let got = Scalar::sqrt(x) as f64;
+        worst = worst.max(((got - r) / r).abs());
+        x *= 1.013;
+    }
+    println!("f32 sqrt worst relative error {worst:.2e}");
+    assert!(worst < 4e-7);
+    assert_eq!(Scalar::sqrt(-1.0f32), 0.0);
+    assert!(Scalar::sqrt(f32::NAN).is_nan());
+    for bits in (1..i32::MAX).step_by(9_973_451) {
+        let q = Q24::from_bits(bits);
+        let exact = (bits as f64 / 2f64.powi(24)).sqrt();
+        // Compare on the raw bits: 25 significant bits do not survive a trip through f32.
+        let got = Scalar::sqrt(q).to_bits() as f64 / 2f64.powi(24);
+        assert!((got - exact).abs() <= 2f64.powi(-24) * 1.01, "{bits}: {got} vs {exact}");
+    }
+    assert_eq!(Scalar::sqrt(Q24::from_f32(-2.0)), Q24::ZERO);
+}
+
+#[test]
+fn radians_to_angle_wraps_and_round_trips() {
+    for k in -2000..2000 {
+        let r = k as f64 * 0.0123;
+        let expected = r.rem_euclid(2.0 * PI);
+        let expected = if expected >= PI { expected - 2.0 * PI } else { expected };
+        let a64 = r.radians_to_angle();
+        assert!((exact_rad(a64) - expected).abs() < 1e-8, "f64 {r}");
+        let a32 = (r as f32).radians_to_angle();
+        let d = (a32 - a64).to_radians::<f64>().abs();
+        assert!(d < 2e-6 * (1.0 + r.abs()), "f32 {r}: {d}");
+        if r.abs() < 100.0 {
+            let aq = Q24::from_f32(r as f32).radians_to_angle();
+            let d = (aq - a64).to_radians::<f64>().abs();
+            assert!(d < 1e-6, "Q24 {r}: {d}");
+        }
+    }
+    // Round trip through radians.
+    for bits in (i32::MIN..i32::MAX).step_by(33_554_467) {
+        let a = Angle::from_bits(bits);
+        assert!((f64::angle_to_radians(a).radians_to_angle() - a).bits().abs() <= 1);
+        assert!(
+            (Q24::angle_to_radians(a).radians_to_angle() - a).bits().abs() < 200,
+            "Q24 LSB is 6e-8 rad = 41 counts"
+        );
+    }
+}
+
+#[test]
+fn angle_arithmetic_wraps_exactly() {
+    let a = Angle::from_bits(i32::MAX - 10);
+    let b = Angle::from_bits(20);
+    assert_eq!((a + b).bits(), i32::MIN + 9);
+    assert_eq!((Angle::HALF_TURN - Angle::ZERO).to_degrees_f64(), -180.0);
+    assert_eq!((-Angle::QUARTER_TURN).to_degrees_f64(), -90.0);
+}
+
+#[test]
+fn q24_saturates_and_reports_it() {
+    let big = Q24::from_f32(100.0);
+    assert!(big.is_valid());
+    let sum = big + big;
+    assert!(!sum.is_valid(), "saturated sum must be reported");
+    assert_eq!(sum.to_f32(), 128.0 - 2f32.powi(-24));
+    assert!(!(big * big).is_valid());
+    assert!(!(-(big + big)).is_valid());
+    assert_eq!(Q24::from_f32(f32::NAN), Q24::ZERO);
+    assert_eq!(Q24::ONE.checked_div(Q24::ZERO), None);
+    assert_eq!(Q24::from_f32(100.0).checked_div(Q24::from_f32(0.5)), None, "200 is out of range");
+    assert_eq!(Q24::from_f32(3.0).checked_div(Q24::from_f32(2.0)), Some(Q24::from_f32(1.5)));
+    for (c, x) in [
+        (Q24::HALF, 0.5),
+        (Q24::ONE_THIRD, 1.0 / 3.0),
+        (Q24::INV_SQRT3, 1.0 / 3f64.sqrt()),
+        (Q24::SQRT3_HALF, 3f64.sqrt() / 2.0),
+    ] {
+        assert!((c.to_f32() as f64 - x).abs() <= 2f64.powi(-24));
+    }
+}
