@@ -16,6 +16,7 @@
 //! | [`svpwm`] | §5 | space-vector modulation |
 //! | [`observer`] | §2–3 | pure integrator, LPF (CFO) and DCFO flux observers |
 //! | [`pll`] | §4 | angle and speed from the flux |
+//! | [`estimator`] | §4–5 | observer + PLL as the drive and trace replay run them |
 //!
 //! ## Numbers
 //! Every algorithm is generic over [`num::Scalar`] and instantiated three times: `f32`
@@ -39,6 +40,7 @@ pub mod motor;
 pub mod num;
 pub mod observer;
 pub mod pi;
+pub mod estimator;
 pub mod pll;
 pub mod svpwm;
 pub mod transforms;
