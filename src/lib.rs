@@ -17,6 +17,7 @@
 //! | [`observer`] | §2–3 | pure integrator, LPF (CFO) and DCFO flux observers |
 //! | [`pll`] | §4 | angle and speed from the flux |
 //! | [`estimator`] | §4–5 | observer + PLL as the drive and trace replay run them |
+//! | [`drive`] | §5 | the control step: FOC loop, I/f start-up, protection state machine |
 //!
 //! ## Numbers
 //! Every algorithm is generic over [`num::Scalar`] and instantiated three times: `f32`
@@ -40,6 +41,7 @@ pub mod motor;
 pub mod num;
 pub mod observer;
 pub mod pi;
+pub mod drive;
 pub mod estimator;
 pub mod pll;
 pub mod svpwm;

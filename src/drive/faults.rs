@@ -1,0 +1,58 @@
+//! Fault bits of the drive. Any fault switches the bridge off and latches until
+//! cleared ([`super::Drive::clear_faults`]).
+
+/// A set of fault bits. Each bit names one cause; several can be set at once.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Faults(u16);
+
+impl Faults {
+    /// No fault.
+    pub const NONE: Faults = Faults(0);
+    /// A phase current exceeded the trip level.
+    pub const OVER_CURRENT: Faults = Faults(1 << 0);
+    /// The DC-bus voltage fell below its minimum.
+    pub const BUS_UNDER_VOLTAGE: Faults = Faults(1 << 1);
+    /// The DC-bus voltage rose above its maximum.
+    pub const BUS_OVER_VOLTAGE: Faults = Faults(1 << 2);
+    /// A measurement was NaN, infinite or outside the number range.
+    pub const NON_FINITE: Faults = Faults(1 << 3);
+    /// The estimator (observer or PLL) refused a sample or overflowed.
+    pub const ESTIMATOR: Faults = Faults(1 << 4);
+    /// The PLL stayed unlocked for longer than allowed while running sensorless.
+    pub const LOCK_LOST: Faults = Faults(1 << 5);
+    /// Current-offset calibration measured an offset beyond its limit.
+    pub const CALIBRATION: Faults = Faults(1 << 6);
+    /// The modulator refused the command (bad bus value or command).
+    pub const MODULATION: Faults = Faults(1 << 7);
+    /// The board or host link reported a fault (e.g. a silent HIL link).
+    pub const EXTERNAL: Faults = Faults(1 << 8);
+
+    /// The raw bits (for telemetry frames).
+    pub const fn bits(self) -> u16 {
+        self.0
+    }
+    /// From raw bits (unknown bits are kept).
+    pub const fn from_bits(bits: u16) -> Self {
+        Faults(bits)
+    }
+    /// `true` when no bit is set.
+    pub const fn is_empty(self) -> bool {
+        self.0 == 0
+    }
+    /// `true` when every bit of `other` is set here.
+    pub const fn contains(self, other: Faults) -> bool {
+        self.0 & other.0 == other.0
+    }
+    /// Sets the bits of `other`.
+    pub fn insert(&mut self, other: Faults) {
+        self.0 |= other.0;
+    }
+}
+
+impl core::ops::BitOr for Faults {
+    type Output = Faults;
+    fn bitor(self, rhs: Faults) -> Faults {
+        Faults(self.0 | rhs.0)
+    }
+}

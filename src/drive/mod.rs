@@ -1,0 +1,597 @@
+//! The drive: one control step per PWM period, composing the library blocks into the
+//! sensorless FOC loop of digest §5, with its start-up and protection state machine.
+//!
+//! ```text
+//! samples -> offsets -> Clarke -> estimator (observer + PLL) -> Park -> current PIs
+//!         -> inverse Park (angle advanced 1.5 periods) -> dead-time compensation
+//!         -> SVPWM -> duties;   speed PI every `speed_loop_divider` periods
+//! ```
+//!
+//! The same code runs in the host simulation, in trace replay (through the
+//! [`Estimator`]) and in the firmware's PWM interrupt. It never reads a clock or touches
+//! hardware: measurements come in, duties and a bridge-enable flag go out.
+//!
+//! ## Timing
+//! [`Drive::step`] gets the currents sampled at the carrier valley `t_k`; the duties it
+//! returns are applied during the *next* period `[t_{k+1}, t_{k+2})` (one period of
+//! computation delay). So the voltage applied during the period that ended at `t_k` —
+//! the observer's input — is the command of step `k - 2`, and the inverse Park uses the
+//! angle advanced by 1.5 periods, the middle of the command's application window.
+//!
+//! ## States
+//! `Disabled -> Calibrating (bridge off, current offsets averaged) -> Starting (I/f
+//! open loop) -> Running (sensorless)`; any fault latches `Fault` with the bridge off
+//! until [`Drive::clear_faults`]. Hand-over from I/f keeps the current vector continuous:
+//! the current controllers' integrators are rotated into the estimated frame, the speed
+//! controller is preset to the present thrust current, and the start-up vector's d-axis
+//! part is ramped to zero.
+
+mod config;
+mod faults;
+
+pub use config::{DeadTimeCompensation, DriveConfig, DriveConfigError, FaultConfig, StartupConfig};
+pub use faults::Faults;
+
+use crate::estimator::{Estimate, Estimator};
+use crate::motor::MotorParams;
+use crate::num::{Angle, Scalar};
+use crate::pi::Pi;
+use crate::svpwm::{Duties, svpwm};
+use crate::transforms::{Abc, AlphaBeta, CosSin, Dq, clarke, inverse_clarke, inverse_park, park};
+use crate::units::Base;
+
+/// Where the drive's state machine is.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum DriveState {
+    /// Bridge off, waiting for [`Drive::enable`].
+    Disabled,
+    /// Bridge off, averaging the current sensors' offsets.
+    Calibrating,
+    /// Open-loop I/f start-up; the estimator runs but does not steer.
+    Starting,
+    /// Sensorless closed loop on the estimator's angle and speed.
+    Running,
+    /// Latched fault, bridge off.
+    Fault,
+}
+
+impl DriveState {
+    /// A small number for telemetry frames (0..=4 in declaration order).
+    pub fn code(self) -> u8 {
+        match self {
+            DriveState::Disabled => 0,
+            DriveState::Calibrating => 1,
+            DriveState::Starting => 2,
+            DriveState::Running => 3,
+            DriveState::Fault => 4,
+        }
+    }
+}
+
+/// One period's measurements, in working units.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Measurements<T> {
+    /// Phase currents sampled at the carrier valley (A), offsets not yet removed.
+    pub i_abc: Abc<T>,
+    /// DC-bus voltage (V).
+    pub vdc: T,
+}
+
+/// What one control step produced, in working units.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct StepOutput<T> {
+    /// Duty cycles for the next period (1/2 on all legs while the bridge is off).
+    pub duties: Duties<T>,
+    /// `false`: every switch must be off.
+    pub bridge_enabled: bool,
+    /// State after this step.
+    pub state: DriveState,
+    /// Latched faults.
+    pub faults: Faults,
+    /// The estimator's output this step (`None` while it is not running).
+    pub estimate: Option<Estimate<T>>,
+    /// Angle the current loops used this step (open-loop or estimated).
+    pub theta_control: Angle,
+    /// Measured currents, offsets removed (A).
+    pub i_ab: AlphaBeta<T>,
+    /// Measured currents in the control frame (A).
+    pub i_dq: Dq<T>,
+    /// Current references (A).
+    pub i_dq_ref: Dq<T>,
+    /// Voltage being applied during the present period `[t_k, t_{k+1})` as the
+    /// observer will see it (V): the previous step's command, without inverter
+    /// compensation, plus any observer offset. The `u_alpha`, `u_beta` of a trace row.
+    pub u_applied: AlphaBeta<T>,
+    /// Currents as the observer saw them this step (A): `i_ab` plus any observer
+    /// offset. The `i_alpha`, `i_beta` of a trace row.
+    pub i_observer: AlphaBeta<T>,
+}
+
+/// Precomputed gains and limits in working units.
+#[derive(Clone, Debug)]
+struct Constants<T> {
+    dt: T,
+    ld: T,
+    lq: T,
+    psi_f: T,
+    current_limit: T,
+    overcurrent: T,
+    bus_min: T,
+    bus_max: T,
+    max_offset: T,
+    inv_calibration_samples: T,
+    calibration_samples: u32,
+    modulation_limit: T,
+    speed_filter_rate: T,
+    accel_step: T,
+    speed_loop_divider: u16,
+    startup_current: T,
+    startup_accel_step: T,
+    handover_omega: T,
+    handover_tolerance: T,
+    dwell_samples: u32,
+    startup_timeout_samples: u32,
+    id_ramp_step: T,
+    lock_loss_samples: u32,
+    delay_periods: T,
+    dead_time_ratio: T,
+    device_drop: T,
+    inv_current_band: T,
+    compensate: bool,
+    omega_per_speed: f32,
+    base: Base,
+}
+
+/// The drive. See the module documentation.
+#[derive(Clone, Debug)]
+pub struct Drive<T> {
+    k: Constants<T>,
+    estimator: Estimator<T>,
+    pi_d: Pi<T>,
+    pi_q: Pi<T>,
+    pi_speed: Pi<T>,
+    state: DriveState,
+    faults: Faults,
+    enable_requested: bool,
+    /// Speed reference, target and rate-limited (rad/s).
+    omega_target: T,
+    omega_ref: T,
+    /// Filtered speed feedback (rad/s).
+    omega_filtered: T,
+    i_dq_ref: Dq<T>,
+    offsets: Abc<T>,
+    offset_sum: Abc<T>,
+    counter: u32,
+    speed_divider_count: u16,
+    /// Open-loop angle and speed during start-up.
+    theta_ol: Angle,
+    omega_ol: T,
+    /// Intended voltage of the previous step (being applied now) and of the step
+    /// before (applied during the period that just ended), as the observer sees them
+    /// (V).
+    u_prev: AlphaBeta<T>,
+    u_prev2: AlphaBeta<T>,
+    /// Offsets added to the observer's voltage and current inputs only (V, A).
+    observer_u_offset: AlphaBeta<T>,
+    observer_i_offset: AlphaBeta<T>,
+}
+
+impl<T: Scalar> Drive<T> {
+    /// A drive for `motor` with `config`, computing in the working units of `base`.
+    pub fn new(motor: &MotorParams, config: &DriveConfig, base: &Base) -> Result<Self, DriveConfigError> {
+        config.validate()?;
+        let estimator = Estimator::new(motor, &config.estimator, base)
+            .map_err(|_| DriveConfigError { field: "estimator" })?;
+        let ts = config.control_period_s;
+        let speed_ts = ts * f32::from(config.speed_loop_divider);
+        let omega_per_speed = core::f32::consts::PI / motor.pole_pitch_m;
+        // Current PI: kp = L w_c (V/A), ki = R w_c (V/(A s)).
+        let v_per_a = base.current_a / base.voltage_v;
+        let wc = config.current_bandwidth_rad_s;
+        let kp_i = T::from_f32(motor.lq_h * wc * v_per_a);
+        let ki_dt_i = T::from_f32(motor.rs_ohm * wc * ts * v_per_a);
+        // Speed PI on electrical speed: d omega/dt = (pi/tau) K_f / M * i_q.
+        let plant_gain = omega_per_speed * motor.thrust_constant_n_per_a() / motor.mass_kg;
+        let ws = config.speed_bandwidth_rad_s;
+        let kp_s = ws / plant_gain; // A per rad/s
+        let a_per_omega = base.omega_rad_s / base.current_a;
+        let pi_speed = Pi::new(
+            T::from_f32(kp_s * a_per_omega),
+            T::from_f32(kp_s * ws / 4.0 * speed_ts * a_per_omega),
+            base.current(-config.current_limit_a),
+            base.current(config.current_limit_a),
+        )
+        .map_err(|_| DriveConfigError { field: "speed_bandwidth_rad_s" })?;
+        // Current PIs: limits set per step from the bus.
+        let pi_d = Pi::new(kp_i, ki_dt_i, -T::ONE, T::ONE).map_err(|_| DriveConfigError { field: "current_bandwidth_rad_s" })?;
+        let samples = |s: f32| (s / ts) as u32;
+        let (dead_time_ratio, device_drop, band, compensate) = match config.dead_time_compensation {
+            Some(c) => (c.dead_time_s / ts, c.device_drop_v, c.current_band_a, true),
+            None => (0.0, 0.0, 1.0, false),
+        };
+        let k = Constants {
+            dt: base.time(ts),
+            ld: base.inductance(motor.ld_h),
+            lq: base.inductance(motor.lq_h),
+            psi_f: base.flux(motor.psi_f_wb),
+            current_limit: base.current(config.current_limit_a),
+            overcurrent: base.current(config.faults.overcurrent_a),
+            bus_min: base.voltage(config.faults.bus_min_v),
+            bus_max: base.voltage(config.faults.bus_max_v),
+            max_offset: base.current(config.faults.max_offset_a),
+            inv_calibration_samples: T::from_f32(1.0 / f32::from(config.faults.calibration_samples)),
+            calibration_samples: u32::from(config.faults.calibration_samples),
+            modulation_limit: T::from_f32(config.modulation_limit * 0.577_350_26),
+            speed_filter_rate: T::from_f32((ts / config.speed_filter_s).min(1.0)),
+            accel_step: base.omega(config.accel_limit_m_per_s2 * omega_per_speed * ts),
+            speed_loop_divider: config.speed_loop_divider,
+            startup_current: base.current(config.startup.current_a),
+            startup_accel_step: base.omega(config.startup.accel_m_per_s2 * omega_per_speed * ts),
+            handover_omega: base.omega(config.startup.handover_speed_m_per_s * omega_per_speed),
+            handover_tolerance: T::from_f32(0.2),
+            dwell_samples: samples(config.startup.dwell_s),
+            startup_timeout_samples: samples(config.startup.dwell_s).saturating_mul(10).max(samples(1.0)),
+            id_ramp_step: base.current(config.startup.current_a * ts / config.startup.id_ramp_s),
+            lock_loss_samples: samples(config.faults.lock_loss_s).max(1),
+            delay_periods: T::from_f32(1.5),
+            dead_time_ratio: T::from_f32(dead_time_ratio),
+            device_drop: base.voltage(device_drop),
+            inv_current_band: T::ONE.checked_div(base.current(band)).unwrap_or(T::ONE),
+            compensate,
+            omega_per_speed,
+            base: *base,
+        };
+        Ok(Drive {
+            k,
+            estimator,
+            pi_q: pi_d.clone(),
+            pi_d,
+            pi_speed,
+            state: DriveState::Disabled,
+            faults: Faults::NONE,
+            enable_requested: false,
+            omega_target: T::ZERO,
+            omega_ref: T::ZERO,
+            omega_filtered: T::ZERO,
+            i_dq_ref: Dq::default(),
+            offsets: Abc::default(),
+            offset_sum: Abc::default(),
+            counter: 0,
+            speed_divider_count: 0,
+            theta_ol: Angle::ZERO,
+            omega_ol: T::ZERO,
+            u_prev: AlphaBeta::default(),
+            u_prev2: AlphaBeta::default(),
+            observer_u_offset: AlphaBeta::default(),
+            observer_i_offset: AlphaBeta::default(),
+        })
+    }
+
+    /// Adds DC offsets to what the *observer* is given — voltage `u_offset` (V) and
+    /// current `i_offset` (A) — while the current loops keep the true measurements: the
+    /// disturbance experiments of the paper (Figs. 14-16). Zero for normal operation.
+    pub fn set_observer_offsets(&mut self, u_offset: AlphaBeta<T>, i_offset: AlphaBeta<T>) {
+        if u_offset.is_valid() && i_offset.is_valid() {
+            self.observer_u_offset = u_offset;
+            self.observer_i_offset = i_offset;
+        }
+    }
+
+    /// Asks the drive to run: from `Disabled` it calibrates, starts and runs.
+    pub fn enable(&mut self) {
+        self.enable_requested = true;
+    }
+
+    /// Switches the bridge off at the next step and returns to `Disabled`.
+    pub fn disable(&mut self) {
+        self.enable_requested = false;
+    }
+
+    /// Clears latched faults; the drive returns to `Disabled` (enable again to run).
+    pub fn clear_faults(&mut self) {
+        if self.state == DriveState::Fault {
+            self.faults = Faults::NONE;
+            self.state = DriveState::Disabled;
+            self.enable_requested = false;
+        }
+    }
+
+    /// Latches an externally detected fault (e.g. a silent link); bridge off.
+    pub fn trip(&mut self, fault: Faults) {
+        self.faults.insert(fault);
+        self.state = DriveState::Fault;
+    }
+
+    /// Sets the speed reference (electrical rad/s, working units); the drive follows
+    /// it at the configured acceleration limit.
+    pub fn set_speed_reference(&mut self, omega_e: T) {
+        if omega_e.is_valid() {
+            self.omega_target = omega_e;
+        }
+    }
+
+    /// A linear speed in m/s as the electrical speed reference in working units.
+    pub fn omega_from_speed(&self, speed_m_per_s: f32) -> T {
+        self.k.base.omega(speed_m_per_s * self.k.omega_per_speed)
+    }
+
+    /// The drive's state.
+    pub fn state(&self) -> DriveState {
+        self.state
+    }
+
+    /// Latched faults.
+    pub fn faults(&self) -> Faults {
+        self.faults
+    }
+
+    /// The working-unit base this drive computes in.
+    pub fn base(&self) -> &Base {
+        &self.k.base
+    }
+
+    /// One control step; see the module documentation for timing and states.
+    pub fn step(&mut self, m: &Measurements<T>) -> StepOutput<T> {
+        let mut out = StepOutput {
+            duties: Duties::centred(),
+            bridge_enabled: false,
+            state: self.state,
+            faults: self.faults,
+            estimate: None,
+            theta_control: self.theta_ol,
+            i_ab: AlphaBeta::default(),
+            i_dq: Dq::default(),
+            i_dq_ref: self.i_dq_ref,
+            u_applied: AlphaBeta::default(),
+            i_observer: AlphaBeta::default(),
+        };
+        if self.state != DriveState::Fault {
+            self.check_measurements(m);
+        }
+        if !self.enable_requested && self.state != DriveState::Fault {
+            self.state = DriveState::Disabled;
+        }
+        let i_abc = Abc { a: m.i_abc.a - self.offsets.a, b: m.i_abc.b - self.offsets.b, c: m.i_abc.c - self.offsets.c };
+        out.i_ab = clarke(i_abc);
+        match self.state {
+            DriveState::Fault => {}
+            DriveState::Disabled => {
+                if self.enable_requested {
+                    self.state = DriveState::Calibrating;
+                    self.counter = 0;
+                    self.offset_sum = Abc::default();
+                }
+            }
+            DriveState::Calibrating => self.calibrate(m),
+            DriveState::Starting | DriveState::Running => self.control(m, &mut out),
+        }
+        if self.state != DriveState::Starting && self.state != DriveState::Running {
+            // Bridge off: nothing is applied, the history is cleared.
+            self.u_prev = AlphaBeta::default();
+            self.u_prev2 = AlphaBeta::default();
+            out.duties = Duties::centred();
+            out.bridge_enabled = false;
+        }
+        out.state = self.state;
+        out.faults = self.faults;
+        out.i_dq_ref = self.i_dq_ref;
+        out
+    }
+
+    /// Protection checks on raw measurements; latches faults.
+    fn check_measurements(&mut self, m: &Measurements<T>) {
+        let valid = m.i_abc.a.is_valid() && m.i_abc.b.is_valid() && m.i_abc.c.is_valid() && m.vdc.is_valid();
+        if !valid {
+            self.trip(Faults::NON_FINITE);
+            return;
+        }
+        let trip = self.k.overcurrent;
+        if m.i_abc.a.abs() > trip || m.i_abc.b.abs() > trip || m.i_abc.c.abs() > trip {
+            self.trip(Faults::OVER_CURRENT);
+        }
+        if self.state != DriveState::Disabled {
+            if m.vdc < self.k.bus_min {
+                self.trip(Faults::BUS_UNDER_VOLTAGE);
+            }
+            if m.vdc > self.k.bus_max {
+                self.trip(Faults::BUS_OVER_VOLTAGE);
+            }
+        }
+    }
+
+    fn calibrate(&mut self, m: &Measurements<T>) {
+        self.offset_sum.a = self.offset_sum.a + m.i_abc.a;
+        self.offset_sum.b = self.offset_sum.b + m.i_abc.b;
+        self.offset_sum.c = self.offset_sum.c + m.i_abc.c;
+        self.counter += 1;
+        if self.counter < self.k.calibration_samples {
+            return;
+        }
+        let n = self.k.inv_calibration_samples;
+        let o = Abc { a: self.offset_sum.a * n, b: self.offset_sum.b * n, c: self.offset_sum.c * n };
+        let lim = self.k.max_offset;
+        if !(o.a.is_valid() && o.b.is_valid() && o.c.is_valid()) || o.a.abs() > lim || o.b.abs() > lim || o.c.abs() > lim {
+            self.trip(Faults::CALIBRATION);
+            return;
+        }
+        self.offsets = o;
+        self.start();
+    }
+
+    /// Enters `Starting` with every controller and the estimator at rest.
+    fn start(&mut self) {
+        self.state = DriveState::Starting;
+        self.counter = 0;
+        self.estimator.reset();
+        self.pi_d.reset();
+        self.pi_q.reset();
+        self.pi_speed.reset();
+        self.theta_ol = Angle::ZERO;
+        self.omega_ol = T::ZERO;
+        self.omega_ref = T::ZERO;
+        self.omega_filtered = T::ZERO;
+        self.i_dq_ref = Dq::new(T::ZERO, self.k.startup_current);
+        self.u_prev = AlphaBeta::default();
+        self.u_prev2 = AlphaBeta::default();
+    }
+
+    /// Starting and Running: estimator, references, current loops, modulation.
+    fn control(&mut self, m: &Measurements<T>, out: &mut StepOutput<T>) {
+        let k = &self.k;
+        out.i_observer = AlphaBeta::new(
+            out.i_ab.alpha + self.observer_i_offset.alpha,
+            out.i_ab.beta + self.observer_i_offset.beta,
+        );
+        let estimate = match self.estimator.update(self.u_prev2, out.i_observer, k.dt) {
+            Ok(e) => e,
+            Err(_) => {
+                self.trip(Faults::ESTIMATOR);
+                return;
+            }
+        };
+        out.estimate = Some(estimate);
+        self.omega_filtered = self.omega_filtered + k.speed_filter_rate * (estimate.omega_e - self.omega_filtered);
+
+        let (theta, omega) = if self.state == DriveState::Starting {
+            self.startup_references(&estimate)
+        } else {
+            self.running_references(&estimate)
+        };
+        if self.state == DriveState::Fault {
+            return;
+        }
+        let k = &self.k;
+        out.theta_control = theta;
+        let cs = CosSin::new(theta);
+        let i_dq = park(out.i_ab, &cs);
+        out.i_dq = i_dq;
+
+        // Current loops with decoupling feed-forward (Running only: in open loop the
+        // control frame is not the rotor frame), limited to the voltage circle.
+        let (ff_d, ff_q) = if self.state == DriveState::Running {
+            (-omega * k.lq * i_dq.q, omega * (k.ld * i_dq.d + k.psi_f))
+        } else {
+            (T::ZERO, T::ZERO)
+        };
+        let v_max = m.vdc * k.modulation_limit;
+        let u_d = ff_d + self.pi_d.update_within(self.i_dq_ref.d - i_dq.d, -v_max - ff_d, v_max - ff_d);
+        let u_d = u_d.clamp_to(-v_max, v_max);
+        let v_q_max = (v_max * v_max - u_d * u_d).sqrt();
+        let u_q = ff_q + self.pi_q.update_within(self.i_dq_ref.q - i_dq.q, -v_q_max - ff_q, v_q_max - ff_q);
+        let u_q = u_q.clamp_to(-v_q_max, v_q_max);
+
+        // The command is applied from the next period on: rotate it to the middle of
+        // its application window.
+        let theta_apply = theta + (omega * k.dt * k.delay_periods).radians_to_angle();
+        let cs_apply = CosSin::new(theta_apply);
+        let u_ab = inverse_park(Dq::new(u_d, u_q), &cs_apply);
+        let comp = if k.compensate { self.compensation(m.vdc, &cs_apply) } else { AlphaBeta::default() };
+        let command = AlphaBeta::new(u_ab.alpha + comp.alpha, u_ab.beta + comp.beta);
+        match svpwm(command, m.vdc) {
+            Ok(modulation) => {
+                out.duties = modulation.duties;
+                out.bridge_enabled = true;
+                // What the inverter is expected to produce: the (possibly shortened)
+                // command less the compensation of the inverter's own error.
+                let intended = AlphaBeta::new(
+                    modulation.u_applied.alpha - comp.alpha + self.observer_u_offset.alpha,
+                    modulation.u_applied.beta - comp.beta + self.observer_u_offset.beta,
+                );
+                out.u_applied = self.u_prev;
+                self.u_prev2 = self.u_prev;
+                self.u_prev = intended;
+            }
+            Err(_) => self.trip(Faults::MODULATION),
+        }
+    }
+
+    /// Inverter-error compensation in alpha-beta (V): per phase
+    /// `(dead_time/Ts * Vdc + drop) * sat(i_ref / band)`, from the current reference
+    /// rotated to the application window.
+    fn compensation(&self, vdc: T, cs_apply: &CosSin<T>) -> AlphaBeta<T> {
+        let k = &self.k;
+        let i_ref = inverse_clarke(inverse_park(self.i_dq_ref, cs_apply));
+        let amplitude = vdc * k.dead_time_ratio + k.device_drop;
+        let sign = |i: T| (i * k.inv_current_band).clamp_to(-T::ONE, T::ONE);
+        clarke(Abc { a: amplitude * sign(i_ref.a), b: amplitude * sign(i_ref.b), c: amplitude * sign(i_ref.c) })
+    }
+
+    /// Open-loop I/f: ramps the frequency to the hand-over speed in the direction of
+    /// the speed reference, then hands over once the estimator has locked near it.
+    fn startup_references(&mut self, estimate: &Estimate<T>) -> (Angle, T) {
+        let k = &self.k;
+        let target = if self.omega_target < T::ZERO { -k.handover_omega } else { k.handover_omega };
+        let step = k.startup_accel_step;
+        self.omega_ol = if self.omega_ol < target {
+            (self.omega_ol + step).min(target)
+        } else {
+            (self.omega_ol - step).max(target)
+        };
+        let theta = self.theta_ol;
+        self.theta_ol = self.theta_ol + (self.omega_ol * k.dt).radians_to_angle();
+        if self.omega_ol != target || self.omega_target == T::ZERO {
+            return (theta, self.omega_ol);
+        }
+        self.counter = self.counter.saturating_add(1);
+        let close = (estimate.omega_e - target).abs() < target.abs() * k.handover_tolerance;
+        if self.counter >= k.dwell_samples && estimate.locked && close {
+            self.hand_over(theta, estimate);
+            return (estimate.theta_e, estimate.omega_e);
+        }
+        if self.counter > k.startup_timeout_samples {
+            self.trip(Faults::LOCK_LOST);
+        }
+        (theta, self.omega_ol)
+    }
+
+    /// Moves the current loops from the open-loop frame at `theta_ol` to the estimated
+    /// frame without a jump in the current vector or the voltage.
+    fn hand_over(&mut self, theta_ol: Angle, estimate: &Estimate<T>) {
+        let from = CosSin::new(theta_ol);
+        let to = CosSin::new(estimate.theta_e);
+        let rotate = |v: Dq<T>| park(inverse_park(v, &from), &to);
+        let i_ref = rotate(self.i_dq_ref);
+        let integral = rotate(Dq::new(self.pi_d.integral(), self.pi_q.integral()));
+        let k = &self.k;
+        // The decoupling feed-forward starts now: take it out of the integrators.
+        let omega = estimate.omega_e;
+        let ff_d = -omega * k.lq * i_ref.q;
+        let ff_q = omega * (k.ld * i_ref.d + k.psi_f);
+        self.pi_d.preset(integral.d - ff_d, T::ZERO);
+        self.pi_q.preset(integral.q - ff_q, T::ZERO);
+        self.i_dq_ref = i_ref;
+        self.omega_ref = estimate.omega_e;
+        self.omega_filtered = estimate.omega_e;
+        self.pi_speed.preset(i_ref.q, self.omega_ref - self.omega_filtered);
+        self.state = DriveState::Running;
+        self.counter = 0;
+        self.speed_divider_count = 0;
+    }
+
+    /// Sensorless: rate-limited speed reference, speed loop at its divided rate, d-axis
+    /// current ramped to zero, lock supervision.
+    fn running_references(&mut self, estimate: &Estimate<T>) -> (Angle, T) {
+        let k = &self.k;
+        let diff = (self.omega_target - self.omega_ref).clamp_to(-k.accel_step, k.accel_step);
+        self.omega_ref = self.omega_ref + diff;
+        self.speed_divider_count += 1;
+        if self.speed_divider_count >= k.speed_loop_divider {
+            self.speed_divider_count = 0;
+            self.i_dq_ref.q = self.pi_speed.update(self.omega_ref - self.omega_filtered);
+        }
+        let d = self.i_dq_ref.d;
+        self.i_dq_ref.d = if d > T::ZERO { (d - k.id_ramp_step).max(T::ZERO) } else { (d + k.id_ramp_step).min(T::ZERO) };
+        let limit = k.current_limit;
+        self.i_dq_ref.q = self.i_dq_ref.q.clamp_to(-limit, limit);
+        if estimate.locked {
+            self.counter = 0;
+        } else {
+            self.counter = self.counter.saturating_add(1);
+            if self.counter > k.lock_loss_samples {
+                self.trip(Faults::LOCK_LOST);
+            }
+        }
+        (estimate.theta_e, estimate.omega_e)
+    }
+}
