@@ -37,12 +37,12 @@
 #![forbid(unsafe_code)]
 #![deny(missing_docs)]
 
+pub mod drive;
+pub mod estimator;
 pub mod motor;
 pub mod num;
 pub mod observer;
 pub mod pi;
-pub mod drive;
-pub mod estimator;
 pub mod pll;
 pub mod svpwm;
 pub mod transforms;

@@ -24,16 +24,19 @@
 //!   a sustained +-10 degree oscillation.
 //! - notch at the integrator alone ([`Pll::omega_integral`], the loop's frequency
 //!   estimate without the phase correction): `s^2 + (kp - c ki) s + ki`, stable while
-//!   `w > w_p / (2 zeta_p zeta)`. This is what the drive uses.
+//!   `w_p < 2 zeta_p zeta w`. This is what the drive uses.
 //!
-//! ## Default tuning
-//! `w_p = 2 pi * 20 Hz`, `zeta_p = 2` (kp = 503 rad/s, ki = 15 791 rad/s^2; closed-loop
-//! poles at -35 and -468 rad/s). The notch-coupling bound above is then `w > 44 rad/s`
-//! (7 Hz, 0.21 m/s on the paper motor) by the instantaneous analysis; the DCFO's own lag
-//! filters the coupling and cold starts converge down to 4 Hz in simulation
-//! (`tests/pll.rs`). A frequency ramp of `a` rad/s^2 leaves a phase lag `a / ki`
-//! (0.8 degrees for the paper's 8 -> 15 Hz step done in 0.2 s) plus the notch's lag
-//! `c kp a / ki`; a drive should limit the rate of its speed reference accordingly.
+//! ## Bandwidth scaled with speed
+//! That condition ties the PLL's bandwidth to the electrical speed, so the gains are
+//! scheduled on the frequency estimate: `w_p = beta |omega_hat|` (limited to a range),
+//! `kp = 2 zeta_p w_p`, `ki = w_p^2` — the same loop shape at every speed, as the
+//! DCFO's `h = eta Ls w` gives the observer. Defaults `beta = 1.5`, `zeta_p = 1.5`: the
+//! coupling bound `beta < 2 zeta_p zeta = 2.1` holds with a margin of 1.4 at every speed;
+//! at 10 Hz `w_p = 94 rad/s` (15 Hz), closed-loop poles at -36 and -246 rad/s. A
+//! frequency ramp of `a` rad/s^2 leaves a phase lag `a / w_p^2` (1.3 degrees for the
+//! paper's 8 -> 15 Hz step done in 0.2 s, at 8 Hz). Limits `2 pi [3, 40] Hz`: the low
+//! one acquires the speed from standstill, the high one keeps the loop well below the
+//! sampling rate.
 
 use crate::num::{Angle, Scalar};
 use crate::transforms::AlphaBeta;
@@ -43,8 +46,14 @@ use crate::units::Base;
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct PllConfig {
-    /// Natural frequency `w_p` of the closed loop (rad/s, > 0).
-    pub bandwidth_rad_s: f32,
+    /// Natural frequency `w_p` of the closed loop per unit of estimated electrical
+    /// speed (dimensionless, > 0): `w_p = bandwidth_per_omega * |omega_hat|`, limited to
+    /// `[min_bandwidth_rad_s, max_bandwidth_rad_s]`.
+    pub bandwidth_per_omega: f32,
+    /// Lowest natural frequency (rad/s, > 0), used at and near standstill.
+    pub min_bandwidth_rad_s: f32,
+    /// Highest natural frequency (rad/s, >= min).
+    pub max_bandwidth_rad_s: f32,
     /// Damping `zeta_p` of the closed loop (dimensionless, > 0).
     pub damping: f32,
     /// Flux magnitude below which the phase error is not used (Wb, > 0).
@@ -60,13 +69,16 @@ pub struct PllConfig {
 }
 
 impl PllConfig {
-    /// The default tuning for a motor of magnet flux `psi_f_wb`: `w_p = 2 pi 20 Hz`,
-    /// `zeta_p = 2` (see the module docs), flux floor `psi_f / 10`, speed limit `2 pi 200 Hz`, lock declared
-    /// below `sin(10 deg)` of error filtered over 20 ms.
+    /// The default tuning for a motor of magnet flux `psi_f_wb` (see the module docs):
+    /// `w_p = 1.5 |omega_hat|` within `2 pi [3, 40] Hz`, `zeta_p = 1.5`, flux floor
+    /// `psi_f / 10`, speed limit `2 pi 200 Hz`, lock declared below `sin(10 deg)` of error
+    /// filtered over 20 ms.
     pub fn for_flux(psi_f_wb: f32) -> Self {
         PllConfig {
-            bandwidth_rad_s: 2.0 * core::f32::consts::PI * 20.0,
-            damping: 2.0,
+            bandwidth_per_omega: 1.5,
+            min_bandwidth_rad_s: 2.0 * core::f32::consts::PI * 3.0,
+            max_bandwidth_rad_s: 2.0 * core::f32::consts::PI * 40.0,
+            damping: 1.5,
             min_flux_wb: 0.1 * psi_f_wb,
             max_omega_rad_s: 2.0 * core::f32::consts::PI * 200.0,
             lock_filter_s: 0.02,
@@ -79,7 +91,8 @@ impl PllConfig {
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum PllConfigError {
-    /// `bandwidth_rad_s` or `damping` is not a valid positive number.
+    /// A bandwidth setting or `damping` is not a valid positive number, or the
+    /// bandwidth range is empty.
     BadGain,
     /// `min_flux_wb` is not a valid positive number.
     BadFluxFloor,
@@ -119,8 +132,10 @@ pub struct PllOutput<T> {
 /// The PLL. See the module documentation.
 #[derive(Clone, Debug)]
 pub struct Pll<T> {
-    kp: T,
-    ki: T,
+    beta: T,
+    two_zeta: T,
+    min_wp: T,
+    max_wp: T,
     min_flux: T,
     max_omega: T,
     speed_per_omega: T,
@@ -136,7 +151,12 @@ impl<T: Scalar> Pll<T> {
     /// converted with `base`. Starts at angle 0, speed 0, unlocked.
     pub fn new(config: &PllConfig, pole_pitch_m: f32, base: &Base) -> Result<Self, PllConfigError> {
         let positive = |x: f32| x.is_finite() && x > 0.0;
-        if !(positive(config.bandwidth_rad_s) && positive(config.damping)) {
+        if !(positive(config.bandwidth_per_omega)
+            && positive(config.min_bandwidth_rad_s)
+            && positive(config.damping)
+            && config.max_bandwidth_rad_s >= config.min_bandwidth_rad_s
+            && config.max_bandwidth_rad_s.is_finite())
+        {
             return Err(PllConfigError::BadGain);
         }
         if !positive(config.min_flux_wb) {
@@ -149,11 +169,11 @@ impl<T: Scalar> Pll<T> {
         {
             return Err(PllConfigError::BadLockDetector);
         }
-        let wp = config.bandwidth_rad_s;
         Ok(Pll {
-            kp: base.omega(2.0 * config.damping * wp),
-            // ki has units rad/s^2: one omega base per time base.
-            ki: base.omega(wp * wp / base.omega_rad_s),
+            beta: T::from_f32(config.bandwidth_per_omega),
+            two_zeta: T::from_f32(2.0 * config.damping),
+            min_wp: base.omega(config.min_bandwidth_rad_s),
+            max_wp: base.omega(config.max_bandwidth_rad_s),
             min_flux: base.flux(config.min_flux_wb),
             max_omega: base.omega(config.max_omega_rad_s),
             speed_per_omega: T::from_f32(base.omega_rad_s * pole_pitch_m / core::f32::consts::PI),
@@ -183,12 +203,16 @@ impl<T: Scalar> Pll<T> {
             Some(e) => (e.clamp_to(-T::ONE, T::ONE), true),
             None => (T::ZERO, false),
         };
+        // Gains scheduled on the frequency estimate: kp = 2 zeta_p w_p, ki = w_p^2 (in
+        // working units both scale with the omega base as they should).
+        let wp = (self.beta * self.integral.abs()).clamp_to(self.min_wp, self.max_wp);
+        let kp = self.two_zeta * wp;
         if tracking {
-            self.integral = (self.integral + self.ki * dt * error).clamp_to(-self.max_omega, self.max_omega);
+            self.integral = (self.integral + wp * wp * dt * error).clamp_to(-self.max_omega, self.max_omega);
             let rate = (self.lock_rate * dt).min(T::ONE);
             self.lock_metric = self.lock_metric + rate * (error.abs() - self.lock_metric);
         }
-        let omega = self.integral + self.kp * error;
+        let omega = self.integral + kp * error;
         self.theta = theta + (omega * dt).radians_to_angle();
         Ok(PllOutput {
             theta_e: theta,

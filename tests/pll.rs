@@ -10,11 +10,13 @@ use dcfo::transforms::AlphaBeta;
 use dcfo::units::Base;
 use std::f64::consts::PI;
 
-/// Time within which the PLL locks from any initial angle error, s. With w_p = 2 pi 20
-/// and zeta_p = 2 the slow closed-loop pole is at -35 rad/s: acquiring the 10 Hz speed
-/// from zero takes several of its 29 ms time constants, and the sine detector is slow
-/// near 180 degrees of error, so the stated bound is 0.2 s.
-const LOCK_TIME_S: f64 = 0.2;
+/// Time within which the PLL locks from any initial angle error, s. The loop starts
+/// at zero speed, so at its lowest bandwidth (2 pi 3 Hz); its gains grow as it acquires
+/// the 10 Hz speed, where w_p = 1.5 * 62.8 = 94 rad/s puts the slow closed-loop pole at
+/// -36 rad/s (28 ms). Going from about 1 rad of error to 1 degree takes four of those
+/// (0.11 s) after the speed is acquired; with the acquisition itself and the sine
+/// detector's slowness near 180 degrees, the stated bound is 0.3 s.
+const LOCK_TIME_S: f64 = 0.3;
 
 fn pll() -> Pll<f64> {
     let m = MotorParams::paper();
@@ -55,7 +57,9 @@ fn steady_state_speed_error_below_0_1_percent_and_lock_flag() {
     for v in [0.1, 0.3, 0.45, 0.9, -0.3] {
         let w = PI * v / m.pole_pitch_m as f64;
         let mut p = pll();
-        let n = (0.6 / TS) as usize;
+        // Low speeds have proportionally lower PLL bandwidth: give them time.
+        let settle_s = 0.4 * (0.3 / v.abs()).max(1.0);
+        let n = ((settle_s + 0.2) / TS) as usize;
         let mut sum_v = 0.0;
         let mut count = 0;
         let mut locked_at_end = false;
@@ -64,7 +68,7 @@ fn steady_state_speed_error_below_0_1_percent_and_lock_flag() {
             let t = k as f64 * TS;
             let th = 1.0 + w * t;
             let out = p.update(AlphaBeta::new(PSI_F * th.cos(), PSI_F * th.sin()), TS).unwrap();
-            if t >= 0.4 {
+            if t >= settle_s {
                 sum_v += out.speed_m_per_s;
                 count += 1;
                 max_angle_err = max_angle_err.max(angle_diff_deg(angle_of(th), out.theta_e).abs());

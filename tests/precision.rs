@@ -19,12 +19,16 @@ struct Chain<T> {
 }
 
 impl<T: Scalar> Chain<T> {
-    fn new(base: Base) -> Self {
+    /// `omega0`: the speed the PLL starts from (rad/s), as a drive hands over from
+    /// open-loop start-up at a known speed; the angle starts at zero either way.
+    fn new(base: Base, omega0: f32) -> Self {
         let m = MotorParams::paper();
+        let mut pll = Pll::new(&PllConfig::for_flux(m.psi_f_wb), m.pole_pitch_m, &base).unwrap();
+        pll.preset(Angle::ZERO, base.omega(omega0));
         Chain {
             base,
             obs: Dcfo::new(ObserverMotor::new(&m, &base), &DcfoConfig::default(), &base).unwrap(),
-            pll: Pll::new(&PllConfig::for_flux(m.psi_f_wb), m.pole_pitch_m, &base).unwrap(),
+            pll,
             max_abs_state: 0.0,
         }
     }
@@ -46,11 +50,11 @@ impl<T: Scalar> Chain<T> {
 
 /// Runs the three chains; returns (max |f32 - f64|, max |Q24 - f64|) in degrees over
 /// the samples after `compare_from_s`, and the largest |working value| seen in Q24.
-fn compare(syn: &Synthetic, duration_s: f64, compare_from_s: f64) -> (f64, f64, f64) {
+fn compare(syn: &Synthetic, duration_s: f64, compare_from_s: f64, omega0: f32) -> (f64, f64, f64) {
     let pu = Base::for_motor(&MotorParams::paper());
-    let mut reference = Chain::<f64>::new(Base::SI);
-    let mut single = Chain::<f32>::new(Base::SI);
-    let mut fixed = Chain::<Q24>::new(pu);
+    let mut reference = Chain::<f64>::new(Base::SI, omega0);
+    let mut single = Chain::<f32>::new(Base::SI, omega0);
+    let mut fixed = Chain::<Q24>::new(pu, omega0);
     let (mut d32, mut dq) = (0.0f64, 0.0f64);
     for k in 0..(duration_s / TS) as usize {
         let a64 = reference.step(syn, k);
@@ -80,7 +84,8 @@ fn realistic(f_hz: f64, i_q: f64) -> Synthetic {
 fn f32_and_fixed_point_track_the_f64_reference_at_10_hz() {
     let m = MotorParams::paper();
     let rated_peak = m.rated_current_a as f64 * 2f64.sqrt();
-    let (d32, dq, _) = compare(&realistic(10.0, rated_peak), 3.0, 1.5);
+    // From a cold start (speed and angle unknown).
+    let (d32, dq, _) = compare(&realistic(10.0, rated_peak), 3.0, 1.5, 0.0);
     println!(
         "10 Hz, rated current: max |theta_f32 - theta_f64| = {d32:.2e} deg, max |theta_Q24 - theta_f64| = {dq:.2e} deg"
     );
@@ -94,7 +99,9 @@ fn no_saturation_at_twice_rated_current_and_twice_top_speed() {
     let two_rated_peak = 2.0 * m.rated_current_a as f64 * 2f64.sqrt();
     // 2x the paper's top speed, 0.45 m/s -> 0.9 m/s = 30 Hz.
     let f_hz = m.omega_e_from_speed(0.9) as f64 / (2.0 * std::f64::consts::PI);
-    let (d32, dq, max_pu) = compare(&realistic(f_hz, two_rated_peak), 2.0, 1.0);
+    // Started at the speed (as after an open-loop start-up), angle unknown.
+    let omega0 = m.omega_e_from_speed(0.9);
+    let (d32, dq, max_pu) = compare(&realistic(f_hz, two_rated_peak), 2.0, 1.0, omega0);
     println!(
         "{f_hz:.1} Hz, 2x rated current: f32 {d32:.2e} deg, Q24 {dq:.2e} deg; largest Q24 working value {max_pu:.3} (range 128)"
     );

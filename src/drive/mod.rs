@@ -204,7 +204,8 @@ impl<T: Scalar> Drive<T> {
         )
         .map_err(|_| DriveConfigError { field: "speed_bandwidth_rad_s" })?;
         // Current PIs: limits set per step from the bus.
-        let pi_d = Pi::new(kp_i, ki_dt_i, -T::ONE, T::ONE).map_err(|_| DriveConfigError { field: "current_bandwidth_rad_s" })?;
+        let pi_d = Pi::new(kp_i, ki_dt_i, -T::ONE, T::ONE)
+            .map_err(|_| DriveConfigError { field: "current_bandwidth_rad_s" })?;
         let samples = |s: f32| (s / ts) as u32;
         let (dead_time_ratio, device_drop, band, compensate) = match config.dead_time_compensation {
             Some(c) => (c.dead_time_s / ts, c.device_drop_v, c.current_band_a, true),
@@ -352,7 +353,11 @@ impl<T: Scalar> Drive<T> {
         if !self.enable_requested && self.state != DriveState::Fault {
             self.state = DriveState::Disabled;
         }
-        let i_abc = Abc { a: m.i_abc.a - self.offsets.a, b: m.i_abc.b - self.offsets.b, c: m.i_abc.c - self.offsets.c };
+        let i_abc = Abc {
+            a: m.i_abc.a - self.offsets.a,
+            b: m.i_abc.b - self.offsets.b,
+            c: m.i_abc.c - self.offsets.c,
+        };
         out.i_ab = clarke(i_abc);
         match self.state {
             DriveState::Fault => {}
@@ -411,7 +416,11 @@ impl<T: Scalar> Drive<T> {
         let n = self.k.inv_calibration_samples;
         let o = Abc { a: self.offset_sum.a * n, b: self.offset_sum.b * n, c: self.offset_sum.c * n };
         let lim = self.k.max_offset;
-        if !(o.a.is_valid() && o.b.is_valid() && o.c.is_valid()) || o.a.abs() > lim || o.b.abs() > lim || o.c.abs() > lim {
+        if !(o.a.is_valid() && o.b.is_valid() && o.c.is_valid())
+            || o.a.abs() > lim
+            || o.b.abs() > lim
+            || o.c.abs() > lim
+        {
             self.trip(Faults::CALIBRATION);
             return;
         }
@@ -451,7 +460,8 @@ impl<T: Scalar> Drive<T> {
             }
         };
         out.estimate = Some(estimate);
-        self.omega_filtered = self.omega_filtered + k.speed_filter_rate * (estimate.omega_e - self.omega_filtered);
+        self.omega_filtered =
+            self.omega_filtered + k.speed_filter_rate * (estimate.omega_e - self.omega_filtered);
 
         let (theta, omega) = if self.state == DriveState::Starting {
             self.startup_references(&estimate)
@@ -514,7 +524,11 @@ impl<T: Scalar> Drive<T> {
         let i_ref = inverse_clarke(inverse_park(self.i_dq_ref, cs_apply));
         let amplitude = vdc * k.dead_time_ratio + k.device_drop;
         let sign = |i: T| (i * k.inv_current_band).clamp_to(-T::ONE, T::ONE);
-        clarke(Abc { a: amplitude * sign(i_ref.a), b: amplitude * sign(i_ref.b), c: amplitude * sign(i_ref.c) })
+        clarke(Abc {
+            a: amplitude * sign(i_ref.a),
+            b: amplitude * sign(i_ref.b),
+            c: amplitude * sign(i_ref.c),
+        })
     }
 
     /// Open-loop I/f: ramps the frequency to the hand-over speed in the direction of
@@ -581,7 +595,8 @@ impl<T: Scalar> Drive<T> {
             self.i_dq_ref.q = self.pi_speed.update(self.omega_ref - self.omega_filtered);
         }
         let d = self.i_dq_ref.d;
-        self.i_dq_ref.d = if d > T::ZERO { (d - k.id_ramp_step).max(T::ZERO) } else { (d + k.id_ramp_step).min(T::ZERO) };
+        self.i_dq_ref.d =
+            if d > T::ZERO { (d - k.id_ramp_step).max(T::ZERO) } else { (d + k.id_ramp_step).min(T::ZERO) };
         let limit = k.current_limit;
         self.i_dq_ref.q = self.i_dq_ref.q.clamp_to(-limit, limit);
         if estimate.locked {
