@@ -1,0 +1,393 @@
+//! The `dcfo` command line: argument definitions (clap derive) and the subcommands'
+//! entry points. `src/main.rs` parses [`Cli`] and calls [`run`].
+//!
+//! Output discipline: results go to stdout (a human summary, or with `--json` exactly
+//! one JSON object and nothing else); progress and information go to stderr; errors go
+//! to stderr with a non-zero exit status (1 for a refused input or failed run, 2 for a
+//! usage error or a subcommand that is not available yet).
+//!
+//! The doc comments of the argument structs are the `--help` text; units are written
+//! in brackets (`[V]`), which rustdoc would otherwise take for links.
+#![allow(rustdoc::broken_intra_doc_links)]
+
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+use std::sync::mpsc::{self, RecvTimeoutError};
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, bail};
+use clap::{Args, Parser, Subcommand, ValueEnum};
+use dcfo::observer::ObserverKind;
+use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+
+use crate::motor_file::load_motor;
+use crate::replay::{observer_name, replay_trace_with_progress};
+use crate::summary::{DEFAULT_SETTLE_S, Summary};
+use crate::trace::{InputTrace, write_output_trace};
+
+/// `dcfo`: host tools for the sensorless PMSLM drive with the disturbance compensated
+/// flux observer (DCFO).
+#[derive(Debug, Parser)]
+#[command(
+    name = "dcfo",
+    version,
+    about = "Host tools for the sensorless PMSLM drive with the disturbance compensated flux observer (DCFO)",
+    long_about = "Host tools for the sensorless PMSLM drive with the disturbance compensated flux \
+observer (DCFO): replay recorded or simulated traces through the drive's estimator, and (soon) \
+simulate the closed-loop drive and reproduce the paper's experiments.\n\n\
+All quantities are SI: seconds, volts, amperes, webers, metres, m/s; angles are electrical \
+radians in files and electrical degrees in summaries. File formats: shared/trace-format.md."
+)]
+pub struct Cli {
+    /// The subcommand to run.
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+/// The subcommands.
+#[derive(Debug, Subcommand)]
+pub enum Command {
+    /// Replay a trace (CSV) through a flux observer + PLL, write the estimates (CSV) and
+    /// print error statistics against the trace's ground truth.
+    Replay(ReplayArgs),
+    /// Reproduce the paper's experiments (Figs. 11-19) in simulation, with figures.
+    Paper(PaperArgs),
+    /// Simulate one scenario of the closed-loop sensorless drive.
+    Sim(SimArgs),
+}
+
+/// Observers the replay can run.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum ObserverArg {
+    /// Pure integrator of u - Rs i (drifts without bound on any DC offset).
+    Pi,
+    /// The paper's conventional flux observer: LPF 1/(s + wc), wc = 2 pi * 2.5 Hz = 15.7 rad/s.
+    Cfo,
+    /// Disturbance compensated flux observer: notch at the PLL's speed, zeta = 0.707, h = -0.2 Ls w.
+    Dcfo,
+}
+
+impl ObserverArg {
+    /// The library's observer kind.
+    pub fn kind(self) -> ObserverKind {
+        match self {
+            ObserverArg::Pi => ObserverKind::PureIntegrator,
+            ObserverArg::Cfo => ObserverKind::Cfo,
+            ObserverArg::Dcfo => ObserverKind::Dcfo,
+        }
+    }
+}
+
+/// Observers the closed-loop drive can run (the paper compares these two).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum DriveObserverArg {
+    /// The paper's conventional flux observer: LPF 1/(s + wc), wc = 2 pi * 2.5 Hz = 15.7 rad/s.
+    Cfo,
+    /// Disturbance compensated flux observer: notch at the PLL's speed, zeta = 0.707, h = -0.2 Ls w.
+    Dcfo,
+}
+
+impl DriveObserverArg {
+    /// The library's observer kind.
+    pub fn kind(self) -> ObserverKind {
+        match self {
+            DriveObserverArg::Cfo => ObserverKind::Cfo,
+            DriveObserverArg::Dcfo => ObserverKind::Dcfo,
+        }
+    }
+}
+
+/// Arguments of `dcfo replay`.
+#[derive(Debug, Clone, Args)]
+#[command(after_long_help = REPLAY_AFTER_HELP)]
+pub struct ReplayArgs {
+    /// Motor: a preset name (`paper`) or a TOML motor file with the keys rs_ohm [ohm],
+    /// ld_h and lq_h [H], psi_f_wb [Wb], pole_pitch_m [m], rated_current_a [A RMS] and
+    /// rated_voltage_v [V RMS]; mass_kg [kg] and viscous_n_s_per_m [N s/m] are optional.
+    #[arg(long, value_name = "FILE|PRESET")]
+    pub motor: String,
+
+    /// Flux observer feeding the PLL.
+    #[arg(long, value_enum, value_name = "OBSERVER")]
+    pub observer: ObserverArg,
+
+    /// Input trace (CSV): columns t [s], u_alpha and u_beta [V] (the voltage applied during
+    /// [t, t + Ts)), i_alpha and i_beta [A] (sampled at t); optional ground truth theta
+    /// [rad, electrical], v [m/s], x [m]. t must have a uniform step (the control period Ts).
+    #[arg(value_name = "TRACE.csv")]
+    pub trace: PathBuf,
+
+    /// Output trace (CSV), written atomically: t [s], theta_hat [rad, electrical, in
+    /// [-pi, pi)], v_hat [m/s], psi_alpha_hat and psi_beta_hat [Wb]; with ground truth also
+    /// theta_err [rad] and v_err [m/s].
+    #[arg(short = 'o', long = "output", value_name = "OUT.csv")]
+    pub output: PathBuf,
+
+    /// Print the summary as exactly one JSON object on stdout (keys samples, settle_s [s],
+    /// theta_err_rms_deg and theta_err_max_deg [electrical degrees], v_err_rms and v_err_max
+    /// [m/s], psi_amp_err_rms_wb [Wb]; null without the ground truth they need).
+    #[arg(long)]
+    pub json: bool,
+
+    /// Settle time [s]: the summary covers the samples from t_first + S on.
+    #[arg(long, value_name = "S", default_value_t = DEFAULT_SETTLE_S, value_parser = parse_settle)]
+    pub settle: f64,
+}
+
+const REPLAY_AFTER_HELP: &str = "\
+Timing: the estimator (observer + PLL in f32, SI units, as the drive runs it) is given, for row k, \
+the voltage of row k-1 (the one applied during the period that ends at t_k; zero for row 0) and \
+the currents of row k; the period is the trace's mean step. Output row k is the estimate at t_k.
+
+Errors (bad trace, bad motor, a value beyond f32, an estimator fault) are reported on stderr with \
+the file, line or data row and column; the exit status is then 1 and no output file is written.
+
+Example:
+  dcfo replay --motor paper --observer dcfo trace.csv -o estimates.csv --json";
+
+/// Arguments of `dcfo paper`.
+#[derive(Debug, Clone, Args)]
+pub struct PaperArgs {
+    /// Directory for the results: figures (PNG and SVG), traces (CSV, SI units) and
+    /// summaries (JSON; angles in electrical degrees, speeds in m/s, flux in Wb). Created
+    /// if absent.
+    #[arg(long, value_name = "DIR", default_value = "out/paper")]
+    pub out: PathBuf,
+}
+
+/// Arguments of `dcfo sim`.
+#[derive(Debug, Clone, Args)]
+pub struct SimArgs {
+    /// Scenario to simulate, by name: one of the paper's experiments (steady speed in m/s,
+    /// speed step, DC offset on a voltage [V] or current [A], resistance error, load step
+    /// [N]).
+    #[arg(long, value_name = "NAME")]
+    pub scenario: String,
+
+    /// Flux observer of the sensorless drive.
+    #[arg(long, value_enum, value_name = "OBSERVER")]
+    pub observer: DriveObserverArg,
+
+    /// Directory for the results: the trace (CSV, SI units), its summary (JSON) and figures
+    /// (PNG and SVG). Created if absent.
+    #[arg(long, value_name = "DIR", default_value = "out/sim")]
+    pub out: PathBuf,
+}
+
+fn parse_settle(text: &str) -> Result<f64, String> {
+    let s: f64 = text.trim().parse().map_err(|_| format!("`{text}` is not a number of seconds"))?;
+    if s.is_finite() && s >= 0.0 {
+        Ok(s)
+    } else {
+        Err(format!("{text} s: the settle time must be a finite number of seconds >= 0"))
+    }
+}
+
+/// Runs the parsed command; the exit status on success (errors are returned).
+pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
+    match cli.command {
+        Command::Replay(args) => {
+            run_replay(&args)?;
+            Ok(ExitCode::SUCCESS)
+        }
+        Command::Paper(args) => Ok(run_paper(&args)),
+        Command::Sim(args) => Ok(run_sim(&args)),
+    }
+}
+
+// ---- PLACEHOLDERS: the lead replaces these two with the simulator's entry points ----
+
+/// `dcfo paper`. PLACEHOLDER until the closed-loop simulator lands: prints that it is
+/// not yet available and returns exit status 2.
+pub fn run_paper(_args: &PaperArgs) -> ExitCode {
+    eprintln!("dcfo paper: not yet available (the closed-loop simulator is not part of this build)");
+    ExitCode::from(2)
+}
+
+/// `dcfo sim`. PLACEHOLDER until the closed-loop simulator lands: prints that it is not
+/// yet available and returns exit status 2.
+pub fn run_sim(_args: &SimArgs) -> ExitCode {
+    eprintln!("dcfo sim: not yet available (the closed-loop simulator is not part of this build)");
+    ExitCode::from(2)
+}
+
+// ---- end of placeholders ----
+
+/// `dcfo replay`: read, replay, summarise, then write the output trace and print the
+/// summary. Nothing is written unless every step succeeds.
+pub fn run_replay(args: &ReplayArgs) -> anyhow::Result<()> {
+    let motor = load_motor(&args.motor)?;
+    if same_file(&args.trace, &args.output) {
+        bail!("output {} is the input trace; choose another output file", args.output.display());
+    }
+    let trace =
+        with_spinner(format!("reading {}", args.trace.display()), || InputTrace::read_path(&args.trace))?;
+    let kind = args.observer.kind();
+    let rows = trace.rows().len();
+    let mut progress = Progress::new(rows);
+    let estimates = replay_trace_with_progress(&trace, &motor.params, kind, |n| progress.update(n))
+        .with_context(|| {
+            format!("{}: replay with the {} observer stopped", args.trace.display(), observer_name(kind))
+        });
+    progress.finish();
+    let estimates = estimates?;
+    let summary = Summary::compute(&trace, &estimates, &motor.params, args.settle).with_context(|| {
+        format!("{}: cannot summarise (adjust --settle; no output was written)", args.trace.display())
+    })?;
+    with_spinner(format!("writing {}", args.output.display()), || {
+        write_output_trace(&args.output, &trace, &estimates)
+    })?;
+    if args.json {
+        println!("{}", summary.to_json());
+    } else {
+        let ts = trace.sample_period_s();
+        let span = match (trace.rows().first(), trace.rows().last()) {
+            (Some(a), Some(b)) => b.t - a.t,
+            _ => 0.0,
+        };
+        println!(
+            "replay of {} ({rows} rows, Ts = {:.4} ms, {span:.4} s) with the {} observer, motor {}",
+            args.trace.display(),
+            ts * 1e3,
+            observer_name(kind),
+            motor.name
+        );
+        println!("wrote {}", args.output.display());
+        println!("{summary}");
+    }
+    Ok(())
+}
+
+/// `true` when both paths name the same existing file.
+fn same_file(a: &Path, b: &Path) -> bool {
+    match (a.canonicalize(), b.canonicalize()) {
+        (Ok(a), Ok(b)) => a == b,
+        _ => false,
+    }
+}
+
+/// How long a step runs before its progress is shown.
+const PROGRESS_DELAY: Duration = Duration::from_secs(1);
+
+/// Runs `work`, showing a spinner with `message` on stderr if it takes longer than
+/// [`PROGRESS_DELAY`] (only when stderr is a terminal).
+fn with_spinner<T>(message: String, work: impl FnOnce() -> T) -> T {
+    // The spinner thread waits on a channel that is closed when `work` returns (or
+    // panics): the sender is dropped then.
+    let (done, finished) = mpsc::channel::<()>();
+    std::thread::scope(|scope| {
+        scope.spawn(move || {
+            if finished.recv_timeout(PROGRESS_DELAY) != Err(RecvTimeoutError::Timeout) {
+                return;
+            }
+            let spinner = ProgressBar::with_draw_target(None, ProgressDrawTarget::stderr());
+            let style = ProgressStyle::with_template("{spinner} {msg} ({elapsed})")
+                .unwrap_or_else(|_| ProgressStyle::default_spinner());
+            spinner.set_style(style);
+            spinner.set_message(message);
+            while finished.recv_timeout(Duration::from_millis(100)) == Err(RecvTimeoutError::Timeout) {
+                spinner.tick();
+            }
+            spinner.finish_and_clear();
+        });
+        let _done = done;
+        work()
+    })
+}
+
+/// A progress bar on stderr that appears only once a run has taken a second (and only
+/// when stderr is a terminal).
+struct Progress {
+    total: usize,
+    start: Instant,
+    bar: Option<ProgressBar>,
+}
+
+impl Progress {
+    fn new(total: usize) -> Self {
+        Progress { total, start: Instant::now(), bar: None }
+    }
+
+    fn update(&mut self, done: usize) {
+        if self.bar.is_none() && self.start.elapsed() >= PROGRESS_DELAY {
+            let bar = ProgressBar::with_draw_target(Some(self.total as u64), ProgressDrawTarget::stderr());
+            let style = ProgressStyle::with_template("replay [{bar:40}] {pos}/{len} rows, {eta} left")
+                .unwrap_or_else(|_| ProgressStyle::default_bar())
+                .progress_chars("=> ");
+            bar.set_style(style);
+            self.bar = Some(bar);
+        }
+        if let Some(bar) = &self.bar {
+            bar.set_position(done as u64);
+        }
+    }
+
+    fn finish(&mut self) {
+        if let Some(bar) = self.bar.take() {
+            bar.finish_and_clear();
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::CommandFactory;
+
+    #[test]
+    fn the_command_line_is_well_formed() {
+        Cli::command().debug_assert();
+    }
+
+    #[test]
+    fn replay_arguments_parse() {
+        let cli = Cli::try_parse_from([
+            "dcfo",
+            "replay",
+            "--motor",
+            "paper",
+            "--observer",
+            "dcfo",
+            "in.csv",
+            "-o",
+            "out.csv",
+            "--json",
+        ])
+        .unwrap();
+        let Command::Replay(a) = cli.command else { panic!("not replay") };
+        assert_eq!((a.motor.as_str(), a.observer, a.json, a.settle), ("paper", ObserverArg::Dcfo, true, 0.5));
+        assert_eq!((a.trace, a.output), (PathBuf::from("in.csv"), PathBuf::from("out.csv")));
+        for bad in ["-1", "nan", "inf", "x"] {
+            let r = Cli::try_parse_from([
+                "dcfo",
+                "replay",
+                "--motor",
+                "paper",
+                "--observer",
+                "pi",
+                "in.csv",
+                "-o",
+                "o.csv",
+                "--settle",
+                bad,
+            ]);
+            assert!(r.is_err(), "{bad}");
+        }
+    }
+
+    #[test]
+    fn every_option_has_help_with_units() {
+        let mut cmd = Cli::command();
+        for sub in ["replay", "paper", "sim"] {
+            let sc = cmd.find_subcommand_mut(sub).unwrap();
+            for arg in sc.get_arguments() {
+                let help = arg.get_long_help().or(arg.get_help()).map(|h| h.to_string()).unwrap_or_default();
+                assert!(!help.is_empty(), "{sub} --{}", arg.get_id());
+            }
+        }
+        let help = Cli::command().find_subcommand_mut("replay").unwrap().render_long_help().to_string();
+        for unit in ["[s]", "[V]", "[A]", "[Wb]", "[m/s]", "[ohm]", "[H]", "electrical degrees"] {
+            assert!(help.contains(unit), "replay --help lacks {unit}:\n{help}");
+        }
+    }
+}
