@@ -10,7 +10,6 @@ use dcfo::num::Scalar;
 use dcfo::observer::ObserverKind;
 use dcfo::transforms::AlphaBeta;
 use dcfo::units::Base;
-use std::f64::consts::PI;
 
 const TS: f64 = 1e-4;
 

@@ -2,7 +2,11 @@
 #![forbid(unsafe_code)]
 #![deny(missing_docs)]
 
+pub mod cli;
 pub mod motor_file;
 pub mod plant;
+pub mod plot;
+pub mod replay;
+pub mod sim;
 pub mod summary;
 pub mod trace;

@@ -127,6 +127,8 @@ struct Constants<T> {
     accel_step: T,
     speed_loop_divider: u16,
     startup_current: T,
+    handover_current: T,
+    startup_current_step: T,
     startup_accel_step: T,
     handover_omega: T,
     handover_tolerance: T,
@@ -160,6 +162,8 @@ pub struct Drive<T> {
     /// Filtered speed feedback (rad/s).
     omega_filtered: T,
     i_dq_ref: Dq<T>,
+    /// Start-up thrust current still being faded out after hand-over (A).
+    iq_bridge: T,
     offsets: Abc<T>,
     offset_sum: Abc<T>,
     counter: u32,
@@ -192,7 +196,7 @@ impl<T: Scalar> Drive<T> {
         let kp_i = T::from_f32(motor.lq_h * wc * v_per_a);
         let ki_dt_i = T::from_f32(motor.rs_ohm * wc * ts * v_per_a);
         // Speed PI on electrical speed: d omega/dt = (pi/tau) K_f / M * i_q.
-        let plant_gain = omega_per_speed * motor.thrust_constant_n_per_a() / motor.mass_kg;
+        let plant_gain = omega_per_speed * motor.thrust_constant_n_per_a() / config.moving_mass_kg;
         let ws = config.speed_bandwidth_rad_s;
         let kp_s = ws / plant_gain; // A per rad/s
         let a_per_omega = base.omega_rad_s / base.current_a;
@@ -228,6 +232,11 @@ impl<T: Scalar> Drive<T> {
             accel_step: base.omega(config.accel_limit_m_per_s2 * omega_per_speed * ts),
             speed_loop_divider: config.speed_loop_divider,
             startup_current: base.current(config.startup.current_a),
+            handover_current: base.current(config.startup.handover_current_a),
+            startup_current_step: base.current(
+                (config.startup.current_a - config.startup.handover_current_a) * ts
+                    / config.startup.dwell_s.max(ts),
+            ),
             startup_accel_step: base.omega(config.startup.accel_m_per_s2 * omega_per_speed * ts),
             handover_omega: base.omega(config.startup.handover_speed_m_per_s * omega_per_speed),
             handover_tolerance: T::from_f32(0.2),
@@ -246,7 +255,7 @@ impl<T: Scalar> Drive<T> {
         Ok(Drive {
             k,
             estimator,
-            pi_q: pi_d.clone(),
+            pi_q: pi_d,
             pi_d,
             pi_speed,
             state: DriveState::Disabled,
@@ -256,6 +265,7 @@ impl<T: Scalar> Drive<T> {
             omega_ref: T::ZERO,
             omega_filtered: T::ZERO,
             i_dq_ref: Dq::default(),
+            iq_bridge: T::ZERO,
             offsets: Abc::default(),
             offset_sum: Abc::default(),
             counter: 0,
@@ -441,6 +451,7 @@ impl<T: Scalar> Drive<T> {
         self.omega_ref = T::ZERO;
         self.omega_filtered = T::ZERO;
         self.i_dq_ref = Dq::new(T::ZERO, self.k.startup_current);
+        self.iq_bridge = T::ZERO;
         self.u_prev = AlphaBeta::default();
         self.u_prev2 = AlphaBeta::default();
     }
@@ -496,7 +507,8 @@ impl<T: Scalar> Drive<T> {
         let theta_apply = theta + (omega * k.dt * k.delay_periods).radians_to_angle();
         let cs_apply = CosSin::new(theta_apply);
         let u_ab = inverse_park(Dq::new(u_d, u_q), &cs_apply);
-        let comp = if k.compensate { self.compensation(m.vdc, &cs_apply) } else { AlphaBeta::default() };
+        let comp =
+            if k.compensate { self.compensation(m.vdc, i_dq, &cs_apply) } else { AlphaBeta::default() };
         let command = AlphaBeta::new(u_ab.alpha + comp.alpha, u_ab.beta + comp.beta);
         match svpwm(command, m.vdc) {
             Ok(modulation) => {
@@ -517,11 +529,13 @@ impl<T: Scalar> Drive<T> {
     }
 
     /// Inverter-error compensation in alpha-beta (V): per phase
-    /// `(dead_time/Ts * Vdc + drop) * sat(i_ref / band)`, from the current reference
-    /// rotated to the application window.
-    fn compensation(&self, vdc: T, cs_apply: &CosSin<T>) -> AlphaBeta<T> {
+    /// `(dead_time/Ts * Vdc + drop) * sat(i / band)`, from the measured current vector
+    /// `i_dq` (control frame) carried forward to the application window: the error
+    /// follows the current that actually flows, which at light load can differ in sign
+    /// from a reference that the speed loop moves through zero.
+    fn compensation(&self, vdc: T, i_dq: Dq<T>, cs_apply: &CosSin<T>) -> AlphaBeta<T> {
         let k = &self.k;
-        let i_ref = inverse_clarke(inverse_park(self.i_dq_ref, cs_apply));
+        let i_ref = inverse_clarke(inverse_park(i_dq, cs_apply));
         let amplitude = vdc * k.dead_time_ratio + k.device_drop;
         let sign = |i: T| (i * k.inv_current_band).clamp_to(-T::ONE, T::ONE);
         clarke(Abc {
@@ -548,6 +562,8 @@ impl<T: Scalar> Drive<T> {
             return (theta, self.omega_ol);
         }
         self.counter = self.counter.saturating_add(1);
+        // Dwell: lower the open-loop current towards the hand-over level.
+        self.i_dq_ref.q = (self.i_dq_ref.q - k.startup_current_step).max(k.handover_current);
         let close = (estimate.omega_e - target).abs() < target.abs() * k.handover_tolerance;
         if self.counter >= k.dwell_samples && estimate.locked && close {
             self.hand_over(theta, estimate);
@@ -577,7 +593,11 @@ impl<T: Scalar> Drive<T> {
         self.i_dq_ref = i_ref;
         self.omega_ref = estimate.omega_e;
         self.omega_filtered = estimate.omega_e;
-        self.pi_speed.preset(i_ref.q, self.omega_ref - self.omega_filtered);
+        // The start-up vector's q part in the estimated frame is mostly an artefact of
+        // the angle error (|I| sin e): the speed controller starts from zero and the
+        // artefact is faded out with the d-axis current, so nothing jumps.
+        self.pi_speed.reset();
+        self.iq_bridge = i_ref.q;
         self.state = DriveState::Running;
         self.counter = 0;
         self.speed_divider_count = 0;

@@ -33,6 +33,9 @@ pub struct Synthetic {
     pub harmonics: [(f64, f64); 2],
     /// Optional linear speed ramp: from `omega` at `t_start` to `omega_end` at `t_end`.
     pub ramp: Option<Ramp>,
+    /// Optional angle wobble `(amplitude rad, angular frequency rad/s)` added to theta:
+    /// a speed modulation, for measuring how estimates follow speed changes.
+    pub wobble: Option<(f64, f64)>,
 }
 
 /// A linear change of electrical speed.
@@ -55,6 +58,7 @@ impl Synthetic {
             offset_from_s: 0.0,
             harmonics: [(0.0, 0.0); 2],
             ramp: None,
+            wobble: None,
         }
     }
 
@@ -69,8 +73,13 @@ impl Synthetic {
         }
     }
 
-    /// Electrical angle at time t (rad), the integral of `omega_at`.
+    /// Electrical angle at time t (rad), the integral of `omega_at`, plus any wobble.
     pub fn theta(&self, t: f64) -> f64 {
+        let wobble = self.wobble.map_or(0.0, |(a, w)| a * (w * t).sin());
+        wobble + self.theta_ramped(t)
+    }
+
+    fn theta_ramped(&self, t: f64) -> f64 {
         match self.ramp {
             Some(r) if t > r.t_start => {
                 let dt_ramp = (t.min(r.t_end) - r.t_start).max(0.0);
@@ -105,7 +114,7 @@ impl Synthetic {
             // A harmonic of the fundamental's phase: voltage a [cos(n theta), sin(n theta)]
             // gives flux a/(n w) [sin(n theta), -cos(n theta)] at constant speed.
             let wn = n * self.omega;
-            let th = n * (self.theta(t) - self.theta0);
+            let th = n * (self.theta_ramped(t) - self.theta0);
             f[0] += a / wn * th.sin();
             f[1] += -a / wn * th.cos();
         }
