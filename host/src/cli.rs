@@ -33,8 +33,8 @@ use crate::trace::{InputTrace, write_output_trace};
     version,
     about = "Host tools for the sensorless PMSLM drive with the disturbance compensated flux observer (DCFO)",
     long_about = "Host tools for the sensorless PMSLM drive with the disturbance compensated flux \
-observer (DCFO): replay recorded or simulated traces through the drive's estimator, and (soon) \
-simulate the closed-loop drive and reproduce the paper's experiments.\n\n\
+observer (DCFO): simulate the closed-loop drive and reproduce the paper's experiments (dcfo paper, \
+dcfo sim), and replay recorded or simulated traces through the drive's estimator (dcfo replay).\n\n\
 All quantities are SI: seconds, volts, amperes, webers, metres, m/s; angles are electrical \
 radians in files and electrical degrees in summaries. File formats: shared/trace-format.md."
 )]
@@ -63,7 +63,7 @@ pub enum ObserverArg {
     Pi,
     /// The paper's conventional flux observer: LPF 1/(s + wc), wc = 2 pi * 2.5 Hz = 15.7 rad/s.
     Cfo,
-    /// Disturbance compensated flux observer: notch at the PLL's speed, zeta = 0.707, h = -0.2 Ls w.
+    /// Disturbance compensated flux observer: notch at the PLL's frequency estimate, zeta = 1.0, h = -0.2 Ls w.
     Dcfo,
 }
 
@@ -83,7 +83,7 @@ impl ObserverArg {
 pub enum DriveObserverArg {
     /// The paper's conventional flux observer: LPF 1/(s + wc), wc = 2 pi * 2.5 Hz = 15.7 rad/s.
     Cfo,
-    /// Disturbance compensated flux observer: notch at the PLL's speed, zeta = 0.707, h = -0.2 Ls w.
+    /// Disturbance compensated flux observer: notch at the PLL's frequency estimate, zeta = 1.0, h = -0.2 Ls w.
     Dcfo,
 }
 
@@ -195,23 +195,27 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
     }
 }
 
-// ---- PLACEHOLDERS: the lead replaces these two with the simulator's entry points ----
-
-/// `dcfo paper`. PLACEHOLDER until the closed-loop simulator lands: prints that it is
-/// not yet available and returns exit status 2.
-pub fn run_paper(_args: &PaperArgs) -> ExitCode {
-    eprintln!("dcfo paper: not yet available (the closed-loop simulator is not part of this build)");
-    ExitCode::from(2)
+/// `dcfo paper`: every paper scenario with the CFO and the DCFO.
+pub fn run_paper(args: &PaperArgs) -> ExitCode {
+    match crate::sim::report::run_paper(&args.out) {
+        Ok(_) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("dcfo paper: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
 }
 
-/// `dcfo sim`. PLACEHOLDER until the closed-loop simulator lands: prints that it is not
-/// yet available and returns exit status 2.
-pub fn run_sim(_args: &SimArgs) -> ExitCode {
-    eprintln!("dcfo sim: not yet available (the closed-loop simulator is not part of this build)");
-    ExitCode::from(2)
+/// `dcfo sim`: one scenario with one observer.
+pub fn run_sim(args: &SimArgs) -> ExitCode {
+    match crate::sim::report::run_sim(&args.scenario, args.observer.kind(), &args.out) {
+        Ok(_) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("dcfo sim: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
 }
-
-// ---- end of placeholders ----
 
 /// `dcfo replay`: read, replay, summarise, then write the output trace and print the
 /// summary. Nothing is written unless every step succeeds.

@@ -7,6 +7,7 @@
 //! drive's first start-up step, when its estimator is reset, so that replaying the
 //! trace through the same estimator reproduces the run's estimates exactly.
 
+pub mod report;
 pub mod scenarios;
 
 use crate::plant::{Plant, PlantError, SimParams, TrueState};

@@ -153,6 +153,10 @@ pub struct Figures {
     /// Largest deviation of the flux amplitude (one-period moving average) from its
     /// value just before the event, Wb, over the window.
     pub flux_amp_dev_wb: f64,
+    /// Lasting DC offset of the flux estimate, Wb: the magnitude of its mean vector over
+    /// the last 0.5 s of the window (five periods at 0.3 m/s). For an LPF observer under
+    /// a DC input `dc` (V) the analysis gives `dc / wc`; for the DCFO, zero.
+    pub flux_offset_end_wb: f64,
     /// Time after the event until the flux amplitude stays within 2 mWb of its value
     /// before the event, s (`None` if it never does within the window).
     pub flux_recovery_s: Option<f64>,
@@ -211,6 +215,10 @@ pub fn figures(run: &Run, scenario: &Scenario) -> Figures {
             }
         }
     }
+    let tail: Vec<&Sample> = run.samples.iter().filter(|s| s.row.t > t1 - 0.5 && s.row.t <= t1).collect();
+    let n_tail = tail.len().max(1) as f64;
+    let mean_a = tail.iter().map(|s| s.psi_hat[0]).sum::<f64>() / n_tail;
+    let mean_b = tail.iter().map(|s| s.psi_hat[1]).sum::<f64>() / n_tail;
     let flux_recovery_s = match last_out_of_band {
         None => Some(0.0),
         Some(t) if t < t1 - 0.05 => Some(t - t0),
@@ -222,6 +230,7 @@ pub fn figures(run: &Run, scenario: &Scenario) -> Figures {
         v_err_max,
         flux_drift_wb,
         flux_amp_dev_wb,
+        flux_offset_end_wb: mean_a.hypot(mean_b),
         flux_recovery_s,
         healthy: run.handover_s.is_some() && run.faults.is_empty(),
     }
