@@ -92,8 +92,19 @@ fn run_all(jobs: &[(Scenario, ObserverKind)]) -> Result<(Vec<Run>, f64)> {
     Ok((runs, wall))
 }
 
+/// The two runs of one scenario.
+#[derive(Debug)]
+pub struct ScenarioRuns {
+    /// The scenario.
+    pub scenario: Scenario,
+    /// Its run with the CFO.
+    pub cfo: Run,
+    /// Its run with the DCFO.
+    pub dcfo: Run,
+}
+
 /// Runs every paper scenario with the CFO and the DCFO.
-pub fn paper_report() -> Result<(PaperReport, Vec<(Scenario, Run, Run)>)> {
+pub fn paper_report() -> Result<(PaperReport, Vec<ScenarioRuns>)> {
     let scenarios = paper_scenarios();
     let jobs: Vec<(Scenario, ObserverKind)> = scenarios
         .iter()
@@ -115,7 +126,7 @@ pub fn paper_report() -> Result<(PaperReport, Vec<(Scenario, Run, Run)>)> {
             cfo: figures(&cfo, &sc),
             dcfo: figures(&dcfo, &sc),
         });
-        pairs.push((sc, cfo, dcfo));
+        pairs.push(ScenarioRuns { scenario: sc, cfo, dcfo });
     }
     Ok((PaperReport { scenarios: results, real_time_factor: simulated / wall_s.max(1e-9), wall_s }, pairs))
 }
@@ -213,8 +224,8 @@ pub fn run_paper(out: &Path) -> Result<PaperReport> {
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     let (report, pairs) = paper_report()?;
     print!("{}", table(&report));
-    for (sc, cfo, dcfo) in &pairs {
-        scenario_figure(out, sc, cfo, dcfo)?;
+    for r in &pairs {
+        scenario_figure(out, &r.scenario, &r.cfo, &r.dcfo)?;
     }
     bode_figure(&out.join("bode"), &BodeSetup::paper()).context("Bode figure")?;
     let json = serde_json::to_string_pretty(&report).context("summary")?;
