@@ -302,7 +302,7 @@ impl Scalar for f64 {
 /// range limits instead of wrapping or panicking; [`Scalar::is_valid`] reports a value
 /// at either limit as invalid, so an overflow anywhere in a chain surfaces as a fault.
 /// Meant to carry per-unit quantities (see [`crate::units::Base::for_motor`]), where
-/// the paper motor at twice rated current and twice its top speed stays below 1.5.
+/// the paper motor at twice rated current and twice its top speed stays within +-2.5 (currents reach 2 pu, the bus 1.7 pu).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, PartialOrd, Ord)]
 pub struct Q24(pub I8F24);
 

@@ -38,7 +38,7 @@ impl Base {
     /// omega base = the speed at which the back-EMF equals the voltage base
     /// (`voltage_v / psi_f_wb`), so the magnet flux is 1 per unit.
     ///
-    /// Paper motor: 179.6 V, 2.97 A, 1122.6 rad/s; then 2x rated current is 1.41 pu,
+    /// Paper motor: 179.6 V, 2.97 A, 1122.6 rad/s; then 2x rated current is 2.0 pu,
     /// 2x the paper's top speed (0.9 m/s, 188.5 rad/s) is 0.17 pu, the DC bus (311 V)
     /// is 1.73 pu and the time step (100 us) is 0.112 pu: all well inside Q8.24's
     /// +-128, with 2^-24 resolution.
@@ -132,8 +132,9 @@ mod tests {
         assert!((m.psi_f_wb / b.flux_wb() - 1.0).abs() < 1e-6);
         // L = Z / omega, and R * t has the dimension of L.
         assert!((b.inductance_h() * b.omega_rad_s - b.impedance_ohm()).abs() < 1e-4);
-        // 2x rated peak current, 2x top speed, the 311 V bus: far inside Q8.24's range.
-        assert!(2.0 * m.rated_current_a * core::f32::consts::SQRT_2 / b.current_a < 1.5);
+        // 2x rated peak current is 2 pu by construction; with 2x top speed and the 311 V
+        // bus, every figure stays far inside Q8.24's +-128.
+        assert!((2.0 * m.rated_current_a * core::f32::consts::SQRT_2 / b.current_a - 2.0).abs() < 1e-6);
         assert!(m.omega_e_from_speed(0.9) / b.omega_rad_s < 0.2);
         assert!(311.0 / b.voltage_v < 2.0);
     }
