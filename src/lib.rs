@@ -18,15 +18,16 @@
 //! | [`pll`] | §4 | angle and speed from the flux |
 //! | [`estimator`] | §4–5 | observer + PLL as the drive and trace replay run them |
 //! | [`drive`] | §5 | the control step: FOC loop, I/f start-up, protection state machine |
+//! | [`link`] | — | hardware-in-the-loop serial protocol: sensor and actuation frames, COBS + CRC-16, receiver, watchdog |
 //!
 //! ## Numbers
 //! Every algorithm is generic over [`num::Scalar`] and instantiated three times: `f32`
 //! for Cortex-M4F, saturating fixed point [`num::Q24`] (Q8.24) for FPU-less cores, and
 //! `f64` as the host reference. Generics (rather than macros or a feature-selected type
 //! alias) keep one type-checked source, let a host test run all three side by side, and
-//! cost nothing at run time. Fixed point runs in per-unit ([`units::Base::for_motor`]),
-//! where the paper motor at twice rated current and twice its top speed stays below
-//! 1.5 in a range of +-128 with a resolution of 6e-8.
+//! cost nothing at run time. Fixed point runs in per-unit ([`units::Base::for_motor`]):
+//! on the paper motor at twice rated current and twice its top speed, currents reach
+//! 2 pu and the bus 1.7 pu, in a range of +-128 with a resolution of 6e-8.
 //!
 //! ## Angles
 //! [`num::Angle`] is a 32-bit binary angle: wrapping is exact and free. Cosine and sine
@@ -39,6 +40,7 @@
 
 pub mod drive;
 pub mod estimator;
+pub mod link;
 pub mod motor;
 pub mod num;
 pub mod observer;
