@@ -29,7 +29,10 @@
 mod config;
 mod faults;
 
-pub use config::{DeadTimeCompensation, DriveConfig, DriveConfigError, FaultConfig, StartupConfig};
+pub use config::{
+    DeadTimeCompensation, DriveConfig, DriveConfigError, FaultConfig, PAPER_AXIS_BUS_V,
+    PAPER_AXIS_PAYLOAD_KG, StartupConfig,
+};
 pub use faults::Faults;
 
 use crate::estimator::{Estimate, Estimator};

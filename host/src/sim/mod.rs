@@ -12,10 +12,11 @@ pub mod scenarios;
 
 use crate::plant::{Plant, PlantError, SimParams, TrueState};
 use crate::trace::{TraceRow, wrap_angle};
-use dcfo::drive::{Drive, DriveConfig, DriveState, Faults, Measurements};
+use dcfo::drive::{Drive, DriveConfig, DriveState, Faults, PAPER_AXIS_PAYLOAD_KG, StepOutput};
+use dcfo::link::{ActuationFrame, LinkStats, SensorFrame};
 use dcfo::motor::MotorParams;
 use dcfo::observer::ObserverKind;
-use dcfo::transforms::{Abc, AlphaBeta};
+use dcfo::transforms::{Abc, AlphaBeta, clarke};
 use dcfo::units::Base;
 
 pub use scenarios::{Event, Scenario};
@@ -28,6 +29,9 @@ pub struct Sample {
     pub row: TraceRow,
     /// Estimated electrical angle, rad in (-pi, pi].
     pub theta_hat: f64,
+    /// The angle estimate as the HIL link reports it (rad, f32): equal bit for bit
+    /// between the in-process drive and the same drive on a target with IEEE f32.
+    pub theta_hat_link: f32,
     /// Estimated speed, m/s.
     pub v_hat: f64,
     /// Estimated mover flux, Wb.
@@ -80,17 +84,11 @@ pub enum SimError {
     /// The drive settings were refused.
     #[error("drive: {0}")]
     Drive(dcfo::drive::DriveConfigError),
+    /// The controller behind the HIL link failed (I/O, timeout, bad frame) or cannot do
+    /// what the scenario asks.
+    #[error("controller: {0}")]
+    Controller(String),
 }
-
-/// Carriage and load moved by the paper motor in the simulated experiments, kg.
-///
-/// The paper states only the mover's 0.66 kg. Alone, it would accelerate at 60 m/s^2
-/// under the 40 N load step, so any back-EMF estimator (whose angle lags transients by
-/// 15-30 ms at 8-15 Hz) would see speed dips of several tenths of a m/s, not the
-/// 0.034-0.039 m/s the paper reports: its test axis moved far more mass. 10 kg is a
-/// typical carriage plus load for a 150 N-class linear motor; it was not fitted to any
-/// figure.
-pub const PAPER_PAYLOAD_KG: f64 = 10.0;
 
 /// Everything a run needs besides the scenario.
 #[derive(Clone, Debug)]
@@ -104,33 +102,93 @@ pub struct Setup {
 }
 
 impl Setup {
-    /// The paper motor carrying a [`PAPER_PAYLOAD_KG`] carriage and load, on a realistic
-    /// inverter and sensors; drive defaults with the given observer, the total moving
-    /// mass, and inverter compensation matched to the plant's dead time and drops.
+    /// The paper motor on the simulated test axis: the plant carries the
+    /// [`PAPER_AXIS_PAYLOAD_KG`] carriage on a realistic inverter and sensors, and the
+    /// drive runs [`DriveConfig::paper_axis`] — the settings the HIL firmware runs too.
     pub fn paper(observer: ObserverKind) -> Self {
         let motor = MotorParams::paper();
         let mut plant = SimParams::from_motor(&motor);
-        plant.plant.mass_kg += PAPER_PAYLOAD_KG;
-        let mut drive = DriveConfig::for_motor(&motor, plant.inverter.dc_bus_v as f32, observer);
-        drive.moving_mass_kg = plant.plant.mass_kg as f32;
-        drive.dead_time_compensation = Some(dcfo::drive::DeadTimeCompensation {
-            dead_time_s: plant.inverter.dead_time_s as f32,
-            device_drop_v: (0.5 * (plant.inverter.igbt_threshold_v + plant.inverter.diode_threshold_v))
-                as f32,
-            current_band_a: 0.01,
-        });
-        Setup { motor, plant, drive }
+        plant.plant.mass_kg += f64::from(PAPER_AXIS_PAYLOAD_KG);
+        Setup { motor, plant, drive: DriveConfig::paper_axis(observer) }
     }
 }
 
-/// Runs `scenario` on `setup`, calling `progress(fraction)` now and then.
-pub fn run(setup: &Setup, scenario: &Scenario, mut progress: impl FnMut(f64)) -> Result<Run, SimError> {
+/// One control step as the simulation sees it: the actuation frame (what a drive behind
+/// a serial link reports, with its conversions) and, for the in-process drive, the
+/// drive's full step output.
+#[derive(Clone, Copy, Debug)]
+pub struct ControlStep {
+    /// What the drive reports, exactly as the HIL link carries it.
+    pub frame: ActuationFrame,
+    /// The in-process drive's full output (observer inputs, currents); `None` over a
+    /// link.
+    pub detail: Option<StepOutput<f32>>,
+}
+
+/// A drive the simulation can close the loop with: in-process ([`LocalDrive`]) or
+/// behind the HIL serial link (`crate::hil`).
+pub trait Controller {
+    /// Adds DC offsets to the observer's voltage (V) and current (A) inputs (the paper's
+    /// disturbance tests); only an in-process drive can.
+    fn set_observer_offsets(&mut self, u_v: [f64; 2], i_a: [f64; 2]) -> Result<(), SimError>;
+    /// One control step on the sensor frame (measurements and commands) of this period.
+    fn step(&mut self, sensor: &SensorFrame) -> Result<ControlStep, SimError>;
+}
+
+/// The library's `Drive<f32>` in this process (SI working units).
+#[derive(Clone, Debug)]
+pub struct LocalDrive {
+    drive: Drive<f32>,
+}
+
+impl LocalDrive {
+    /// A drive for `setup`'s motor and settings.
+    pub fn new(setup: &Setup) -> Result<Self, SimError> {
+        Ok(LocalDrive { drive: Drive::new(&setup.motor, &setup.drive, &Base::SI).map_err(SimError::Drive)? })
+    }
+}
+
+impl Controller for LocalDrive {
+    fn set_observer_offsets(&mut self, u_v: [f64; 2], i_a: [f64; 2]) -> Result<(), SimError> {
+        self.drive.set_observer_offsets(
+            AlphaBeta::new(u_v[0] as f32, u_v[1] as f32),
+            AlphaBeta::new(i_a[0] as f32, i_a[1] as f32),
+        );
+        Ok(())
+    }
+
+    fn step(&mut self, sensor: &SensorFrame) -> Result<ControlStep, SimError> {
+        // The same three calls the firmware makes on a received frame.
+        sensor.apply_commands(&mut self.drive);
+        let out = self.drive.step(&sensor.measurements(&Base::SI));
+        let frame = ActuationFrame::from_step(sensor.sequence, &out, &Base::SI, LinkStats::default());
+        Ok(ControlStep { frame, detail: Some(out) })
+    }
+}
+
+/// Runs `scenario` on `setup` with the in-process drive, calling `progress(fraction)`
+/// now and then.
+pub fn run(setup: &Setup, scenario: &Scenario, progress: impl FnMut(f64)) -> Result<Run, SimError> {
+    run_with(setup, scenario, &mut LocalDrive::new(setup)?, progress)
+}
+
+/// Runs `scenario` with the plant of `setup` in closed loop with `controller`.
+///
+/// Trace rows log what the observer was given. Over a link the drive's intended
+/// voltage is not carried: rows then hold the voltage commanded by the duties (dead-time
+/// compensation included) and the Clarke transform of the measured currents, so such a
+/// trace is for plots and summaries, not for bit-exact replay.
+pub fn run_with(
+    setup: &Setup,
+    scenario: &Scenario,
+    controller: &mut dyn Controller,
+    mut progress: impl FnMut(f64),
+) -> Result<Run, SimError> {
     let mut plant_params = setup.plant;
     if let Some(k) = scenario.plant_rs_factor {
         plant_params.plant.rs_ohm *= k;
     }
     let mut plant = Plant::new(&plant_params)?;
-    let mut drive: Drive<f32> = Drive::new(&setup.motor, &setup.drive, &Base::SI).map_err(SimError::Drive)?;
     let ts = plant.pwm_period_s();
     let n = (scenario.duration_s / ts).round() as usize;
     let mut pending = [0.5f64; 3];
@@ -141,71 +199,95 @@ pub fn run(setup: &Setup, scenario: &Scenario, mut progress: impl FnMut(f64)) ->
     events.sort_by(|a, b| a.0.total_cmp(&b.0));
     let mut next_event = 0;
     let mut v_ref_target = 0.0;
-    drive.enable();
+    let mut faults = Faults::NONE;
     for k in 0..n {
         let t = k as f64 * ts;
         while next_event < events.len() && events[next_event].0 <= t + 0.5 * ts {
             match events[next_event].1 {
-                Event::Speed(v) => {
-                    v_ref_target = v;
-                    drive.set_speed_reference(drive.omega_from_speed(v as f32));
-                }
+                Event::Speed(v) => v_ref_target = v,
                 Event::Load(f) => load_n = f,
-                Event::ObserverOffsets { u_v, i_a } => drive.set_observer_offsets(
-                    AlphaBeta::new(u_v[0] as f32, u_v[1] as f32),
-                    AlphaBeta::new(i_a[0] as f32, i_a[1] as f32),
-                ),
+                Event::ObserverOffsets { u_v, i_a } => controller.set_observer_offsets(u_v, i_a)?,
             }
             next_event += 1;
         }
         let reading = plant.sample();
         let truth: TrueState = plant.state();
-        let m = Measurements {
-            i_abc: Abc {
-                a: reading.i_abc_a[0] as f32,
-                b: reading.i_abc_a[1] as f32,
-                c: reading.i_abc_a[2] as f32,
-            },
+        let sensor = SensorFrame {
+            sequence: k as u16,
+            i_a: reading.i_abc_a[0] as f32,
+            i_b: reading.i_abc_a[1] as f32,
+            i_c: reading.i_abc_a[2] as f32,
             vdc: reading.vdc_v as f32,
+            speed_ref: v_ref_target as f32,
+            enable: true,
+            clear_faults: false,
         };
-        let out = drive.step(&m);
+        let step = controller.step(&sensor)?;
+        let f = step.frame;
         plant.step(pending, load_n);
         let applied = plant.state().last_period;
-        pending = if out.bridge_enabled {
-            [out.duties.a as f64, out.duties.b as f64, out.duties.c as f64]
+        pending = if f.bridge_enabled {
+            [f.duty_a as f64, f.duty_b as f64, f.duty_c as f64]
         } else {
             // The plant has no open-bridge mode: centred duties apply zero line voltage.
             [0.5; 3]
         };
-        if out.state == DriveState::Running && handover_s.is_none() {
+        faults = f.faults;
+        if f.state == DriveState::Running && handover_s.is_none() {
             handover_s = Some(t);
         }
-        if let Some(e) = out.estimate {
-            let v_ref = if out.state == DriveState::Running { v_ref_target } else { f64::NAN };
-            samples.push(Sample {
-                row: TraceRow {
-                    t,
-                    u_alpha: out.u_applied.alpha as f64,
-                    u_beta: out.u_applied.beta as f64,
-                    i_alpha: out.i_observer.alpha as f64,
-                    i_beta: out.i_observer.beta as f64,
-                    theta: Some(wrap_angle(truth.theta_e_rad)),
-                    v: Some(truth.v_m_per_s),
-                    x: Some(truth.x_m),
-                },
-                theta_hat: e.theta_e.to_radians::<f64>(),
-                v_hat: e.speed_m_per_s as f64,
-                psi_hat: [e.psi_ab.alpha as f64, e.psi_ab.beta as f64],
-                psi_true: [truth.psi_f_alpha_wb, truth.psi_f_beta_wb],
-                u_actual: [applied.u_alpha_avg_v, applied.u_beta_avg_v],
-                i_d_ref: out.i_dq_ref.d as f64,
-                i_d: out.i_dq.d as f64,
-                i_q_ref: out.i_dq_ref.q as f64,
-                i_q: out.i_dq.q as f64,
-                v_ref,
-                state: out.state.code(),
-            });
-        }
+        let Some(e) = f.estimate else { continue };
+        let v_ref = if f.state == DriveState::Running { v_ref_target } else { f64::NAN };
+        let (observer_u, observer_i, i_dq, i_dq_ref, theta_hat, psi_hat) = match step.detail {
+            Some(out) => match out.estimate {
+                Some(est) => (
+                    [out.u_applied.alpha as f64, out.u_applied.beta as f64],
+                    [out.i_observer.alpha as f64, out.i_observer.beta as f64],
+                    [out.i_dq.d as f64, out.i_dq.q as f64],
+                    [out.i_dq_ref.d as f64, out.i_dq_ref.q as f64],
+                    est.theta_e.to_radians::<f64>(),
+                    [est.psi_ab.alpha as f64, est.psi_ab.beta as f64],
+                ),
+                None => continue,
+            },
+            None => {
+                let (ua, ub) = applied.commanded_alpha_beta_v();
+                let i = clarke(Abc { a: reading.i_abc_a[0], b: reading.i_abc_a[1], c: reading.i_abc_a[2] });
+                let nan = [f64::NAN; 2];
+                (
+                    [ua, ub],
+                    [i.alpha, i.beta],
+                    nan,
+                    nan,
+                    wrap_angle(e.theta_hat as f64),
+                    [e.psi_alpha as f64, e.psi_beta as f64],
+                )
+            }
+        };
+        samples.push(Sample {
+            row: TraceRow {
+                t,
+                u_alpha: observer_u[0],
+                u_beta: observer_u[1],
+                i_alpha: observer_i[0],
+                i_beta: observer_i[1],
+                theta: Some(wrap_angle(truth.theta_e_rad)),
+                v: Some(truth.v_m_per_s),
+                x: Some(truth.x_m),
+            },
+            theta_hat,
+            theta_hat_link: e.theta_hat,
+            v_hat: e.speed as f64,
+            psi_hat,
+            psi_true: [truth.psi_f_alpha_wb, truth.psi_f_beta_wb],
+            u_actual: [applied.u_alpha_avg_v, applied.u_beta_avg_v],
+            i_d_ref: i_dq_ref[0],
+            i_d: i_dq[0],
+            i_q_ref: i_dq_ref[1],
+            i_q: i_dq[1],
+            v_ref,
+            state: f.state.code(),
+        });
         if k % 4096 == 0 {
             progress(k as f64 / n as f64);
         }
@@ -216,7 +298,7 @@ pub fn run(setup: &Setup, scenario: &Scenario, mut progress: impl FnMut(f64)) ->
         observer: setup.drive.estimator.observer,
         samples,
         handover_s,
-        faults: drive.faults(),
+        faults,
         period_s: ts,
         simulated_s: n as f64 * ts,
     })
@@ -225,4 +307,23 @@ pub fn run(setup: &Setup, scenario: &Scenario, mut progress: impl FnMut(f64)) ->
 /// Electrical-degree angle error `theta - theta_hat`, wrapped to (-180, 180].
 pub fn theta_err_deg(s: &Sample) -> f64 {
     s.row.theta.map(|th| wrap_angle(th - s.theta_hat).to_degrees()).unwrap_or(f64::NAN)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The drive preset the firmware also runs must describe the simulated axis.
+    #[test]
+    fn paper_axis_preset_matches_the_plant() {
+        let s = Setup::paper(ObserverKind::Dcfo);
+        let inv = &s.plant.inverter;
+        let comp = s.drive.dead_time_compensation.expect("compensated");
+        assert_eq!(comp.dead_time_s, inv.dead_time_s as f32);
+        assert_eq!(comp.device_drop_v, (0.5 * (inv.igbt_threshold_v + inv.diode_threshold_v)) as f32);
+        assert!((f64::from(dcfo::drive::PAPER_AXIS_BUS_V) - inv.dc_bus_v).abs() < 1e-3);
+        assert_eq!(s.drive.moving_mass_kg, s.plant.plant.mass_kg as f32);
+        let noise = s.plant.sensors.current_noise_rms_a;
+        assert!((0.5 * noise..=2.0 * noise).contains(&f64::from(comp.current_band_a)));
+    }
 }
