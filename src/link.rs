@@ -903,6 +903,75 @@ impl LinkWatchdog {
     }
 }
 
+/// The controller side of the lock-step link: fed one received byte at a time, it
+/// decodes sensor frames, keeps the sequence and the statistics, runs one control step
+/// of the drive per in-order frame and encodes the answer. The firmware calls it from
+/// its UART receive path; host tests call it from a fake firmware, so both run one code
+/// path.
+#[derive(Clone, Debug, Default)]
+pub struct LinkServer {
+    rx: Receiver<SensorFrame>,
+    sequence: SequenceTracker,
+    watchdog: LinkWatchdog,
+}
+
+impl LinkServer {
+    /// A server with an empty receiver, no sequence history and the default watchdog
+    /// ([`SILENT_LINK_PERIODS`]).
+    pub fn new() -> Self {
+        LinkServer {
+            rx: Receiver::new(),
+            sequence: SequenceTracker::new(),
+            watchdog: LinkWatchdog::default(),
+        }
+    }
+
+    /// Feeds one received byte. When it completes an in-order sensor frame, applies its
+    /// commands, runs `drive.step`, encodes the actuation frame into `out` and returns
+    /// its length in bytes; otherwise `None` (partial, rejected or out-of-order frames are
+    /// counted, never acted on). `base` is the drive's working-unit base.
+    pub fn on_byte<T: Scalar>(
+        &mut self,
+        byte: u8,
+        drive: &mut Drive<T>,
+        base: &Base,
+        out: &mut [u8; ActuationFrame::WIRE_LEN],
+    ) -> Option<usize> {
+        let frame = match self.rx.push(byte)? {
+            Ok(frame) => frame,
+            Err(_) => return None,
+        };
+        if !matches!(self.sequence.check(frame.sequence), SequenceOrder::InOrder { .. }) {
+            self.rx.stats_mut().record_out_of_order();
+            return None;
+        }
+        self.watchdog.period(true);
+        frame.apply_commands(drive);
+        let step = drive.step(&frame.measurements(base));
+        let reply = ActuationFrame::from_step(frame.sequence, &step, base, self.rx.stats());
+        encode(&reply, out).ok()
+    }
+
+    /// One control period without a received frame (call from a periodic interrupt
+    /// when no frame arrived in the period). After [`SILENT_LINK_PERIODS`] in a row it
+    /// trips `drive` with [`Faults::EXTERNAL`] (bridge off) and forgets the sequence, so
+    /// that a restarted host is accepted; returns `true` while the link is silent past
+    /// the limit.
+    pub fn silent_period<T: Scalar>(&mut self, drive: &mut Drive<T>) -> bool {
+        let tripped = self.watchdog.period(false);
+        if tripped {
+            drive.trip(Faults::EXTERNAL);
+            self.sequence.reset();
+        }
+        tripped
+    }
+
+    /// The link statistics so far.
+    pub fn stats(&self) -> LinkStats {
+        self.rx.stats()
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -778,3 +778,44 @@ fn measurements_use_the_working_units() {
     let si = f.measurements::<f64>(&Base::SI);
     assert_eq!(si.i_abc.b, f64::from(f.i_b));
 }
+
+/// The controller side: a silent link trips the drive after exactly the stated number of
+/// periods, and an in-order frame is answered with the frame of its sequence number.
+#[test]
+fn link_server_answers_in_order_frames_and_trips_a_silent_link() {
+    use dcfo::link::{LinkServer, SILENT_LINK_PERIODS};
+
+    let m = MotorParams::paper();
+    let mut drive: Drive<f32> =
+        Drive::new(&m, &DriveConfig::for_motor(&m, 311.0, ObserverKind::Dcfo), &Base::SI).unwrap();
+    let mut server = LinkServer::new();
+    let mut out = [0u8; ActuationFrame::WIRE_LEN];
+    let frame = SensorFrame {
+        sequence: 41,
+        i_a: 0.0,
+        i_b: 0.0,
+        i_c: 0.0,
+        vdc: 311.0,
+        speed_ref: 0.3,
+        enable: true,
+        clear_faults: false,
+    };
+    let mut wire = [0u8; SensorFrame::WIRE_LEN];
+    let n = encode(&frame, &mut wire).unwrap();
+    let mut answered = None;
+    for &b in &wire[..n] {
+        if let Some(len) = server.on_byte(b, &mut drive, &Base::SI, &mut out) {
+            answered = Some(len);
+        }
+    }
+    let len = answered.expect("an in-order frame is answered");
+    // The answer is COBS-framed; decode it as the host does.
+    let mut rx = Receiver::<ActuationFrame>::new();
+    let reply = out[..len].iter().find_map(|&b| rx.push(b)).expect("a frame").expect("valid");
+    assert_eq!(reply.sequence, 41);
+    for period in 1..=SILENT_LINK_PERIODS {
+        let tripped = server.silent_period(&mut drive);
+        assert_eq!(tripped, period == SILENT_LINK_PERIODS, "period {period}");
+    }
+    assert!(drive.faults().contains(Faults::EXTERNAL));
+}
