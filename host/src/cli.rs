@@ -54,6 +54,42 @@ pub enum Command {
     Paper(PaperArgs),
     /// Simulate one scenario of the closed-loop sensorless drive.
     Sim(SimArgs),
+    /// Hardware-in-the-loop: run a scenario with the drive on a target (QEMU or a board
+    /// on a serial port) in lock-step with the simulated plant.
+    Hil(HilArgs),
+}
+
+/// Arguments of `dcfo hil`.
+#[derive(Debug, Clone, Args)]
+pub struct HilArgs {
+    /// Run the firmware on QEMU's mps2-an386 board (Cortex-M4F); it is built with cargo
+    /// unless --elf is given. Needs qemu-system-arm.
+    #[arg(long, conflicts_with = "port", required_unless_present = "port")]
+    pub qemu: bool,
+    /// Serial device of a drive board running the HIL firmware (e.g. /dev/ttyACM0).
+    #[arg(long, value_name = "DEVICE")]
+    pub port: Option<PathBuf>,
+    /// Baud rate of --port, bit/s (8N1).
+    #[arg(long, value_name = "N", default_value_t = 921_600)]
+    pub baud: u32,
+    /// Scenario by name; the link carries no observer offsets, so: steady, speed-step or
+    /// load-step.
+    #[arg(long, value_name = "NAME", default_value = "steady")]
+    pub scenario: String,
+    /// Simulated time, s (default: the scenario's full duration).
+    #[arg(long, value_name = "S")]
+    pub duration: Option<f64>,
+    /// Firmware ELF for --qemu (default: build and use
+    /// target/thumbv7em-none-eabihf/release/qemu_m4f).
+    #[arg(long, value_name = "FILE")]
+    pub elf: Option<PathBuf>,
+    /// Also run the scenario with the drive in this process and require the angle
+    /// estimates (f32, as the link reports them) to be identical bit for bit.
+    #[arg(long)]
+    pub check: bool,
+    /// Directory for the trace (CSV, SI units), summary (JSON) and figures (PNG, SVG).
+    #[arg(long, value_name = "DIR", default_value = "out/hil")]
+    pub out: PathBuf,
 }
 
 /// Observers the replay can run.
@@ -192,6 +228,10 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         }
         Command::Paper(args) => Ok(run_paper(&args)),
         Command::Sim(args) => Ok(run_sim(&args)),
+        Command::Hil(args) => {
+            crate::hil::run_hil(&args)?;
+            Ok(ExitCode::SUCCESS)
+        }
     }
 }
 

@@ -3,6 +3,7 @@
 #![deny(missing_docs)]
 
 pub mod cli;
+pub mod hil;
 pub mod motor_file;
 pub mod plant;
 pub mod plot;

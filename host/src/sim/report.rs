@@ -165,9 +165,10 @@ pub fn table(report: &PaperReport) -> String {
     s
 }
 
-/// Every `step`-th sample in the display window of `sc` as (t, value).
+/// Every fifth sample in the display window of `sc` as (t, value).
 fn series(run: &Run, sc: &Scenario, value: impl Fn(&super::Sample) -> f64) -> Vec<(f64, f64)> {
-    let t0 = sc.event_s - 0.5;
+    // From half a second before the event; a run shortened before it shows everything.
+    let t0 = if sc.event_s < run.simulated_s { sc.event_s - 0.5 } else { 0.0 };
     run.samples.iter().filter(|s| s.row.t >= t0).step_by(5).map(|s| (s.row.t, value(s))).collect()
 }
 
@@ -272,13 +273,7 @@ pub fn run_sim(name: &str, observer: ObserverKind, out: &Path) -> Result<Figures
     bar.finish_and_clear();
     let wall = start.elapsed().as_secs_f64();
     let f = figures(&run, &sc);
-    let (trace, estimates) = trace_of(&run)?;
-    let mut w = InputTraceWriter::create(out.join("trace.csv"), GroundTruth::ALL, &[])?;
-    for row in trace.rows() {
-        w.write(row, &[])?;
-    }
-    w.finish()?;
-    write_output_trace(out.join("estimates.csv"), &trace, &estimates)?;
+    write_run_outputs(&run, &sc, out, observer_name(observer))?;
     let summary = serde_json::json!({
         "scenario": sc.name,
         "observer": observer_name(observer),
@@ -287,26 +282,6 @@ pub fn run_sim(name: &str, observer: ObserverKind, out: &Path) -> Result<Figures
     });
     std::fs::write(out.join("summary.json"), serde_json::to_string_pretty(&summary)?)
         .with_context(|| format!("writing {}/summary.json", out.display()))?;
-    let panels = vec![
-        Panel::new(
-            "psi [Wb]",
-            vec![
-                Series::line("psi_alpha true", series(&run, &sc, |s| s.psi_true[0])),
-                Series::line("psi_alpha estimate", series(&run, &sc, |s| s.psi_hat[0])),
-                Series::line("psi_beta estimate", series(&run, &sc, |s| s.psi_hat[1])),
-            ],
-        ),
-        Panel::new(
-            "speed [m/s]",
-            vec![
-                Series::line("true", series(&run, &sc, |s| s.row.v.unwrap_or(f64::NAN))),
-                Series::line("estimate", series(&run, &sc, |s| s.v_hat)),
-            ],
-        ),
-        Panel::new("position error [deg el]", vec![Series::line("error", series(&run, &sc, theta_err_deg))]),
-    ];
-    let title = format!("{} ({}): {}", sc.name, observer_name(observer), sc.description);
-    write_figure(&time_series_figure(title, panels), &out.join(sc.name))?;
     println!(
         "{} with the {}: theta_err max {:.2} deg, rms {:.2} deg; v_err max {:.4} m/s; flux drift {:.4} Wb; real-time factor {:.1}",
         sc.name,
@@ -319,4 +294,37 @@ pub fn run_sim(name: &str, observer: ObserverKind, out: &Path) -> Result<Figures
     );
     eprintln!("trace.csv, estimates.csv, summary.json and figures in {}", out.display());
     Ok(f)
+}
+
+/// Writes a run's `trace.csv` (input format with ground truth), `estimates.csv` (output
+/// format) and its figure into `out`; `label` names the drive in the figure's title.
+pub fn write_run_outputs(run: &Run, sc: &Scenario, out: &Path, label: &str) -> Result<()> {
+    let (trace, estimates) = trace_of(run)?;
+    let mut w = InputTraceWriter::create(out.join("trace.csv"), GroundTruth::ALL, &[])?;
+    for row in trace.rows() {
+        w.write(row, &[])?;
+    }
+    w.finish()?;
+    write_output_trace(out.join("estimates.csv"), &trace, &estimates)?;
+    let panels = vec![
+        Panel::new(
+            "psi [Wb]",
+            vec![
+                Series::line("psi_alpha true", series(run, sc, |s| s.psi_true[0])),
+                Series::line("psi_alpha estimate", series(run, sc, |s| s.psi_hat[0])),
+                Series::line("psi_beta estimate", series(run, sc, |s| s.psi_hat[1])),
+            ],
+        ),
+        Panel::new(
+            "speed [m/s]",
+            vec![
+                Series::line("true", series(run, sc, |s| s.row.v.unwrap_or(f64::NAN))),
+                Series::line("estimate", series(run, sc, |s| s.v_hat)),
+            ],
+        ),
+        Panel::new("position error [deg el]", vec![Series::line("error", series(run, sc, theta_err_deg))]),
+    ];
+    let title = format!("{} ({label}): {}", sc.name, sc.description);
+    write_figure(&time_series_figure(title, panels), &out.join(sc.name))?;
+    Ok(())
 }

@@ -1,0 +1,306 @@
+//! Hardware-in-the-loop: the plant simulation in lock-step with a drive behind the
+//! serial link of [`dcfo::link`] — the firmware on QEMU's `mps2-an386` board (UART0 on
+//! QEMU's standard I/O), or a board on a serial port.
+//!
+//! Per PWM period the host sends one [`SensorFrame`] and waits for the
+//! [`ActuationFrame`] with the same sequence number; the plant then runs the period with
+//! the duties of the previous answer, exactly as in the in-process simulation
+//! ([`crate::sim::run_with`]). The firmware runs the same `Drive<f32>` code, so on an
+//! IEEE-f32 target the angle estimates equal the in-process run's bit for bit.
+
+use crate::sim::{ControlStep, Controller, SimError};
+use dcfo::link::{ActuationFrame, Receiver, SensorFrame, encode};
+use std::collections::VecDeque;
+use std::io::{Read, Write};
+use std::path::{Path, PathBuf};
+use std::process::{Child, ChildStdin, Command, Stdio};
+use std::sync::mpsc;
+use std::time::{Duration, Instant};
+
+/// How long to wait for an answer before declaring the link dead.
+pub const ANSWER_TIMEOUT: Duration = Duration::from_secs(5);
+
+/// A drive behind a byte-stream link: frames out through `writer`, bytes in from a
+/// reader thread.
+pub struct SerialController<W: Write> {
+    writer: W,
+    incoming: mpsc::Receiver<std::io::Result<Vec<u8>>>,
+    pending: VecDeque<u8>,
+    receiver: Receiver<ActuationFrame>,
+    /// Frames that arrived with a sequence number other than the one awaited (dropped).
+    pub stale_frames: u64,
+    /// Lock-step round trips completed.
+    pub round_trips: u64,
+    started: Instant,
+}
+
+impl<W: Write> SerialController<W> {
+    /// A controller writing to `writer` and reading from `reader` (moved to a thread).
+    pub fn new(writer: W, mut reader: impl Read + Send + 'static) -> Self {
+        let (tx, incoming) = mpsc::channel();
+        std::thread::spawn(move || {
+            let mut buf = [0u8; 512];
+            loop {
+                match reader.read(&mut buf) {
+                    Ok(0) => {
+                        let _ = tx
+                            .send(Err(std::io::Error::new(std::io::ErrorKind::UnexpectedEof, "link closed")));
+                        return;
+                    }
+                    Ok(n) => {
+                        if tx.send(Ok(buf[..n].to_vec())).is_err() {
+                            return;
+                        }
+                    }
+                    Err(e) => {
+                        let _ = tx.send(Err(e));
+                        return;
+                    }
+                }
+            }
+        });
+        SerialController {
+            writer,
+            incoming,
+            pending: VecDeque::new(),
+            receiver: Receiver::new(),
+            stale_frames: 0,
+            round_trips: 0,
+            started: Instant::now(),
+        }
+    }
+
+    /// Lock-step round trips per second since the controller was created.
+    pub fn round_trips_per_s(&self) -> f64 {
+        self.round_trips as f64 / self.started.elapsed().as_secs_f64().max(1e-9)
+    }
+
+    fn await_answer(&mut self, sequence: u16) -> Result<ActuationFrame, SimError> {
+        let deadline = Instant::now() + ANSWER_TIMEOUT;
+        loop {
+            while let Some(byte) = self.pending.pop_front() {
+                match self.receiver.push(byte) {
+                    Some(Ok(frame)) if frame.sequence == sequence => return Ok(frame),
+                    Some(Ok(_)) => self.stale_frames += 1,
+                    Some(Err(_)) | None => {}
+                }
+            }
+            let left = deadline.saturating_duration_since(Instant::now());
+            match self.incoming.recv_timeout(left) {
+                Ok(Ok(bytes)) => self.pending.extend(bytes),
+                Ok(Err(e)) => return Err(SimError::Controller(format!("link read failed: {e}"))),
+                Err(_) => {
+                    return Err(SimError::Controller(format!(
+                        "no answer to frame {sequence} within {} s (link stats: {:?})",
+                        ANSWER_TIMEOUT.as_secs(),
+                        self.receiver.stats()
+                    )));
+                }
+            }
+        }
+    }
+}
+
+impl<W: Write> Controller for SerialController<W> {
+    fn set_observer_offsets(&mut self, _u_v: [f64; 2], _i_a: [f64; 2]) -> Result<(), SimError> {
+        Err(SimError::Controller(
+            "the HIL link carries no observer offsets: the dc-u, dc-i and resistance scenarios run in-process only"
+                .into(),
+        ))
+    }
+
+    fn step(&mut self, sensor: &SensorFrame) -> Result<ControlStep, SimError> {
+        let mut buf = [0u8; SensorFrame::WIRE_LEN];
+        let n = encode(sensor, &mut buf).map_err(|e| SimError::Controller(format!("encoding: {e}")))?;
+        self.writer
+            .write_all(&buf[..n])
+            .and_then(|_| self.writer.flush())
+            .map_err(|e| SimError::Controller(format!("link write failed: {e}")))?;
+        let frame = self.await_answer(sensor.sequence)?;
+        self.round_trips += 1;
+        Ok(ControlStep { frame, detail: None })
+    }
+}
+
+/// The firmware ELF for QEMU, in the workspace's target directory.
+pub fn default_qemu_elf(workspace: &Path) -> PathBuf {
+    workspace.join("target/thumbv7em-none-eabihf/release/qemu_m4f")
+}
+
+/// Builds the QEMU firmware with cargo (release, `thumbv7em-none-eabihf`).
+pub fn build_qemu_firmware(workspace: &Path) -> Result<PathBuf, SimError> {
+    let status = Command::new(std::env::var("CARGO").unwrap_or_else(|_| "cargo".into()))
+        .current_dir(workspace)
+        .args([
+            "build",
+            "--release",
+            "-p",
+            "dcfo-firmware",
+            "--bin",
+            "qemu_m4f",
+            "--target",
+            "thumbv7em-none-eabihf",
+        ])
+        .status()
+        .map_err(|e| SimError::Controller(format!("cannot run cargo to build the firmware: {e}")))?;
+    if !status.success() {
+        return Err(SimError::Controller(format!("building the QEMU firmware failed ({status})")));
+    }
+    Ok(default_qemu_elf(workspace))
+}
+
+/// QEMU running the firmware, its UART0 on QEMU's standard input and output.
+pub struct QemuSession {
+    child: Child,
+}
+
+impl QemuSession {
+    /// Starts `qemu-system-arm -M mps2-an386` with `elf`; returns the session and a
+    /// controller talking to its UART.
+    pub fn start(elf: &Path) -> Result<(QemuSession, SerialController<ChildStdin>), SimError> {
+        let mut child = Command::new("qemu-system-arm")
+            .args(["-M", "mps2-an386", "-cpu", "cortex-m4", "-display", "none", "-monitor", "none"])
+            .args(["-semihosting-config", "enable=on,target=native", "-serial", "stdio", "-kernel"])
+            .arg(elf)
+            .stdin(Stdio::piped())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::inherit())
+            .spawn()
+            .map_err(|e| {
+                SimError::Controller(format!(
+                    "cannot start qemu-system-arm ({e}); install it with apt-get install qemu-system-arm"
+                ))
+            })?;
+        let (Some(stdin), Some(stdout)) = (child.stdin.take(), child.stdout.take()) else {
+            let _ = child.kill();
+            return Err(SimError::Controller("qemu's standard I/O is not available".into()));
+        };
+        Ok((QemuSession { child }, SerialController::new(stdin, stdout)))
+    }
+}
+
+impl Drop for QemuSession {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+/// What a HIL run measured.
+#[derive(Debug, serde::Serialize)]
+pub struct HilReport {
+    /// Scenario name.
+    pub scenario: String,
+    /// The scenario's figures over its measurement window; `None` when the run was
+    /// shortened (`--duration`) to end before the window.
+    pub figures: Option<crate::sim::scenarios::Figures>,
+    /// Lock-step round trips per second over the link.
+    pub round_trips_per_s: f64,
+    /// Simulated time, s.
+    pub simulated_s: f64,
+    /// With `--check`: samples compared, and whether every angle estimate was identical.
+    pub equivalence: Option<Equivalence>,
+}
+
+/// Bit-for-bit comparison of the angle estimates of a HIL run and an in-process run.
+#[derive(Debug, serde::Serialize)]
+pub struct Equivalence {
+    /// Samples compared.
+    pub samples: usize,
+    /// Samples whose f32 angle estimate differed.
+    pub differing: usize,
+    /// Largest difference, electrical degrees.
+    pub max_diff_deg: f64,
+}
+
+/// Compares the link-reported angle estimates of two runs of the same scenario.
+pub fn compare_runs(a: &crate::sim::Run, b: &crate::sim::Run) -> Equivalence {
+    let mut differing = 0;
+    let mut max_diff_deg = 0.0f64;
+    let n = a.samples.len().min(b.samples.len());
+    for (x, y) in a.samples.iter().zip(&b.samples) {
+        if x.theta_hat_link.to_bits() != y.theta_hat_link.to_bits() || x.row.t != y.row.t {
+            differing += 1;
+            let d = crate::trace::wrap_angle(f64::from(x.theta_hat_link) - f64::from(y.theta_hat_link));
+            max_diff_deg = max_diff_deg.max(d.abs().to_degrees());
+        }
+    }
+    differing += a.samples.len().max(b.samples.len()) - n;
+    Equivalence { samples: n, differing, max_diff_deg }
+}
+
+/// `dcfo hil`: see [`crate::cli::HilArgs`].
+pub fn run_hil(args: &crate::cli::HilArgs) -> anyhow::Result<HilReport> {
+    use crate::sim::{Setup, run_with, scenarios};
+    use anyhow::Context;
+    let Some(mut scenario) = scenarios::scenario(&args.scenario) else {
+        anyhow::bail!("unknown scenario `{}`", args.scenario);
+    };
+    if let Some(d) = args.duration {
+        anyhow::ensure!(d.is_finite() && d > 0.0, "--duration must be a positive number of seconds");
+        scenario.duration_s = d;
+        scenario.window_s = scenario.window_s.min((d - scenario.event_s).max(0.0));
+    }
+    // The firmware runs the DCFO drive of the paper axis.
+    let setup = Setup::paper(dcfo::observer::ObserverKind::Dcfo);
+    std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
+    let bar = indicatif::ProgressBar::new(1000);
+    let progress = |f: f64| bar.set_position((f * 1000.0) as u64);
+    let (hil_run, rate) = if args.qemu {
+        let workspace = Path::new(env!("CARGO_MANIFEST_DIR")).parent().unwrap_or(Path::new("."));
+        let elf = match &args.elf {
+            Some(e) => e.clone(),
+            None => build_qemu_firmware(workspace)?,
+        };
+        let (_session, mut link) = QemuSession::start(&elf)?;
+        let run = run_with(&setup, &scenario, &mut link, progress)?;
+        (run, link.round_trips_per_s())
+    } else {
+        let Some(port) = &args.port else { anyhow::bail!("give --qemu or --port DEVICE") };
+        let dev = port.to_string_lossy().to_string();
+        let serial = serialport::new(&dev, args.baud)
+            .timeout(ANSWER_TIMEOUT)
+            .open()
+            .with_context(|| format!("opening {dev} at {} bit/s", args.baud))?;
+        let reader = serial.try_clone().with_context(|| format!("{dev}: second handle"))?;
+        let mut link = SerialController::new(serial, reader);
+        let run = run_with(&setup, &scenario, &mut link, progress)?;
+        (run, link.round_trips_per_s())
+    };
+    bar.finish_and_clear();
+    let figures = (scenario.window_s > 0.0).then(|| scenarios::figures(&hil_run, &scenario));
+    let equivalence = if args.check {
+        let local = crate::sim::run(&setup, &scenario, |_| {})?;
+        Some(compare_runs(&hil_run, &local))
+    } else {
+        None
+    };
+    let report = HilReport {
+        scenario: scenario.name.to_string(),
+        figures,
+        round_trips_per_s: rate,
+        simulated_s: hil_run.simulated_s,
+        equivalence,
+    };
+    crate::sim::report::write_run_outputs(&hil_run, &scenario, &args.out, "hil")?;
+    std::fs::write(args.out.join("summary.json"), serde_json::to_string_pretty(&report)?)
+        .with_context(|| format!("writing {}/summary.json", args.out.display()))?;
+    let figures_text = match figures {
+        Some(f) => {
+            format!("theta_err max {:.2} deg, rms {:.2} deg", f.theta_err_max_deg, f.theta_err_rms_deg)
+        }
+        None => format!("no figures (the run ends before the window at {} s)", scenario.event_s),
+    };
+    println!(
+        "{} over the HIL link: {figures_text}; {rate:.0} round trips/s; {:.2} s simulated",
+        report.scenario, hil_run.simulated_s
+    );
+    if let Some(e) = &report.equivalence {
+        println!(
+            "equivalence with the in-process drive: {} of {} angle estimates differ (max {:.2e} deg)",
+            e.differing, e.samples, e.max_diff_deg
+        );
+        anyhow::ensure!(e.differing == 0, "the HIL run's angle estimates differ from the in-process run's");
+    }
+    Ok(report)
+}
