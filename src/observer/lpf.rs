@@ -7,10 +7,9 @@
 //! rule on the leak term (Tustin for `s/(s + wc)`), which keeps the phase exact to
 //! `O((w dt)^2)`.
 
-use super::voltage_model::VoltageModel;
-use super::{FluxEstimate, FluxObserver, ObserverFault, ObserverInput, ObserverMotor, check_input};
+use super::voltage_model::StatorFlux;
+use super::{FluxEstimate, FluxObserver, ObserverFault, ObserverInput, ObserverMotor};
 use crate::num::Scalar;
-use crate::transforms::AlphaBeta;
 
 /// Why an LPF observer could not be built.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -23,10 +22,8 @@ pub enum LpfConfigError {
 /// LPF ("CFO") flux observer with a fixed cut-off. See the module docs.
 #[derive(Clone, Debug)]
 pub struct LpfObserver<T> {
-    model: VoltageModel<T>,
+    flux: StatorFlux<T>,
     cutoff: T,
-    psi_stator: AlphaBeta<T>,
-    faulted: bool,
 }
 
 impl<T: Scalar> LpfObserver<T> {
@@ -35,12 +32,7 @@ impl<T: Scalar> LpfObserver<T> {
         if !cutoff.is_valid() || cutoff <= T::ZERO {
             return Err(LpfConfigError::BadCutoff);
         }
-        Ok(LpfObserver {
-            model: VoltageModel::new(motor),
-            cutoff,
-            psi_stator: AlphaBeta::default(),
-            faulted: false,
-        })
+        Ok(LpfObserver { flux: StatorFlux::new(motor), cutoff })
     }
 
     /// The cut-off frequency (rad/s, working units).
@@ -51,33 +43,16 @@ impl<T: Scalar> LpfObserver<T> {
 
 impl<T: Scalar> FluxObserver<T> for LpfObserver<T> {
     fn update(&mut self, input: &ObserverInput<T>) -> Result<FluxEstimate<T>, ObserverFault> {
-        if self.faulted {
-            return Err(ObserverFault::StateOverflow);
-        }
-        check_input(input)?;
-        // y_k (1 + c) = y_{k-1} (1 - c) + increment, with c = wc dt / 2.
+        // y_k (1 + c) = y_{k-1} (1 - c) + increment, with c = wc dt / 2. A bad period
+        // is refused by the shared update before these are used.
         let c = self.cutoff * input.dt * T::HALF;
         let Some(inv) = T::ONE.checked_div(T::ONE + c) else {
             return Err(ObserverFault::InvalidPeriod);
         };
-        let keep = T::ONE - c;
-        let de = self.model.emf_increment(input);
-        let next = AlphaBeta {
-            alpha: (self.psi_stator.alpha * keep + de.alpha) * inv,
-            beta: (self.psi_stator.beta * keep + de.beta) * inv,
-        };
-        let psi_ab = self.model.mover_flux(next, input.i_ab);
-        if !(next.is_valid() && psi_ab.is_valid()) {
-            self.faulted = true;
-            return Err(ObserverFault::StateOverflow);
-        }
-        self.psi_stator = next;
-        Ok(FluxEstimate { psi_ab, disturbance_ab: None })
+        self.flux.update(input, T::ONE - c, inv)
     }
 
     fn reset(&mut self) {
-        self.model.reset();
-        self.psi_stator = AlphaBeta::default();
-        self.faulted = false;
+        self.flux.reset();
     }
 }

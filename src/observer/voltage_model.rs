@@ -1,7 +1,7 @@
 //! The part every voltage-model flux observer shares: the back-EMF increment
 //! `integral(u - Rs i)` over one period, and the inductive correction `- Ls i`.
 
-use super::ObserverInput;
+use super::{FluxEstimate, ObserverFault, ObserverInput, check_input};
 use crate::motor::MotorParams;
 use crate::num::Scalar;
 use crate::transforms::AlphaBeta;
@@ -61,5 +61,57 @@ impl<T: Scalar> VoltageModel<T> {
 
     pub(super) fn reset(&mut self) {
         self.i_prev = None;
+    }
+}
+
+/// The state the pure-integrator and LPF observers share: the stator-flux integral with
+/// an optional leak, `psi_s <- (psi_s * keep + increment) * scale`, and the latched
+/// overflow fault. `keep = scale = 1` is the pure integrator.
+#[derive(Clone, Debug)]
+pub(super) struct StatorFlux<T> {
+    model: VoltageModel<T>,
+    psi_stator: AlphaBeta<T>,
+    faulted: bool,
+}
+
+impl<T: Scalar> StatorFlux<T> {
+    pub(super) fn new(motor: ObserverMotor<T>) -> Self {
+        StatorFlux { model: VoltageModel::new(motor), psi_stator: AlphaBeta::default(), faulted: false }
+    }
+
+    pub(super) fn set(&mut self, psi_stator: AlphaBeta<T>) {
+        self.psi_stator = psi_stator;
+    }
+
+    /// One sample (see the struct docs); refuses bad input without touching the state
+    /// and latches an overflow until [`StatorFlux::reset`].
+    pub(super) fn update(
+        &mut self,
+        input: &ObserverInput<T>,
+        keep: T,
+        scale: T,
+    ) -> Result<FluxEstimate<T>, ObserverFault> {
+        if self.faulted {
+            return Err(ObserverFault::StateOverflow);
+        }
+        check_input(input)?;
+        let de = self.model.emf_increment(input);
+        let next = AlphaBeta {
+            alpha: (self.psi_stator.alpha * keep + de.alpha) * scale,
+            beta: (self.psi_stator.beta * keep + de.beta) * scale,
+        };
+        let psi_ab = self.model.mover_flux(next, input.i_ab);
+        if !(next.is_valid() && psi_ab.is_valid()) {
+            self.faulted = true;
+            return Err(ObserverFault::StateOverflow);
+        }
+        self.psi_stator = next;
+        Ok(FluxEstimate { psi_ab, disturbance_ab: None })
+    }
+
+    pub(super) fn reset(&mut self) {
+        self.model.reset();
+        self.psi_stator = AlphaBeta::default();
+        self.faulted = false;
     }
 }
