@@ -15,7 +15,7 @@ use crate::observer::{
     ObserverInput, ObserverKind, ObserverMotor, PureIntegrator,
 };
 use crate::pll::{Pll, PllConfig, PllConfigError, PllFault};
-use crate::transforms::AlphaBeta;
+use crate::transforms::{AlphaBeta, CosSin};
 use crate::units::Base;
 
 /// Estimator settings, SI.
@@ -74,6 +74,8 @@ pub enum EstimatorFault {
 pub struct Estimate<T> {
     /// Estimated electrical angle at this sample.
     pub theta_e: Angle,
+    /// Cosine and sine of `theta_e` (dimensionless), from the PLL.
+    pub cos_sin: CosSin<T>,
     /// Estimated electrical speed (rad/s).
     pub omega_e: T,
     /// Estimated linear speed (m/s, SI in every unit system).
@@ -128,6 +130,7 @@ impl<T: Scalar> Estimator<T> {
         let out = self.pll.update(flux.psi_ab, dt).map_err(EstimatorFault::Pll)?;
         Ok(Estimate {
             theta_e: out.theta_e,
+            cos_sin: out.cos_sin,
             omega_e: out.omega_e,
             speed_m_per_s: out.speed_m_per_s,
             psi_ab: flux.psi_ab,

@@ -44,7 +44,7 @@
 //! drive bounds by limiting its acceleration. Limits `2 pi [3, 40] Hz`.
 
 use crate::num::{Angle, Scalar};
-use crate::transforms::AlphaBeta;
+use crate::transforms::{AlphaBeta, CosSin};
 use crate::units::Base;
 
 /// PLL tuning, SI.
@@ -122,6 +122,9 @@ pub enum PllFault {
 pub struct PllOutput<T> {
     /// Estimated electrical angle at this sample (the one the error was measured with).
     pub theta_e: Angle,
+    /// Cosine and sine of `theta_e` (dimensionless), computed for the phase detector
+    /// and handed on so that a Park transform at the same angle need not recompute them.
+    pub cos_sin: CosSin<T>,
     /// Estimated electrical speed (rad/s).
     pub omega_e: T,
     /// Estimated linear speed (m/s, SI in every unit system): `omega_e * pole_pitch / pi`.
@@ -200,8 +203,8 @@ impl<T: Scalar> Pll<T> {
             return Err(PllFault::InvalidInput);
         }
         let theta = self.theta;
-        let (c, s) = T::cos_sin(theta);
-        let eps = psi_ab.beta * c - psi_ab.alpha * s;
+        let cos_sin = CosSin::new(theta);
+        let eps = psi_ab.beta * cos_sin.cos - psi_ab.alpha * cos_sin.sin;
         let magnitude = psi_ab.norm();
         let normalised = if magnitude >= self.min_flux { eps.checked_div(magnitude) } else { None };
         let (error, tracking) = match normalised {
@@ -221,6 +224,7 @@ impl<T: Scalar> Pll<T> {
         self.theta = theta + (omega * dt).radians_to_angle();
         Ok(PllOutput {
             theta_e: theta,
+            cos_sin,
             omega_e: omega,
             speed_m_per_s: omega * self.speed_per_omega,
             error,

@@ -487,7 +487,9 @@ impl<T: Scalar> Drive<T> {
         }
         let k = &self.k;
         out.theta_control = theta;
-        let cs = CosSin::new(theta);
+        // Running (also right after hand-over) controls at the PLL's angle, whose cos/sin
+        // the PLL has already computed.
+        let cs = if theta == estimate.theta_e { estimate.cos_sin } else { CosSin::new(theta) };
         let i_dq = park(out.i_ab, &cs);
         out.i_dq = i_dq;
 
@@ -582,7 +584,7 @@ impl<T: Scalar> Drive<T> {
     /// frame without a jump in the current vector or the voltage.
     fn hand_over(&mut self, theta_ol: Angle, estimate: &Estimate<T>) {
         let from = CosSin::new(theta_ol);
-        let to = CosSin::new(estimate.theta_e);
+        let to = estimate.cos_sin;
         let rotate = |v: Dq<T>| park(inverse_park(v, &from), &to);
         let i_ref = rotate(self.i_dq_ref);
         let integral = rotate(Dq::new(self.pi_d.integral(), self.pi_q.integral()));
