@@ -11,6 +11,7 @@
 //! | [`num`] | — | the [`Scalar`](num::Scalar) trait (f32, f64, [`Q24`](num::Q24)) and the binary [`Angle`](num::Angle) |
 //! | [`units`] | — | SI or per-unit working units |
 //! | [`motor`] | §1 | validated motor parameters |
+//! | [`motor_image`] | — | the motor as a CRC-protected binary record for a board's flash |
 //! | [`transforms`] | §5 | Clarke, Park and inverses |
 //! | [`pi`] | §5 | PI controller with anti-windup |
 //! | [`svpwm`] | §5 | space-vector modulation |
@@ -42,6 +43,7 @@ pub mod drive;
 pub mod estimator;
 pub mod link;
 pub mod motor;
+pub mod motor_image;
 pub mod num;
 pub mod observer;
 pub mod pi;

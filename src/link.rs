@@ -952,15 +952,19 @@ impl LinkServer {
         encode(&reply, out).ok()
     }
 
-    /// One control period without a received frame (call from a periodic interrupt
-    /// when no frame arrived in the period). After [`SILENT_LINK_PERIODS`] in a row it
-    /// trips `drive` with [`Faults::EXTERNAL`] (bridge off) and forgets the sequence, so
-    /// that a restarted host is accepted; returns `true` while the link is silent past
-    /// the limit.
+    /// One watchdog period (call from a periodic interrupt; frames accepted in between
+    /// restart the count). After [`SILENT_LINK_PERIODS`] periods in a row without an
+    /// accepted frame it forgets the sequence, so that a restarted host is accepted, and
+    /// — if the drive is active (calibrating, starting or running) — trips it with
+    /// [`Faults::EXTERNAL`], bridge off. A disabled or faulted drive already has its
+    /// bridge off and is left as it is, so a host that connects late finds the drive
+    /// ready. Returns `true` while the link is silent past the limit.
     pub fn silent_period<T: Scalar>(&mut self, drive: &mut Drive<T>) -> bool {
         let tripped = self.watchdog.period(false);
         if tripped {
-            drive.trip(Faults::EXTERNAL);
+            if !matches!(drive.state(), DriveState::Disabled | DriveState::Fault) {
+                drive.trip(Faults::EXTERNAL);
+            }
             self.sequence.reset();
         }
         tripped

@@ -818,4 +818,16 @@ fn link_server_answers_in_order_frames_and_trips_a_silent_link() {
         assert_eq!(tripped, period == SILENT_LINK_PERIODS, "period {period}");
     }
     assert!(drive.faults().contains(Faults::EXTERNAL));
+    assert_eq!(drive.state(), DriveState::Fault);
+    // The sequence was forgotten: a restarted host (sequence 0) is answered again.
+    let restart = SensorFrame { sequence: 0, clear_faults: true, enable: false, ..frame };
+    let n = encode(&restart, &mut wire).unwrap();
+    let answers = wire[..n].iter().filter(|&&b| server.on_byte(b, &mut drive, &Base::SI, &mut out).is_some());
+    assert_eq!(answers.count(), 1);
+    assert_eq!(drive.state(), DriveState::Disabled);
+    // A silent link does not latch a fault in a drive whose bridge is already off.
+    for _ in 0..3 * SILENT_LINK_PERIODS {
+        server.silent_period(&mut drive);
+    }
+    assert_eq!((drive.state(), drive.faults()), (DriveState::Disabled, Faults::NONE));
 }
