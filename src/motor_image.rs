@@ -55,7 +55,9 @@ impl core::fmt::Display for MotorImageError {
             MotorImageError::UnsupportedVersion(v) => write!(f, "motor image version {v} is not supported"),
             MotorImageError::BadCrc => write!(f, "motor image CRC mismatch (corrupted record)"),
             MotorImageError::Param(e) => write!(f, "motor image: {e}"),
-            MotorImageError::BusVoltage => write!(f, "motor image: bus voltage must be a positive number of volts"),
+            MotorImageError::BusVoltage => {
+                write!(f, "motor image: bus voltage must be a positive number of volts")
+            }
         }
     }
 }
@@ -116,7 +118,8 @@ impl MotorImage {
         if CRC16.checksum(&raw[..CRC_AT]).to_le_bytes() != [raw[CRC_AT], raw[CRC_AT + 1]] {
             return Err(MotorImageError::BadCrc);
         }
-        let f = |i: usize| f32::from_le_bytes([raw[8 + 4 * i], raw[9 + 4 * i], raw[10 + 4 * i], raw[11 + 4 * i]]);
+        let f =
+            |i: usize| f32::from_le_bytes([raw[8 + 4 * i], raw[9 + 4 * i], raw[10 + 4 * i], raw[11 + 4 * i]]);
         let motor = MotorParams {
             rs_ohm: f(0),
             ld_h: f(1),

@@ -1,16 +1,19 @@
 //! Firmware for the DCFO drive.
 //!
-//! - `board` (arm only): board support, the only code here that touches registers.
+//! - [`board`]: the traits a board provides to the drive ([`board::PhaseSensors`],
+//!   [`board::PowerStage`]), a fake board for tests and, on Arm, the board support —
+//!   the only code here that touches registers.
+//! - [`control`]: the control interrupt's work on a power stage, with lock-free setpoints
+//!   and telemetry.
+//! - [`hil`]: the lock-step HIL link's firmware side on any board (the library's
+//!   [`dcfo::link::LinkServer`], a transmit queue and the watchdog).
 //!
-//! The lock-step HIL protocol is the library's [`dcfo::link::LinkServer`], which the
-//! host's tests also run against a fake firmware.
-//!
-//! The binaries in `src/bin/` are the firmware images; on the host they build to an
-//! empty `main` so that `cargo test --workspace` and `cargo clippy --workspace` work.
+//! The firmware images are `examples/` (one per board); on the host they build to an
+//! empty `main` so that `cargo test --workspace --all-targets` and clippy work.
 #![no_std]
 #![deny(unsafe_code)]
 #![deny(missing_docs)]
 
-#[cfg(target_arch = "arm")]
-#[allow(unsafe_code)]
 pub mod board;
+pub mod control;
+pub mod hil;

@@ -62,8 +62,8 @@ pub enum Command {
 /// Arguments of `dcfo hil`.
 #[derive(Debug, Clone, Args)]
 pub struct HilArgs {
-    /// Run the firmware on QEMU's mps2-an386 board (Cortex-M4F); it is built with cargo
-    /// unless --elf is given. Needs qemu-system-arm.
+    /// Run the firmware on QEMU (board: --cpu); it is built with cargo unless --elf is
+    /// given. Needs qemu-system-arm.
     #[arg(long, conflicts_with = "port", required_unless_present = "port")]
     pub qemu: bool,
     /// Serial device of a drive board running the HIL firmware (e.g. /dev/ttyACM0).
@@ -79,12 +79,17 @@ pub struct HilArgs {
     /// Simulated time, s (default: the scenario's full duration).
     #[arg(long, value_name = "S")]
     pub duration: Option<f64>,
+    /// QEMU board for --qemu: m4f (mps2-an386, f32 firmware) or m3 (mps2-an385, Q8.24
+    /// fixed-point firmware).
+    #[arg(long, value_enum, default_value = "m4f")]
+    pub cpu: crate::hil::QemuCpu,
     /// Firmware ELF for --qemu (default: build and use
-    /// target/thumbv7em-none-eabihf/release/qemu_m4f).
+    /// target/<target>/release/examples/qemu_hil).
     #[arg(long, value_name = "FILE")]
     pub elf: Option<PathBuf>,
-    /// Also run the scenario with the drive in this process and require the angle
-    /// estimates (f32, as the link reports them) to be identical bit for bit.
+    /// Also run the scenario with the drive in this process (same numeric type as the
+    /// firmware) and require the angle estimates, as the link reports them, to be
+    /// identical bit for bit.
     #[arg(long)]
     pub check: bool,
     /// Directory for the trace (CSV, SI units), summary (JSON) and figures (PNG, SVG).

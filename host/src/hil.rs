@@ -1,12 +1,15 @@
 //! Hardware-in-the-loop: the plant simulation in lock-step with a drive behind the
-//! serial link of [`dcfo::link`] — the firmware on QEMU's `mps2-an386` board (UART0 on
-//! QEMU's standard I/O), or a board on a serial port.
+//! serial link of [`dcfo::link`] — the firmware on QEMU's `mps2-an386` (Cortex-M4F, f32)
+//! or `mps2-an385` (Cortex-M3, Q8.24) board, UART0 on QEMU's standard I/O, or a board on
+//! a serial port.
 //!
 //! Per PWM period the host sends one [`SensorFrame`] and waits for the
 //! [`ActuationFrame`] with the same sequence number; the plant then runs the period with
 //! the duties of the previous answer, exactly as in the in-process simulation
-//! ([`crate::sim::run_with`]). The firmware runs the same `Drive<f32>` code, so on an
-//! IEEE-f32 target the angle estimates equal the in-process run's bit for bit.
+//! ([`crate::sim::run_with`]). The firmware runs the same drive code as
+//! [`crate::sim::LocalDrive`] of the same numeric type, so the angle estimates equal the
+//! in-process run's bit for bit: f32 is IEEE on both sides, and Q8.24 is integer
+//! arithmetic (the f32 conversions at its edges are IEEE too, in software on the M3).
 
 use crate::sim::{ControlStep, Controller, SimError};
 use dcfo::link::{ActuationFrame, Receiver, SensorFrame, encode};
@@ -122,31 +125,60 @@ impl<W: Write> Controller for SerialController<W> {
     }
 }
 
-/// The firmware ELF for QEMU, in the workspace's target directory.
-pub fn default_qemu_elf(workspace: &Path) -> PathBuf {
-    workspace.join("target/thumbv7em-none-eabihf/release/qemu_m4f")
+/// The QEMU board of a HIL run, and with it the firmware's numeric type.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum QemuCpu {
+    /// Cortex-M4F on `mps2-an386`: `Drive<f32>`, SI units.
+    M4f,
+    /// Cortex-M3 (no FPU) on `mps2-an385`: `Drive<Q24>`, the motor's per-unit base.
+    M3,
 }
 
-/// Builds the QEMU firmware with cargo (release, `thumbv7em-none-eabihf`).
-pub fn build_qemu_firmware(workspace: &Path) -> Result<PathBuf, SimError> {
+impl QemuCpu {
+    /// Rust target triple of the firmware.
+    pub fn target(self) -> &'static str {
+        match self {
+            QemuCpu::M4f => "thumbv7em-none-eabihf",
+            QemuCpu::M3 => "thumbv7m-none-eabi",
+        }
+    }
+
+    /// QEMU machine (`-M`) and CPU (`-cpu`).
+    pub fn machine_and_cpu(self) -> (&'static str, &'static str) {
+        match self {
+            QemuCpu::M4f => ("mps2-an386", "cortex-m4"),
+            QemuCpu::M3 => ("mps2-an385", "cortex-m3"),
+        }
+    }
+
+    /// The in-process drive the firmware's results must equal: same code, same numeric
+    /// type, same units.
+    pub fn local_drive(self, setup: &crate::sim::Setup) -> Result<Box<dyn Controller>, SimError> {
+        Ok(match self {
+            QemuCpu::M4f => Box::new(crate::sim::LocalDrive::new(setup)?),
+            QemuCpu::M3 => Box::new(crate::sim::LocalDrive::fixed_point(setup)?),
+        })
+    }
+}
+
+/// The HIL firmware ELF for `cpu`, in the workspace's target directory.
+pub fn default_qemu_elf(workspace: &Path, cpu: QemuCpu) -> PathBuf {
+    workspace.join("target").join(cpu.target()).join("release/examples/qemu_hil")
+}
+
+/// Builds the QEMU HIL firmware for `cpu` with cargo (release).
+pub fn build_qemu_firmware(workspace: &Path, cpu: QemuCpu) -> Result<PathBuf, SimError> {
     let status = Command::new(std::env::var("CARGO").unwrap_or_else(|_| "cargo".into()))
         .current_dir(workspace)
-        .args([
-            "build",
-            "--release",
-            "-p",
-            "dcfo-firmware",
-            "--bin",
-            "qemu_m4f",
-            "--target",
-            "thumbv7em-none-eabihf",
-        ])
+        .args(["build", "--release", "-p", "dcfo-firmware", "--features", "mps2", "--example", "qemu_hil"])
+        .args(["--target", cpu.target()])
         .status()
         .map_err(|e| SimError::Controller(format!("cannot run cargo to build the firmware: {e}")))?;
     if !status.success() {
         return Err(SimError::Controller(format!("building the QEMU firmware failed ({status})")));
     }
-    Ok(default_qemu_elf(workspace))
+    Ok(default_qemu_elf(workspace, cpu))
 }
 
 /// QEMU running the firmware, its UART0 on QEMU's standard input and output.
@@ -155,11 +187,12 @@ pub struct QemuSession {
 }
 
 impl QemuSession {
-    /// Starts `qemu-system-arm -M mps2-an386` with `elf`; returns the session and a
-    /// controller talking to its UART.
-    pub fn start(elf: &Path) -> Result<(QemuSession, SerialController<ChildStdin>), SimError> {
+    /// Starts `qemu-system-arm` on `cpu`'s board with `elf`; returns the session and a
+    /// controller talking to its UART0.
+    pub fn start(elf: &Path, cpu: QemuCpu) -> Result<(QemuSession, SerialController<ChildStdin>), SimError> {
+        let (machine, core) = cpu.machine_and_cpu();
         let mut child = Command::new("qemu-system-arm")
-            .args(["-M", "mps2-an386", "-cpu", "cortex-m4", "-display", "none", "-monitor", "none"])
+            .args(["-M", machine, "-cpu", core, "-display", "none", "-monitor", "none"])
             .args(["-semihosting-config", "enable=on,target=native", "-serial", "stdio", "-kernel"])
             .arg(elf)
             .stdin(Stdio::piped())
@@ -198,6 +231,8 @@ pub struct HilReport {
     pub round_trips_per_s: f64,
     /// Simulated time, s.
     pub simulated_s: f64,
+    /// The QEMU board (`None` for a board on a serial port).
+    pub qemu_cpu: Option<QemuCpu>,
     /// With `--check`: samples compared, and whether every angle estimate was identical.
     pub equivalence: Option<Equivalence>,
 }
@@ -250,9 +285,9 @@ pub fn run_hil(args: &crate::cli::HilArgs) -> anyhow::Result<HilReport> {
         let workspace = Path::new(env!("CARGO_MANIFEST_DIR")).parent().unwrap_or(Path::new("."));
         let elf = match &args.elf {
             Some(e) => e.clone(),
-            None => build_qemu_firmware(workspace)?,
+            None => build_qemu_firmware(workspace, args.cpu)?,
         };
-        let (_session, mut link) = QemuSession::start(&elf)?;
+        let (_session, mut link) = QemuSession::start(&elf, args.cpu)?;
         let run = run_with(&setup, &scenario, &mut link, progress)?;
         (run, link.round_trips_per_s())
     } else {
@@ -270,7 +305,9 @@ pub fn run_hil(args: &crate::cli::HilArgs) -> anyhow::Result<HilReport> {
     bar.finish_and_clear();
     let figures = (scenario.window_s > 0.0).then(|| scenarios::figures(&hil_run, &scenario));
     let equivalence = if args.check {
-        let local = crate::sim::run(&setup, &scenario, |_| {})?;
+        // A board on --port runs the f32 firmware.
+        let cpu = if args.qemu { args.cpu } else { QemuCpu::M4f };
+        let local = run_with(&setup, &scenario, cpu.local_drive(&setup)?.as_mut(), |_| {})?;
         Some(compare_runs(&hil_run, &local))
     } else {
         None
@@ -279,6 +316,7 @@ pub fn run_hil(args: &crate::cli::HilArgs) -> anyhow::Result<HilReport> {
         scenario: scenario.name.to_string(),
         figures,
         round_trips_per_s: rate,
+        qemu_cpu: args.qemu.then_some(args.cpu),
         simulated_s: hil_run.simulated_s,
         equivalence,
     };

@@ -1,69 +1,134 @@
-//! Hardware-in-the-loop on QEMU: the firmware (`qemu_m4f`, Cortex-M4F on `mps2-an386`)
-//! runs the drive, the host runs the plant, lock-step over the emulated UART0. The paper's
+//! Hardware-in-the-loop on QEMU: the firmware (`examples/qemu_hil`: Cortex-M4F on
+//! `mps2-an386` with f32, Cortex-M3 on `mps2-an385` with Q8.24) runs the drive in its
+//! UART interrupt, the host runs the plant, lock-step over the emulated UART0. The paper's
 //! steady scenario must reach its position-error figure, and every angle estimate must
-//! equal the in-process run's bit for bit (the firmware's f32 arithmetic is IEEE, as the
-//! host's).
+//! equal the in-process run of the same numeric type bit for bit. A silent link must
+//! switch the bridge off.
 //!
-//! Skips with a message when `qemu-system-arm` or the thumbv7em target is missing, unless
+//! Skips with a message when `qemu-system-arm` or a thumb target is missing, unless
 //! `DCFO_REQUIRE_QEMU=1` (CI sets it), which turns a skip into a failure.
-//! `DCFO_FIRMWARE_ELF` names a prebuilt image instead of building one.
 
+use dcfo::drive::{DriveState, Faults};
+use dcfo::link::SensorFrame;
 use dcfo::observer::ObserverKind;
-use dcfo_host::hil::{QemuSession, build_qemu_firmware, compare_runs};
-use dcfo_host::sim::{Setup, run, run_with, scenarios};
+use dcfo_host::hil::{QemuCpu, QemuSession, build_qemu_firmware, compare_runs};
+use dcfo_host::sim::{Controller, Setup, run_with, scenarios};
 use std::path::{Path, PathBuf};
 use std::process::Command;
+use std::time::{Duration, Instant};
 
-/// Returns why QEMU HIL cannot run here, if it cannot.
-fn missing_tools() -> Option<String> {
+/// Returns why QEMU HIL cannot run here for `cpu`, if it cannot.
+fn missing_tools(cpu: QemuCpu) -> Option<String> {
     if Command::new("qemu-system-arm").arg("--version").output().is_err() {
         return Some("qemu-system-arm is not installed (apt-get install qemu-system-arm)".into());
     }
     let rustc = std::env::var_os("RUSTC").unwrap_or_else(|| "rustc".into());
-    let libdir =
-        Command::new(rustc).args(["--print", "target-libdir", "--target", "thumbv7em-none-eabihf"]).output();
+    let libdir = Command::new(rustc).args(["--print", "target-libdir", "--target", cpu.target()]).output();
     let installed = libdir.is_ok_and(|o| {
         o.status.success()
             && std::fs::read_dir(String::from_utf8_lossy(&o.stdout).trim())
                 .is_ok_and(|d| d.flatten().any(|e| e.file_name().to_string_lossy().starts_with("libcore-")))
     });
-    (!installed).then(|| "the thumbv7em-none-eabihf target is not installed".into())
+    (!installed).then(|| format!("the {} target is not installed", cpu.target()))
 }
 
-fn firmware() -> PathBuf {
-    let workspace = Path::new(env!("CARGO_MANIFEST_DIR")).parent().expect("workspace root").to_path_buf();
-    match std::env::var_os("DCFO_FIRMWARE_ELF") {
-        Some(p) => workspace.join(p),
-        None => build_qemu_firmware(&workspace).expect("firmware builds"),
-    }
-}
-
-#[test]
-fn steady_scenario_through_qemu_meets_its_figure_and_equals_the_host_bit_for_bit() {
-    if let Some(why) = missing_tools() {
+/// The firmware for `cpu`, or `None` (after saying why) when the test must skip.
+fn firmware(cpu: QemuCpu) -> Option<PathBuf> {
+    if let Some(why) = missing_tools(cpu) {
         assert!(std::env::var("DCFO_REQUIRE_QEMU").as_deref() != Ok("1"), "QEMU HIL required: {why}");
         println!("skipped: {why}");
-        return;
+        return None;
     }
-    let elf = firmware();
+    let workspace = Path::new(env!("CARGO_MANIFEST_DIR")).parent().expect("workspace root").to_path_buf();
+    Some(build_qemu_firmware(&workspace, cpu).expect("firmware builds"))
+}
+
+fn steady_scenario_meets_its_figure_and_equals_the_host_bit_for_bit(cpu: QemuCpu) {
+    let Some(elf) = firmware(cpu) else { return };
     let setup = Setup::paper(ObserverKind::Dcfo);
     let sc = scenarios::scenario("steady").expect("scenario");
-    let (session, mut link) = QemuSession::start(&elf).expect("qemu starts");
+    let (session, mut link) = QemuSession::start(&elf, cpu).expect("qemu starts");
     let over_uart = run_with(&setup, &sc, &mut link, |_| {}).expect("HIL run");
     let rate = link.round_trips_per_s();
     drop(link);
     drop(session);
     let f = scenarios::figures(&over_uart, &sc);
     println!(
-        "QEMU HIL, {:.1} s simulated at {rate:.0} round trips/s: theta_err max {:.2} deg, rms {:.2} deg",
+        "QEMU HIL {cpu:?}, {:.1} s simulated at {rate:.0} round trips/s: theta_err max {:.2} deg, rms {:.2} deg",
         over_uart.simulated_s, f.theta_err_max_deg, f.theta_err_rms_deg
     );
     assert!(f.healthy, "sensorless operation without a fault");
     // The figure for the steady scenario (as in host/tests/paper.rs).
     assert!(f.theta_err_max_deg <= 5.0 && f.theta_err_rms_deg <= 2.5);
-    let local = run(&setup, &sc, |_| {}).expect("in-process run");
+    let local =
+        run_with(&setup, &sc, cpu.local_drive(&setup).expect("drive").as_mut(), |_| {}).expect("local run");
     let e = compare_runs(&over_uart, &local);
-    println!("equivalence: {e:?}");
+    println!("equivalence {cpu:?}: {e:?}");
     assert!(e.samples > 30_000);
     assert_eq!(e.differing, 0, "the target's angle estimates differ from the host's");
+}
+
+#[test]
+fn m4f_f32_steady_scenario_through_qemu() {
+    steady_scenario_meets_its_figure_and_equals_the_host_bit_for_bit(QemuCpu::M4f);
+}
+
+#[test]
+fn m3_fixed_point_steady_scenario_through_qemu() {
+    steady_scenario_meets_its_figure_and_equals_the_host_bit_for_bit(QemuCpu::M3);
+}
+
+/// The firmware's SysTick watchdog: an active drive whose link goes quiet for longer
+/// than 10 periods of 50 ms is tripped with `EXTERNAL` (bridge off), which the next
+/// frame reports; a drive that is disabled is left alone.
+#[test]
+fn a_silent_link_switches_the_bridge_off() {
+    let cpu = QemuCpu::M4f;
+    let Some(elf) = firmware(cpu) else { return };
+    let (_session, mut link) = QemuSession::start(&elf, cpu).expect("qemu starts");
+    let mut frame = SensorFrame {
+        sequence: 0,
+        i_a: 0.0,
+        i_b: 0.0,
+        i_c: 0.0,
+        vdc: dcfo::drive::PAPER_AXIS_BUS_V,
+        speed_ref: 0.0,
+        enable: false,
+        clear_faults: false,
+    };
+    let send = |link: &mut dyn Controller, frame: &mut SensorFrame| {
+        let reply = link.step(frame).expect("answer").frame;
+        frame.sequence = frame.sequence.wrapping_add(1);
+        reply
+    };
+    // Disabled, then quiet for 1 s: no fault.
+    assert_eq!(send(&mut link, &mut frame).state, DriveState::Disabled);
+    std::thread::sleep(Duration::from_secs(1));
+    let reply = send(&mut link, &mut frame);
+    assert_eq!((reply.state, reply.faults), (DriveState::Disabled, Faults::NONE));
+    // Enabled: current-offset calibration (bridge off, but the drive is active).
+    frame.enable = true;
+    assert_eq!(send(&mut link, &mut frame).state, DriveState::Calibrating);
+    let quiet = Instant::now();
+    std::thread::sleep(Duration::from_millis(1000));
+    let reply = send(&mut link, &mut frame);
+    println!(
+        "after {:.2} s of silence: {:?}, faults {:?}",
+        quiet.elapsed().as_secs_f64(),
+        reply.state,
+        reply.faults
+    );
+    assert_eq!(reply.state, DriveState::Fault);
+    assert!(reply.faults.contains(Faults::EXTERNAL) && !reply.bridge_enabled);
+    // Short gaps (well under the 0.5 s limit) do not trip it.
+    frame.clear_faults = true;
+    frame.enable = false;
+    assert_eq!(send(&mut link, &mut frame).state, DriveState::Disabled);
+    frame.clear_faults = false;
+    frame.enable = true;
+    for _ in 0..5 {
+        std::thread::sleep(Duration::from_millis(100));
+        let reply = send(&mut link, &mut frame);
+        assert_ne!(reply.state, DriveState::Fault, "{:?}", reply.faults);
+    }
 }

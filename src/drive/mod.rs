@@ -142,7 +142,10 @@ struct Constants<T> {
     delay_periods: T,
     dead_time_ratio: T,
     device_drop: T,
-    inv_current_band: T,
+    /// The square root of 1/band (1/A): the compensation's sign function multiplies by
+    /// it twice, so that 1/band may exceed the fixed-point range (saturation keeps the
+    /// sign and the clamp to +-1 follows).
+    inv_current_band_sqrt: T,
     compensate: bool,
     omega_per_speed: f32,
     base: Base,
@@ -182,6 +185,18 @@ pub struct Drive<T> {
     /// Offsets added to the observer's voltage and current inputs only (V, A).
     observer_u_offset: AlphaBeta<T>,
     observer_i_offset: AlphaBeta<T>,
+}
+
+/// `x` as a working value, or the configuration error naming `field` when the numeric
+/// type cannot hold it within 1 % (e.g. beyond fixed point's range, or NaN).
+fn representable<T: Scalar>(x: f32, field: &'static str) -> Result<T, DriveConfigError> {
+    let v = T::from_f32(x);
+    let back = v.to_f32();
+    if x.is_finite() && (back - x).abs() <= 0.01 * x.abs() + 1e-6 {
+        Ok(v)
+    } else {
+        Err(DriveConfigError { field })
+    }
 }
 
 impl<T: Scalar> Drive<T> {
@@ -250,7 +265,10 @@ impl<T: Scalar> Drive<T> {
             delay_periods: T::from_f32(1.5),
             dead_time_ratio: T::from_f32(dead_time_ratio),
             device_drop: base.voltage(device_drop),
-            inv_current_band: T::ONE.checked_div(base.current(band)).unwrap_or(T::ONE),
+            inv_current_band_sqrt: representable(
+                libm::sqrtf(1.0 / (band / base.current_a)),
+                "dead_time_compensation.current_band_a",
+            )?,
             compensate,
             omega_per_speed,
             base: *base,
@@ -542,7 +560,7 @@ impl<T: Scalar> Drive<T> {
         let k = &self.k;
         let i_ref = inverse_clarke(inverse_park(i_dq, cs_apply));
         let amplitude = vdc * k.dead_time_ratio + k.device_drop;
-        let sign = |i: T| (i * k.inv_current_band).clamp_to(-T::ONE, T::ONE);
+        let sign = |i: T| (i * k.inv_current_band_sqrt * k.inv_current_band_sqrt).clamp_to(-T::ONE, T::ONE);
         clarke(Abc {
             a: amplitude * sign(i_ref.a),
             b: amplitude * sign(i_ref.b),

@@ -1,8 +1,9 @@
 //! `bench_qemu`: instructions executed per control step and per stage, counted on QEMU.
 //!
-//! Builds the benchmark firmware (`firmware/src/bin/bench.rs`) for Cortex-M4F
+//! Builds the benchmark firmware (`firmware/examples/bench.rs`) for Cortex-M4F
 //! (`thumbv7em-none-eabihf`, QEMU `mps2-an386`: f32 and Q24) and Cortex-M3
-//! (`thumbv7m-none-eabi`, QEMU `mps2-an385`: Q24), and the HIL image `qemu_m4f`. Each
+//! (`thumbv7m-none-eabi`, QEMU `mps2-an385`: Q24), and the HIL image `qemu_hil` for
+//! both (for its size). Each
 //! benchmark runs under `qemu-system-arm -singlestep -d nochain`; once the firmware has
 //! warmed its drives up it prints `READY` and waits for a byte on UART0, and this
 //! program switches QEMU's exec log on over QMP (`log exec,nochain`) and sends the
@@ -82,12 +83,12 @@ fn run() -> Result<()> {
     let target_dir = std::env::var_os("CARGO_TARGET_DIR").map_or_else(|| root.join("target"), PathBuf::from);
     for board in &BOARDS {
         build(&root, board.target, "bench")?;
+        build(&root, board.target, "qemu_hil")?;
     }
-    build(&root, BOARDS[0].target, "qemu_m4f")?;
 
     let mut runs = Vec::new();
     for board in &BOARDS {
-        let elf = target_dir.join(board.target).join("release").join("bench");
+        let elf = target_dir.join(board.target).join("release/examples/bench");
         let started = Instant::now();
         let run = run_traced(board, &elf)?;
         eprintln!(
@@ -143,21 +144,20 @@ fn run() -> Result<()> {
     println!();
     println!("Image sizes (arm-none-eabi-size -A; flash = .vector_table + .text + .rodata + .data,");
     println!("static RAM = .data + .bss + .uninit; the stack is not included):");
-    let mut images = vec![(
-        "qemu_m4f (HIL, f32)".to_owned(),
-        target_dir.join(BOARDS[0].target).join("release").join("qemu_m4f"),
-    )];
+    let mut images = Vec::new();
     for board in &BOARDS {
-        images.push((
-            format!("bench ({})", board.target),
-            target_dir.join(board.target).join("release").join("bench"),
-        ));
+        for example in ["qemu_hil", "bench"] {
+            images.push((
+                format!("{example} ({}, {})", board.label, board.target),
+                target_dir.join(board.target).join("release/examples").join(example),
+            ));
+        }
     }
-    println!("| {:<36} | {:>12} | {:>16} |", "image", "flash (B)", "static RAM (B)");
-    println!("|{}|{}:|{}:|", "-".repeat(38), "-".repeat(13), "-".repeat(17));
+    println!("| {:<48} | {:>12} | {:>16} |", "image", "flash (B)", "static RAM (B)");
+    println!("|{}|{}:|{}:|", "-".repeat(50), "-".repeat(13), "-".repeat(17));
     for (name, path) in &images {
         let (flash, ram) = sizes(path)?;
-        println!("| {name:<36} | {flash:>12} | {ram:>16} |");
+        println!("| {name:<48} | {flash:>12} | {ram:>16} |");
     }
     Ok(())
 }
@@ -195,15 +195,16 @@ fn cell(regions: &[(String, u64)], name: &str) -> String {
     }
 }
 
-fn build(root: &Path, target: &str, bin: &str) -> Result<()> {
+fn build(root: &Path, target: &str, example: &str) -> Result<()> {
     let cargo = std::env::var_os("CARGO").unwrap_or_else(|| "cargo".into());
     let status = Command::new(cargo)
         .current_dir(root)
-        .args(["build", "-p", "dcfo-firmware", "--release", "--target", target, "--bin", bin])
+        .args(["build", "-p", "dcfo-firmware", "--release", "--features", "mps2", "--target", target])
+        .args(["--example", example])
         .status()
         .context("running cargo")?;
     if !status.success() {
-        bail!("building {bin} for {target} failed ({status})");
+        bail!("building {example} for {target} failed ({status})");
     }
     Ok(())
 }

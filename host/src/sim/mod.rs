@@ -15,6 +15,7 @@ use crate::trace::{TraceRow, wrap_angle};
 use dcfo::drive::{Drive, DriveConfig, DriveState, Faults, PAPER_AXIS_PAYLOAD_KG, StepOutput};
 use dcfo::link::{ActuationFrame, LinkStats, SensorFrame};
 use dcfo::motor::MotorParams;
+use dcfo::num::{Q24, Scalar};
 use dcfo::observer::ObserverKind;
 use dcfo::transforms::{Abc, AlphaBeta, clarke};
 use dcfo::units::Base;
@@ -135,24 +136,42 @@ pub trait Controller {
     fn step(&mut self, sensor: &SensorFrame) -> Result<ControlStep, SimError>;
 }
 
-/// The library's `Drive<f32>` in this process (SI working units).
+/// The library's drive in this process: `Drive<f32>` in SI units ([`LocalDrive::new`]),
+/// as the Cortex-M4F firmware runs it, or `Drive<Q24>` in the motor's per-unit base
+/// ([`LocalDrive::fixed_point`]), as the Cortex-M3 firmware runs it.
 #[derive(Clone, Debug)]
-pub struct LocalDrive {
-    drive: Drive<f32>,
+pub struct LocalDrive<T = f32> {
+    drive: Drive<T>,
+    base: Base,
 }
 
-impl LocalDrive {
-    /// A drive for `setup`'s motor and settings.
+impl LocalDrive<f32> {
+    /// An f32 drive (SI units) for `setup`'s motor and settings.
     pub fn new(setup: &Setup) -> Result<Self, SimError> {
-        Ok(LocalDrive { drive: Drive::new(&setup.motor, &setup.drive, &Base::SI).map_err(SimError::Drive)? })
+        Ok(LocalDrive {
+            drive: Drive::new(&setup.motor, &setup.drive, &Base::SI).map_err(SimError::Drive)?,
+            base: Base::SI,
+        })
     }
 }
 
-impl Controller for LocalDrive {
+impl LocalDrive<Q24> {
+    /// A Q8.24 fixed-point drive in the per-unit base of `setup`'s motor.
+    pub fn fixed_point(setup: &Setup) -> Result<Self, SimError> {
+        let base = Base::for_motor(&setup.motor);
+        Ok(LocalDrive {
+            drive: Drive::new(&setup.motor, &setup.drive, &base).map_err(SimError::Drive)?,
+            base,
+        })
+    }
+}
+
+impl<T: Scalar + 'static> Controller for LocalDrive<T> {
     fn set_observer_offsets(&mut self, u_v: [f64; 2], i_a: [f64; 2]) -> Result<(), SimError> {
+        let b = &self.base;
         self.drive.set_observer_offsets(
-            AlphaBeta::new(u_v[0] as f32, u_v[1] as f32),
-            AlphaBeta::new(i_a[0] as f32, i_a[1] as f32),
+            AlphaBeta::new(b.voltage(u_v[0] as f32), b.voltage(u_v[1] as f32)),
+            AlphaBeta::new(b.current(i_a[0] as f32), b.current(i_a[1] as f32)),
         );
         Ok(())
     }
@@ -160,9 +179,11 @@ impl Controller for LocalDrive {
     fn step(&mut self, sensor: &SensorFrame) -> Result<ControlStep, SimError> {
         // The same three calls the firmware makes on a received frame.
         sensor.apply_commands(&mut self.drive);
-        let out = self.drive.step(&sensor.measurements(&Base::SI));
-        let frame = ActuationFrame::from_step(sensor.sequence, &out, &Base::SI, LinkStats::default());
-        Ok(ControlStep { frame, detail: Some(out) })
+        let out = self.drive.step(&sensor.measurements(&self.base));
+        let frame = ActuationFrame::from_step(sensor.sequence, &out, &self.base, LinkStats::default());
+        // The full output is in SI units only for the f32 drive.
+        let detail = (&out as &dyn core::any::Any).downcast_ref::<StepOutput<f32>>().copied();
+        Ok(ControlStep { frame, detail })
     }
 }
 

@@ -1,10 +1,11 @@
-//! Arm MPS2/MPS2+ with the AN386 FPGA image (Cortex-M4F), as modelled by QEMU's
-//! `mps2-an386` machine.
+//! Arm MPS2/MPS2+ with the AN386 (Cortex-M4F) or AN385 (Cortex-M3) FPGA image, as
+//! modelled by QEMU's `mps2-an386` and `mps2-an385` machines: the same memory map, UARTs
+//! and interrupt numbers on both.
 //!
 //! Sources:
-//! - Arm "Application Note AN386: ARM Cortex-M4 SMM on V2M-MPS2" (memory map: APB UART0
-//!   at `0x4000_4000`, UART1..4 at `0x4000_5000`, `0x4000_6000`, `0x4000_7000`,
-//!   `0x4000_9000`; 25 MHz system clock).
+//! - Arm "Application Note AN386: ARM Cortex-M4 SMM on V2M-MPS2" and "AN385: ARM
+//!   Cortex-M3 SMM on V2M-MPS2" (memory map: APB UART0 at `0x4000_4000`, UART1..4 at
+//!   `0x4000_5000`, `0x4000_6000`, `0x4000_7000`, `0x4000_9000`; 25 MHz system clock).
 //! - Arm "Cortex-M System Design Kit Technical Reference Manual" (ARM DDI 0479),
 //!   section "APB UART" (register map below).
 //! - QEMU `hw/char/cmsdk-apb-uart.c` and `hw/arm/mps2.c` (same map; UART0 is `-serial`
@@ -55,16 +56,19 @@ const CTRL_RX_EN: u32 = 1 << 1;
 const CTRL_RX_INT_EN: u32 = 1 << 3;
 const INT_RX: u32 = 1 << 1;
 
-/// NVIC interrupt line of the UART0 receiver (AN386 interrupt map; QEMU `mps2.c`).
+/// NVIC interrupt line of the UART0 receiver (AN385/AN386 interrupt map; QEMU `mps2.c`).
 #[derive(Clone, Copy, Debug)]
 pub struct Uart0RxIrq;
 
-// SAFETY: 0 is the AN386's UART0 RX interrupt, a valid external interrupt number.
+// SAFETY: 0 is the AN385/AN386 UART0 RX interrupt, a valid external interrupt number.
 unsafe impl InterruptNumber for Uart0RxIrq {
     fn number(self) -> u16 {
-        0
+        UART0_RX_IRQN
     }
 }
+
+/// The number of [`Uart0RxIrq`], as `DefaultHandler` receives it.
+pub const UART0_RX_IRQN: u16 = 0;
 
 static UART0_TAKEN: AtomicBool = AtomicBool::new(false);
 
@@ -118,6 +122,24 @@ impl CmsdkUart {
         // `WFI`) and is never taken.
         unsafe { NVIC::unmask(Uart0RxIrq) };
         self.rx_wakeup = true;
+    }
+
+    /// Switches to interrupt-driven reception and splits the UART into its receiver (for
+    /// the UART0 RX interrupt handler) and its transmitter (for a lower-priority
+    /// context). Every received byte raises IRQ 0 ([`Uart0RxIrq`]), whose handler must
+    /// call [`UartRx::try_read_byte`] until it returns `None`.
+    ///
+    /// The halves share only the read-only STATE register; the receiver writes INTCLEAR
+    /// and the RX-overrun bit of STATE (write-1-to-clear, so it cannot touch the TX
+    /// bits), the transmitter writes DATA.
+    ///
+    /// The interrupt stays masked in the NVIC until [`unmask_uart0_rx`]: call that once
+    /// the handler's state is in place.
+    pub fn into_interrupt_driven(mut self) -> (UartRx, UartTx) {
+        self.write_reg(INTCLEAR, INT_RX);
+        self.write_reg(CTRL, CTRL_TX_EN | CTRL_RX_EN | CTRL_RX_INT_EN);
+        NVIC::unpend(Uart0RxIrq);
+        (UartRx { uart: CmsdkUart { base: self.base, rx_wakeup: false } }, UartTx { uart: self })
     }
 
     /// The received byte, if one is waiting.
@@ -217,5 +239,84 @@ impl embedded_io::Write for CmsdkUart {
     fn flush(&mut self) -> Result<(), Infallible> {
         while self.read_reg(STATE) & STATE_TX_FULL != 0 {}
         Ok(())
+    }
+}
+
+/// Unmasks the UART0 RX interrupt in the NVIC (after
+/// [`CmsdkUart::into_interrupt_driven`], once its handler can run).
+pub fn unmask_uart0_rx() {
+    // SAFETY: the critical sections of these images use PRIMASK
+    // (`cortex_m::interrupt::free`), never the NVIC mask, so unmasking cannot break one.
+    unsafe { NVIC::unmask(Uart0RxIrq) };
+}
+
+/// Masks an interrupt that has no handler (`irqn` from `DefaultHandler`), so that it
+/// cannot fire again. Out-of-range numbers are ignored.
+pub fn mask_irq(irqn: i16) {
+    #[derive(Clone, Copy)]
+    struct Irq(u16);
+    // SAFETY: only numbers 0..240 are built below, the external interrupt lines of an
+    // ARMv7-M NVIC.
+    unsafe impl InterruptNumber for Irq {
+        fn number(self) -> u16 {
+            self.0
+        }
+    }
+    if let Ok(n) = u16::try_from(irqn)
+        && n < 240
+    {
+        NVIC::mask(Irq(n));
+    }
+}
+
+/// The receiving half of an interrupt-driven UART (see
+/// [`CmsdkUart::into_interrupt_driven`]).
+pub struct UartRx {
+    uart: CmsdkUart,
+}
+
+impl UartRx {
+    /// The received byte, if one is waiting; acknowledges the RX interrupt when it
+    /// takes a byte (a byte arriving later raises it again).
+    pub fn try_read_byte(&mut self) -> Option<u8> {
+        let byte = self.uart.try_read_byte()?;
+        self.uart.write_reg(INTCLEAR, INT_RX);
+        Some(byte)
+    }
+
+    /// `true` if a received byte was lost since the last call (and clears the flag).
+    pub fn take_rx_overrun(&mut self) -> bool {
+        self.uart.take_rx_overrun()
+    }
+}
+
+/// The transmitting half of an interrupt-driven UART (polled writes).
+pub struct UartTx {
+    uart: CmsdkUart,
+}
+
+impl UartTx {
+    /// `true` when the transmit buffer can take a byte now.
+    pub fn can_write(&self) -> bool {
+        self.uart.read_reg(STATE) & STATE_TX_FULL == 0
+    }
+
+    /// Waits until the transmit buffer is free, then sends `byte`.
+    pub fn write_byte(&mut self, byte: u8) {
+        self.uart.write_byte(byte);
+    }
+}
+
+impl embedded_io::ErrorType for UartTx {
+    type Error = Infallible;
+}
+
+impl embedded_io::Write for UartTx {
+    fn write(&mut self, buf: &[u8]) -> Result<usize, Infallible> {
+        self.uart.write(buf)
+    }
+
+    fn flush(&mut self) -> Result<(), Infallible> {
+        embedded_io::Write::flush(&mut self.uart)
     }
 }

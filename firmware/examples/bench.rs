@@ -19,13 +19,13 @@
 //! `SYS_EXIT` (status 0, or 1 when a drive could not be built).
 //!
 //! ```sh
-//! cargo build -p dcfo-firmware --release --target thumbv7em-none-eabihf --bin bench
+//! cargo build -p dcfo-firmware --release --features mps2 --target thumbv7em-none-eabihf --example bench
 //! echo g | qemu-system-arm -M mps2-an386 -cpu cortex-m4 -display none -monitor none \
 //!     -semihosting-config enable=on,target=native -serial stdio \
-//!     -kernel target/thumbv7em-none-eabihf/release/bench
-//! cargo build -p dcfo-firmware --release --target thumbv7m-none-eabi --bin bench
+//!     -kernel target/thumbv7em-none-eabihf/release/examples/bench
+//! cargo build -p dcfo-firmware --release --features mps2 --target thumbv7m-none-eabi --example bench
 //! echo g | qemu-system-arm -M mps2-an385 -cpu cortex-m3 ... \
-//!     -kernel target/thumbv7m-none-eabi/release/bench
+//!     -kernel target/thumbv7m-none-eabi/release/examples/bench
 //! ```
 //!
 //! On the host this file builds to an empty `main`.
@@ -55,7 +55,7 @@ mod firmware {
     use dcfo::svpwm::svpwm;
     use dcfo::transforms::{Abc, AlphaBeta, CosSin, Dq, clarke, inverse_clarke, inverse_park, park};
     use dcfo::units::Base;
-    use dcfo_firmware::board::mps2_an386::CmsdkUart;
+    use dcfo_firmware::board::mps2::CmsdkUart;
 
     /// Control period of the drive and the plant (s).
     const TS: f32 = 1e-4;

@@ -1,0 +1,202 @@
+//! Lock-step HIL firmware for QEMU's MPS2 boards, interrupt-driven, UART0 at 115200 8N1:
+//! - `thumbv7em-none-eabihf` on `mps2-an386` (Cortex-M4F): `Drive<f32>` in SI units;
+//! - `thumbv7m-none-eabi` on `mps2-an385` (Cortex-M3, no FPU): `Drive<Q24>` (Q8.24
+//!   fixed point) in the per-unit base of the motor, the fixed-point path.
+//!
+//! The drive runs `DriveConfig::paper_axis` (DCFO), the settings of the host's
+//! simulated axis, so a HIL run and an in-process run of the same numeric type agree bit
+//! for bit. Each in-order `dcfo::link::SensorFrame` from the host is one PWM period: its
+//! arrival plays the part of the ADC's end-of-conversion interrupt on a drive board.
+//!
+//! | context | priority | work | budget |
+//! |---|---|---|---|
+//! | UART0 RX interrupt (IRQ 0) | 0x00, highest | per byte: `LinkServer::on_byte`; per complete in-order frame: one `Drive::step` and the encoded `ActuationFrame` into the TX queue | one control step: 1340 instructions on Cortex-M4F (f32), 4231 on Cortex-M3 (Q24), measured by `bench_qemu`; plus about 50 per byte |
+//! | SysTick, every 50 ms | 0x80 | link watchdog: `LinkServer::silent_period` | under 100 instructions |
+//! | thread | — | moves the TX queue into UART0, sleeps when it is empty | — |
+//!
+//! A silent link (no in-order frame for 10 watchdog periods, 0.5 s of wall-clock time)
+//! switches the bridge off (fault `EXTERNAL`) if the drive was active. The watchdog
+//! period is long because QEMU runs in wall-clock time on a shared host: the lock-step
+//! exchange itself takes about 1.6 ms. Every other interrupt vector lands in
+//! `DefaultHandler`, which masks that interrupt and trips the drive.
+//!
+//! A panic prints `PANIC: <message>` on UART0 and stops the core.
+//!
+//! ```sh
+//! cargo build -p dcfo-firmware --release --features mps2 --example qemu_hil --target thumbv7em-none-eabihf
+//! qemu-system-arm -M mps2-an386 -cpu cortex-m4 -display none -monitor none \
+//!     -semihosting-config enable=on,target=native -serial stdio \
+//!     -kernel target/thumbv7em-none-eabihf/release/examples/qemu_hil
+//! ```
+//! (`--target thumbv7m-none-eabi` and `-M mps2-an385 -cpu cortex-m3` for fixed point;
+//! `dcfo hil --qemu [--cpu m3]` does all of this.)
+//!
+//! On the host this file builds to an empty `main`.
+#![cfg_attr(target_arch = "arm", no_std)]
+#![cfg_attr(target_arch = "arm", no_main)]
+
+#[cfg(not(target_arch = "arm"))]
+fn main() {
+    eprintln!("qemu_hil is firmware: build it with `--target thumbv7em-none-eabihf` or `thumbv7m-none-eabi`");
+}
+
+#[cfg(target_arch = "arm")]
+mod firmware {
+    use core::cell::RefCell;
+
+    use cortex_m::interrupt::{self, Mutex};
+    use cortex_m::peripheral::scb::SystemHandler;
+    use cortex_m::peripheral::syst::SystClkSource;
+    use cortex_m_rt::{entry, exception};
+    use dcfo::drive::{Drive, DriveConfig};
+    use dcfo::link::ActuationFrame;
+    use dcfo::motor::MotorParams;
+    use dcfo::observer::ObserverKind;
+    use dcfo::units::Base;
+    use dcfo_firmware::board::mps2::{self, CmsdkUart, SYSCLK_HZ, UART0_RX_IRQN, Uart0RxIrq, UartRx};
+    use dcfo_firmware::hil::HilServer;
+    use embedded_io::Write as _;
+    use heapless::spsc::{Producer, Queue};
+
+    /// The numeric type of the control code: f32 with an FPU, Q8.24 without.
+    #[cfg(target_abi = "eabihf")]
+    type Work = f32;
+    #[cfg(not(target_abi = "eabihf"))]
+    type Work = dcfo::num::Q24;
+
+    /// Working units: SI for f32, per-unit of the motor for fixed point.
+    fn working_base(motor: &MotorParams) -> Base {
+        if cfg!(target_abi = "eabihf") { Base::SI } else { Base::for_motor(motor) }
+    }
+
+    /// NVIC priority of the control (UART0 RX) interrupt: the highest.
+    const PRIORITY_CONTROL: u8 = 0x00;
+    /// Priority of the link watchdog (SysTick): below the control interrupt.
+    const PRIORITY_WATCHDOG: u8 = 0x80;
+    /// Watchdog ticks per second (a 50 ms period).
+    const WATCHDOG_TICK_HZ: u32 = 20;
+    /// Bytes of transmit queue: four answers (a heapless queue holds one less than N).
+    const TX_QUEUE_BYTES: usize = 4 * ActuationFrame::WIRE_LEN + 1;
+
+    /// What the control interrupt owns; the watchdog borrows it between steps.
+    struct Control {
+        server: HilServer<Work>,
+        rx: UartRx,
+        tx: Producer<'static, u8>,
+    }
+
+    static CONTROL: Mutex<RefCell<Option<Control>>> = Mutex::new(RefCell::new(None));
+
+    #[entry]
+    fn main() -> ! {
+        let Some(mut cp) = cortex_m::Peripherals::take() else { panic!("core peripherals taken twice") };
+        let Some(mut uart) = CmsdkUart::take_uart0() else { panic!("UART0 already taken") };
+        uart.init(115_200);
+
+        let motor = MotorParams::paper();
+        let config = DriveConfig::paper_axis(ObserverKind::Dcfo);
+        let base = working_base(&motor);
+        let drive = match Drive::<Work>::new(&motor, &config, &base) {
+            Ok(d) => d,
+            Err(e) => panic!("{e}"),
+        };
+
+        // The banner states the numeric type and, with an FPU, the access mode
+        // (CPACR CP10/CP11) cortex-m-rt set before `main`. The 0x00 after it is a link
+        // frame delimiter: the host's receiver drops the banner as one bad frame.
+        #[cfg(target_abi = "eabihf")]
+        let _ = write!(
+            uart,
+            "dcfo-firmware qemu_hil: f32, fpu {:?}\r\n\0",
+            cortex_m::peripheral::SCB::fpu_access_mode()
+        );
+        #[cfg(not(target_abi = "eabihf"))]
+        let _ = write!(uart, "dcfo-firmware qemu_hil: Q8.24 fixed point, no fpu\r\n\0");
+
+        let Some(queue) = cortex_m::singleton!(: Queue<u8, TX_QUEUE_BYTES> = Queue::new()) else {
+            panic!("transmit queue taken twice")
+        };
+        let (producer, mut consumer) = queue.split();
+        let (rx, mut tx) = uart.into_interrupt_driven();
+        interrupt::free(|cs| {
+            CONTROL.borrow(cs).replace(Some(Control { server: HilServer::new(drive), rx, tx: producer }))
+        });
+
+        // SAFETY: priorities are set before either interrupt is enabled; no critical
+        // section here relies on priorities (they mask with PRIMASK).
+        unsafe {
+            cp.NVIC.set_priority(Uart0RxIrq, PRIORITY_CONTROL);
+            cp.SCB.set_priority(SystemHandler::SysTick, PRIORITY_WATCHDOG);
+        }
+        cp.SYST.set_clock_source(SystClkSource::Core);
+        cp.SYST.set_reload(SYSCLK_HZ / WATCHDOG_TICK_HZ - 1);
+        cp.SYST.clear_current();
+        cp.SYST.enable_interrupt();
+        cp.SYST.enable_counter();
+        mps2::unmask_uart0_rx();
+
+        loop {
+            while let Some(byte) = consumer.dequeue() {
+                tx.write_byte(byte);
+            }
+            // Sleep only if nothing arrived since the check: with PRIMASK set a pending
+            // interrupt still ends WFI, and it is taken when `free` re-enables.
+            interrupt::free(|_| {
+                if !consumer.ready() {
+                    cortex_m::asm::wfi();
+                }
+            });
+        }
+    }
+
+    /// UART0 RX: drain the receiver through the HIL server; an in-order frame runs one
+    /// control step, whose answer goes to the transmit queue.
+    fn on_uart0_rx() {
+        interrupt::free(|cs| {
+            let mut guard = CONTROL.borrow(cs).borrow_mut();
+            let Some(c) = guard.as_mut() else { return };
+            while let Some(byte) = c.rx.try_read_byte() {
+                c.server.on_byte(byte, &mut c.tx);
+            }
+        });
+    }
+
+    #[exception]
+    fn SysTick() {
+        interrupt::free(|cs| {
+            if let Some(c) = CONTROL.borrow(cs).borrow_mut().as_mut() {
+                c.server.watchdog_period();
+            }
+        });
+    }
+
+    // SAFETY: cortex-m-rt requires the default handler to be declared `unsafe`; it runs
+    // for every interrupt vector (no device crate is linked) and only dispatches on the
+    // number and touches state through the critical section.
+    #[exception]
+    unsafe fn DefaultHandler(irqn: i16) {
+        if irqn == UART0_RX_IRQN as i16 {
+            on_uart0_rx();
+            return;
+        }
+        // No handler for this interrupt: silence it and switch the bridge off.
+        mps2::mask_irq(irqn);
+        interrupt::free(|cs| {
+            if let Some(c) = CONTROL.borrow(cs).borrow_mut().as_mut() {
+                c.server.trip();
+            }
+        });
+    }
+
+    #[panic_handler]
+    fn panic(info: &core::panic::PanicInfo) -> ! {
+        cortex_m::interrupt::disable();
+        // SAFETY: interrupts are off and the panic handler never returns, so no other
+        // user of UART0 runs again.
+        let mut uart = unsafe { CmsdkUart::steal_uart0() };
+        let _ = write!(uart, "\r\nPANIC: {info}\r\n");
+        loop {
+            cortex_m::asm::wfi();
+        }
+    }
+}

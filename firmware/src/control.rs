@@ -1,0 +1,306 @@
+//! The control interrupt's work, independent of any board: apply the setpoints, read
+//! the board's sensors, run one [`Drive::step`], drive the bridge, hand telemetry to the
+//! lower-priority context.
+//!
+//! ```text
+//!  thread / low-priority context            control interrupt (highest priority)
+//!  ----------------------------            -----------------------------------
+//!  Setpoints::set_* (atomic stores)  --->  ControlLoop::step(board, setpoints, tx)
+//!  Consumer<ActuationFrame>::dequeue <---  Producer::enqueue every `telemetry_every`
+//! ```
+//!
+//! Nothing here blocks or waits: setpoints are atomics the interrupt reads once per
+//! step, telemetry goes through a `heapless` single-producer single-consumer queue whose
+//! full state the interrupt counts and moves on from. The step's time is bounded by the
+//! drive's (no loops over data, no allocation, no panics).
+
+use core::sync::atomic::{AtomicBool, AtomicU32, Ordering};
+
+use dcfo::drive::{Drive, DriveState, Faults, Measurements};
+use dcfo::link::{ActuationFrame, LinkStats};
+use dcfo::num::Scalar;
+use dcfo::transforms::Abc;
+use dcfo::units::Base;
+use heapless::spsc::Producer;
+
+use crate::board::{PhaseSensors, PowerStage};
+
+/// Commands from a lower-priority context to the control interrupt, lock-free.
+/// Power-on state: disabled, speed reference 0 m/s.
+#[derive(Debug)]
+pub struct Setpoints {
+    speed_m_per_s_bits: AtomicU32,
+    enable: AtomicBool,
+    clear_faults: AtomicBool,
+}
+
+impl Default for Setpoints {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl Setpoints {
+    /// Disabled, 0 m/s.
+    pub const fn new() -> Self {
+        Setpoints {
+            speed_m_per_s_bits: AtomicU32::new(0),
+            enable: AtomicBool::new(false),
+            clear_faults: AtomicBool::new(false),
+        }
+    }
+
+    /// Sets the linear speed reference (m/s). A non-finite value is refused (`false`)
+    /// and the previous reference kept.
+    pub fn set_speed_m_per_s(&self, speed_m_per_s: f32) -> bool {
+        if !speed_m_per_s.is_finite() {
+            return false;
+        }
+        self.speed_m_per_s_bits.store(speed_m_per_s.to_bits(), Ordering::Relaxed);
+        true
+    }
+
+    /// Asks the drive to run (`true`) or to switch the bridge off and stop (`false`).
+    pub fn set_enable(&self, run: bool) {
+        self.enable.store(run, Ordering::Relaxed);
+    }
+
+    /// Asks the control interrupt to clear latched faults once (at its next step).
+    pub fn request_clear_faults(&self) {
+        self.clear_faults.store(true, Ordering::Relaxed);
+    }
+
+    /// The speed reference, m/s.
+    pub fn speed_m_per_s(&self) -> f32 {
+        f32::from_bits(self.speed_m_per_s_bits.load(Ordering::Relaxed))
+    }
+}
+
+/// The drive and its bridge bookkeeping, owned by the control interrupt.
+#[derive(Clone, Debug)]
+pub struct ControlLoop<T> {
+    drive: Drive<T>,
+    base: Base,
+    /// Bits of the speed reference last converted (m/s as f32 bits).
+    speed_bits: u32,
+    telemetry_every: u16,
+    countdown: u16,
+    sequence: u16,
+    telemetry_dropped: u32,
+}
+
+impl<T: Scalar> ControlLoop<T> {
+    /// Wraps `drive`; a telemetry record is queued every `telemetry_every` steps
+    /// (at least 1).
+    pub fn new(drive: Drive<T>, telemetry_every: u16) -> Self {
+        let base = *drive.base();
+        let mut drive = drive;
+        drive.set_speed_reference(T::ZERO);
+        ControlLoop {
+            drive,
+            base,
+            speed_bits: 0f32.to_bits(),
+            telemetry_every: telemetry_every.max(1),
+            countdown: 1,
+            sequence: 0,
+            telemetry_dropped: 0,
+        }
+    }
+
+    /// One control period (call from the interrupt that follows the current sampling):
+    /// setpoints, sensors, [`Drive::step`], then the bridge — duties before enable, or
+    /// disable before centring the duties, every period (idempotent, so a missed
+    /// transition cannot leave the bridge on). Returns the drive's state after the step.
+    pub fn step<B: PhaseSensors + PowerStage>(
+        &mut self,
+        board: &mut B,
+        setpoints: &Setpoints,
+        telemetry: &mut Producer<'_, ActuationFrame>,
+    ) -> DriveState {
+        self.apply(setpoints);
+        let s = board.sample();
+        // Fixed point has no NaN: catch a broken conversion before it becomes a number.
+        if !(s.i_abc_a.iter().all(|i| i.is_finite()) && s.vdc_v.is_finite()) {
+            self.drive.trip(Faults::NON_FINITE);
+        }
+        let b = &self.base;
+        let m = Measurements {
+            i_abc: Abc { a: b.current(s.i_abc_a[0]), b: b.current(s.i_abc_a[1]), c: b.current(s.i_abc_a[2]) },
+            vdc: b.voltage(s.vdc_v),
+        };
+        let out = self.drive.step(&m);
+        if out.bridge_enabled {
+            board.set_duties([out.duties.a.to_f32(), out.duties.b.to_f32(), out.duties.c.to_f32()]);
+            board.enable_bridge();
+        } else {
+            board.disable_bridge();
+            board.set_duties([0.5; 3]);
+        }
+        self.countdown -= 1;
+        if self.countdown == 0 {
+            self.countdown = self.telemetry_every;
+            let record = ActuationFrame::from_step(self.sequence, &out, &self.base, LinkStats::default());
+            self.sequence = self.sequence.wrapping_add(1);
+            if telemetry.enqueue(record).is_err() {
+                self.telemetry_dropped = self.telemetry_dropped.saturating_add(1);
+            }
+        }
+        out.state
+    }
+
+    fn apply(&mut self, setpoints: &Setpoints) {
+        if setpoints.clear_faults.swap(false, Ordering::Relaxed) {
+            self.drive.clear_faults();
+        }
+        if setpoints.enable.load(Ordering::Relaxed) {
+            self.drive.enable();
+        } else {
+            self.drive.disable();
+        }
+        // Converting the reference costs a few float operations (soft-float on an
+        // FPU-less core): only when it changed.
+        let bits = setpoints.speed_m_per_s_bits.load(Ordering::Relaxed);
+        if bits != self.speed_bits {
+            self.speed_bits = bits;
+            let omega = self.drive.omega_from_speed(f32::from_bits(bits));
+            self.drive.set_speed_reference(omega);
+        }
+    }
+
+    /// Telemetry records dropped because the queue was full.
+    pub fn telemetry_dropped(&self) -> u32 {
+        self.telemetry_dropped
+    }
+
+    /// The drive (for inspection).
+    pub fn drive(&self) -> &Drive<T> {
+        &self.drive
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::board::PhaseSample;
+    use crate::board::fake::{FakeBoard, InjectedFault};
+    use dcfo::drive::DriveConfig;
+    use dcfo::motor::MotorParams;
+    use dcfo::num::Q24;
+    use dcfo::observer::ObserverKind;
+    use heapless::spsc::Queue;
+
+    const BUS_V: f32 = 311.0;
+
+    fn control<T: Scalar>(base: &Base) -> ControlLoop<T> {
+        let motor = MotorParams::paper();
+        let drive =
+            Drive::new(&motor, &DriveConfig::for_motor(&motor, BUS_V, ObserverKind::Dcfo), base).unwrap();
+        ControlLoop::new(drive, 10)
+    }
+
+    fn quiet_board() -> FakeBoard {
+        FakeBoard { next: PhaseSample { i_abc_a: [0.0; 3], vdc_v: BUS_V }, ..FakeBoard::default() }
+    }
+
+    /// Runs until the drive reaches `state` (at most `limit` steps); returns the steps.
+    fn run_until<T: Scalar>(
+        c: &mut ControlLoop<T>,
+        board: &mut FakeBoard,
+        sp: &Setpoints,
+        state: DriveState,
+        limit: usize,
+    ) -> Option<usize> {
+        let mut q: Queue<ActuationFrame, 4> = Queue::new();
+        let (mut tx, mut rx) = q.split();
+        for k in 1..=limit {
+            let s = c.step(board, sp, &mut tx);
+            while rx.dequeue().is_some() {}
+            if s == state {
+                return Some(k);
+            }
+        }
+        None
+    }
+
+    fn check_bridge_follows_the_drive<T: Scalar>(base: &Base) {
+        let mut c = control::<T>(base);
+        let mut board = quiet_board();
+        let sp = Setpoints::new();
+        // Disabled: bridge off, duties centred.
+        assert_eq!(run_until(&mut c, &mut board, &sp, DriveState::Starting, 50), None);
+        assert!(!board.bridge_on && board.enables == 0);
+        assert_eq!(board.duties, Some([0.5; 3]));
+        // Enabled: calibration (bridge off), then start-up switches it on.
+        sp.set_enable(true);
+        assert!(sp.set_speed_m_per_s(0.3));
+        assert!(run_until(&mut c, &mut board, &sp, DriveState::Starting, 10_000).is_some());
+        // The step that ends calibration enters start-up; the next one modulates.
+        assert!(!board.bridge_on);
+        assert_eq!(run_until(&mut c, &mut board, &sp, DriveState::Starting, 1), Some(1));
+        assert!(board.bridge_on);
+        // Each injected fault: bridge off at once, latched with its bit, and it stays off
+        // after the cause goes away until the faults are cleared.
+        for (fault, bit) in [
+            (InjectedFault::NanCurrent, Faults::NON_FINITE),
+            (InjectedFault::CurrentSpike(20.0), Faults::OVER_CURRENT),
+            (InjectedFault::BusVoltage(BUS_V * 2.0), Faults::BUS_OVER_VOLTAGE),
+            (InjectedFault::BusVoltage(BUS_V * 0.2), Faults::BUS_UNDER_VOLTAGE),
+        ] {
+            board.fault = Some(fault);
+            assert_eq!(run_until(&mut c, &mut board, &sp, DriveState::Fault, 1), Some(1), "{fault:?}");
+            assert!(!board.bridge_on, "{fault:?}");
+            assert!(c.drive().faults().contains(bit), "{fault:?}: {:?}", c.drive().faults());
+            board.fault = None;
+            assert_eq!(run_until(&mut c, &mut board, &sp, DriveState::Starting, 100), None);
+            assert!(!board.bridge_on);
+            sp.request_clear_faults();
+            // Cleared: disabled (enable is re-read at once), then calibration and start.
+            assert!(run_until(&mut c, &mut board, &sp, DriveState::Starting, 10_000).is_some(), "{fault:?}");
+            assert_eq!(run_until(&mut c, &mut board, &sp, DriveState::Starting, 1), Some(1));
+            assert!(board.bridge_on && c.drive().faults() == Faults::NONE);
+        }
+        // Disable: bridge off on the next step.
+        sp.set_enable(false);
+        assert_eq!(run_until(&mut c, &mut board, &sp, DriveState::Disabled, 1), Some(1));
+        assert!(!board.bridge_on);
+    }
+
+    #[test]
+    fn bridge_follows_the_drive_in_f32() {
+        check_bridge_follows_the_drive::<f32>(&Base::SI);
+    }
+
+    #[test]
+    fn bridge_follows_the_drive_in_q24() {
+        let base = Base::for_motor(&MotorParams::paper());
+        check_bridge_follows_the_drive::<Q24>(&base);
+    }
+
+    #[test]
+    fn telemetry_never_blocks_and_counts_what_it_drops() {
+        let mut c = control::<f32>(&Base::SI);
+        let mut board = quiet_board();
+        let sp = Setpoints::new();
+        let mut q: Queue<ActuationFrame, 4> = Queue::new();
+        let capacity = q.capacity();
+        let (mut tx, mut rx) = q.split();
+        // Nobody reads: 100 steps make 10 records, `capacity` fit.
+        for _ in 0..100 {
+            c.step(&mut board, &sp, &mut tx);
+        }
+        assert_eq!(c.telemetry_dropped() as usize, 10 - capacity);
+        let sequences: heapless::Vec<u16, 8> =
+            core::iter::from_fn(|| rx.dequeue()).map(|r| r.sequence).collect();
+        assert_eq!(sequences.len(), capacity);
+        assert!(sequences.iter().enumerate().all(|(i, &s)| usize::from(s) == i));
+    }
+
+    #[test]
+    fn setpoints_refuse_non_finite_speeds() {
+        let sp = Setpoints::new();
+        assert!(sp.set_speed_m_per_s(-0.25));
+        assert!(!sp.set_speed_m_per_s(f32::NAN));
+        assert!(!sp.set_speed_m_per_s(f32::INFINITY));
+        assert_eq!(sp.speed_m_per_s(), -0.25);
+    }
+}

@@ -1,0 +1,158 @@
+//! The firmware side of the lock-step HIL link on any board: received bytes in, encoded
+//! answers out through a transmit queue, the silent-link watchdog in between.
+//!
+//! The receive interrupt calls [`HilServer::on_byte`] for each byte; a lower-priority
+//! context moves the queue into the UART; a periodic timer calls
+//! [`HilServer::watchdog_period`]. An answer goes into the queue whole or not at all (a
+//! full queue drops it and counts it): half an answer on the wire would cost the next
+//! one too.
+
+use dcfo::drive::Drive;
+use dcfo::link::{ActuationFrame, LinkServer, LinkStats};
+use dcfo::num::Scalar;
+use dcfo::units::Base;
+use heapless::spsc::Producer;
+
+/// The drive behind the HIL link, owned by the receive interrupt.
+#[derive(Clone, Debug)]
+pub struct HilServer<T> {
+    drive: Drive<T>,
+    base: Base,
+    link: LinkServer,
+    reply: [u8; ActuationFrame::WIRE_LEN],
+    answers_dropped: u32,
+}
+
+impl<T: Scalar> HilServer<T> {
+    /// Serves `drive` (its working-unit base is taken from it).
+    pub fn new(drive: Drive<T>) -> Self {
+        HilServer {
+            base: *drive.base(),
+            drive,
+            link: LinkServer::new(),
+            reply: [0; ActuationFrame::WIRE_LEN],
+            answers_dropped: 0,
+        }
+    }
+
+    /// One received byte. When it completes an in-order sensor frame, the drive steps
+    /// once and its answer is queued for transmission.
+    pub fn on_byte(&mut self, byte: u8, tx: &mut Producer<'_, u8>) {
+        let Some(n) = self.link.on_byte(byte, &mut self.drive, &self.base, &mut self.reply) else {
+            return;
+        };
+        let Some(answer) = self.reply.get(..n) else { return };
+        if tx.capacity() - tx.len() < answer.len() {
+            self.answers_dropped = self.answers_dropped.saturating_add(1);
+            return;
+        }
+        for &b in answer {
+            // Cannot fail: the free space was checked above and only this side enqueues.
+            let _ = tx.enqueue(b);
+        }
+    }
+
+    /// One watchdog period (from a periodic timer): see
+    /// [`LinkServer::silent_period`]. Returns `true` while the link is silent past the
+    /// limit.
+    pub fn watchdog_period(&mut self) -> bool {
+        self.link.silent_period(&mut self.drive)
+    }
+
+    /// Trips the drive with an external fault (e.g. an interrupt without a handler).
+    pub fn trip(&mut self) {
+        self.drive.trip(dcfo::drive::Faults::EXTERNAL);
+    }
+
+    /// Answers dropped because the transmit queue was full.
+    pub fn answers_dropped(&self) -> u32 {
+        self.answers_dropped
+    }
+
+    /// The link statistics (bad frames, out-of-order frames).
+    pub fn link_stats(&self) -> LinkStats {
+        self.link.stats()
+    }
+
+    /// The drive (for inspection).
+    pub fn drive(&self) -> &Drive<T> {
+        &self.drive
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use dcfo::drive::{DriveConfig, DriveState};
+    use dcfo::link::{Receiver, SensorFrame, encode};
+    use dcfo::motor::MotorParams;
+    use dcfo::observer::ObserverKind;
+    use heapless::spsc::Queue;
+
+    fn server() -> HilServer<f32> {
+        let m = MotorParams::paper();
+        HilServer::new(
+            Drive::new(&m, &DriveConfig::for_motor(&m, 311.0, ObserverKind::Dcfo), &Base::SI).unwrap(),
+        )
+    }
+
+    fn frame(sequence: u16) -> heapless::Vec<u8, { SensorFrame::WIRE_LEN }> {
+        let f = SensorFrame {
+            sequence,
+            i_a: 0.0,
+            i_b: 0.0,
+            i_c: 0.0,
+            vdc: 311.0,
+            speed_ref: 0.3,
+            enable: true,
+            clear_faults: false,
+        };
+        let mut wire = [0u8; SensorFrame::WIRE_LEN];
+        let n = encode(&f, &mut wire).unwrap();
+        heapless::Vec::from_slice(&wire[..n]).unwrap()
+    }
+
+    #[test]
+    fn answers_are_queued_whole_or_dropped_and_counted() {
+        let mut s = server();
+        // Room for one answer and a bit, not two.
+        let mut q: Queue<u8, { ActuationFrame::WIRE_LEN + 11 }> = Queue::new();
+        let (mut tx, mut rx) = q.split();
+        for b in frame(0) {
+            s.on_byte(b, &mut tx);
+        }
+        for b in frame(1) {
+            s.on_byte(b, &mut tx);
+        }
+        assert_eq!(s.answers_dropped(), 1);
+        // What is queued is exactly one valid answer, to frame 0.
+        let mut answers = Receiver::<ActuationFrame>::new();
+        let got: heapless::Vec<ActuationFrame, 4> = core::iter::from_fn(|| rx.dequeue())
+            .filter_map(|b| answers.push(b))
+            .map(|r| r.unwrap())
+            .collect();
+        assert_eq!(got.len(), 1);
+        assert_eq!((got[0].sequence, got[0].state), (0, DriveState::Calibrating));
+        // With room again the next frame is answered.
+        for b in frame(2) {
+            s.on_byte(b, &mut tx);
+        }
+        assert_eq!(rx.len(), ActuationFrame::WIRE_LEN);
+        assert_eq!(s.link_stats(), LinkStats::default());
+    }
+
+    #[test]
+    fn the_watchdog_trips_an_active_drive() {
+        let mut s = server();
+        let mut q: Queue<u8, 128> = Queue::new();
+        let (mut tx, _rx) = q.split();
+        for b in frame(0) {
+            s.on_byte(b, &mut tx);
+        }
+        assert_eq!(s.drive().state(), DriveState::Calibrating);
+        let trips: usize =
+            (0..dcfo::link::SILENT_LINK_PERIODS).map(|_| usize::from(s.watchdog_period())).sum();
+        assert_eq!(trips, 1);
+        assert_eq!(s.drive().state(), DriveState::Fault);
+    }
+}
