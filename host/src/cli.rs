@@ -57,6 +57,24 @@ pub enum Command {
     /// Hardware-in-the-loop: run a scenario with the drive on a target (QEMU or a board
     /// on a serial port) in lock-step with the simulated plant.
     Hil(HilArgs),
+    /// Write a motor image: the motor (file or preset) and the bus voltage as the binary
+    /// record a drive board reads from its reserved flash page (dcfo::motor_image).
+    MotorImage(MotorImageArgs),
+}
+
+/// Arguments of `dcfo motor-image`.
+#[derive(Debug, Clone, Args)]
+pub struct MotorImageArgs {
+    /// Motor: a preset name (`paper`) or a TOML motor file (shared/trace-format.md).
+    #[arg(long, value_name = "FILE|PRESET")]
+    pub motor: String,
+    /// Nominal DC-bus voltage of the board, V (e.g. 24 on the B-G431B-ESC1).
+    #[arg(long, value_name = "V")]
+    pub bus_v: f32,
+    /// Output file (56 bytes). Flash it on the B-G431B-ESC1 with
+    /// `probe-rs download --chip STM32G431CBUx --binary-format bin --base-address 0x0801F800 FILE`.
+    #[arg(short, long, value_name = "FILE")]
+    pub out: PathBuf,
 }
 
 /// Arguments of `dcfo hil`.
@@ -237,7 +255,32 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             crate::hil::run_hil(&args)?;
             Ok(ExitCode::SUCCESS)
         }
+        Command::MotorImage(args) => {
+            run_motor_image(&args)?;
+            Ok(ExitCode::SUCCESS)
+        }
     }
+}
+
+/// `dcfo motor-image`: validates the motor and the bus voltage exactly as the firmware
+/// will, then writes the record (nothing is written on an error).
+pub fn run_motor_image(args: &MotorImageArgs) -> anyhow::Result<()> {
+    use anyhow::Context;
+    let motor = load_motor(&args.motor)?;
+    let image = dcfo::motor_image::MotorImage::new(motor.params, args.bus_v)
+        .map_err(|e| anyhow::anyhow!("{}: {e}", args.motor))?;
+    let bytes = image.encode();
+    // The firmware's own check, on the bytes as written.
+    dcfo::motor_image::MotorImage::decode(&bytes).map_err(|e| anyhow::anyhow!("encoded image: {e}"))?;
+    std::fs::write(&args.out, bytes).with_context(|| format!("writing {}", args.out.display()))?;
+    println!(
+        "motor image of {} at {} V bus: {} bytes in {}",
+        motor.name,
+        args.bus_v,
+        bytes.len(),
+        args.out.display()
+    );
+    Ok(())
 }
 
 /// `dcfo paper`: every paper scenario with the CFO and the DCFO.

@@ -121,3 +121,43 @@ fn motor_files_on_disk() {
     assert_has(&e, &["motor file", "absent.toml"]);
     assert_eq!(load_motor("paper").unwrap().params, MotorParams::paper());
 }
+
+#[test]
+fn motor_image_command_writes_what_the_firmware_reads_and_refuses_bad_input() {
+    use dcfo::motor_image::MotorImage;
+    use std::process::Command;
+    let dir = tempfile::tempdir().unwrap();
+    let good = dir.path().join("motor.bin");
+    let out = Command::new(env!("CARGO_BIN_EXE_dcfo"))
+        .args(["motor-image", "--motor", "paper", "--bus-v", "24", "-o"])
+        .arg(&good)
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let image = MotorImage::decode(&std::fs::read(&good).unwrap()).unwrap();
+    assert_eq!((image.motor, image.bus_v), (MotorParams::paper(), 24.0));
+    // A motor file with an unphysical value, and a bad bus voltage: an error naming
+    // what is wrong, and no file.
+    let motor_toml = dir.path().join("bad.toml");
+    std::fs::write(
+        &motor_toml,
+        "name = \"x\"\nrs_ohm = 1.0\nld_h = -0.001\nlq_h = 0.001\npsi_f_wb = 0.01\npole_pitch_m = 0.01\n\
+         mass_kg = 1.0\nviscous_n_s_per_m = 0.0\nrated_current_a = 5.0\nrated_voltage_v = 24.0\n",
+    )
+    .unwrap();
+    let bad = dir.path().join("bad.bin");
+    for (motor, bus, expect) in [
+        (motor_toml.to_str().unwrap(), "24", "ld_h"),
+        ("paper", "0", "bus voltage"),
+        ("paper", "nan", "bus voltage"),
+    ] {
+        let out = Command::new(env!("CARGO_BIN_EXE_dcfo"))
+            .args(["motor-image", "--motor", motor, &format!("--bus-v={bus}"), "-o"])
+            .arg(&bad)
+            .output()
+            .unwrap();
+        assert!(!out.status.success());
+        assert_has(&String::from_utf8_lossy(&out.stderr), &[expect]);
+        assert!(!bad.exists(), "no file on an error");
+    }
+}

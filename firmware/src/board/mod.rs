@@ -16,6 +16,10 @@ pub mod fake;
 #[allow(unsafe_code)]
 pub mod mps2;
 
+#[cfg(all(target_arch = "arm", feature = "esc1"))]
+#[allow(unsafe_code)]
+pub mod b_g431b_esc1;
+
 /// Phase currents and DC-bus voltage sampled at one PWM carrier valley, SI units.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct PhaseSample {

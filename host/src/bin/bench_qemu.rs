@@ -144,7 +144,14 @@ fn run() -> Result<()> {
     println!();
     println!("Image sizes (arm-none-eabi-size -A; flash = .vector_table + .text + .rodata + .data,");
     println!("static RAM = .data + .bss + .uninit; the stack is not included):");
+    build_esc1(&root)?;
     let mut images = Vec::new();
+    for example in ["b_g431b_esc1", "b_g431b_esc1_hil"] {
+        images.push((
+            format!("{example} (STM32G431CB, thumbv7em-none-eabihf)"),
+            target_dir.join("thumbv7em-none-eabihf/release/examples").join(example),
+        ));
+    }
     for board in &BOARDS {
         for example in ["qemu_hil", "bench"] {
             images.push((
@@ -153,11 +160,11 @@ fn run() -> Result<()> {
             ));
         }
     }
-    println!("| {:<48} | {:>12} | {:>16} |", "image", "flash (B)", "static RAM (B)");
-    println!("|{}|{}:|{}:|", "-".repeat(50), "-".repeat(13), "-".repeat(17));
+    println!("| {:<54} | {:>12} | {:>16} |", "image", "flash (B)", "static RAM (B)");
+    println!("|{}|{}:|{}:|", "-".repeat(56), "-".repeat(13), "-".repeat(17));
     for (name, path) in &images {
         let (flash, ram) = sizes(path)?;
-        println!("| {name:<48} | {flash:>12} | {ram:>16} |");
+        println!("| {name:<54} | {flash:>12} | {ram:>16} |");
     }
     Ok(())
 }
@@ -205,6 +212,21 @@ fn build(root: &Path, target: &str, example: &str) -> Result<()> {
         .context("running cargo")?;
     if !status.success() {
         bail!("building {example} for {target} failed ({status})");
+    }
+    Ok(())
+}
+
+/// Builds the B-G431B-ESC1 images (feature `esc1`), for their sizes.
+fn build_esc1(root: &Path) -> Result<()> {
+    let cargo = std::env::var_os("CARGO").unwrap_or_else(|| "cargo".into());
+    let status = Command::new(cargo)
+        .current_dir(root)
+        .args(["build", "-p", "dcfo-firmware", "--release", "--features", "esc1", "--examples"])
+        .args(["--target", "thumbv7em-none-eabihf"])
+        .status()
+        .context("running cargo")?;
+    if !status.success() {
+        bail!("building the B-G431B-ESC1 images failed ({status})");
     }
     Ok(())
 }

@@ -1,0 +1,112 @@
+//! Lock-step HIL firmware for the ST B-G431B-ESC1: the drive of the simulated paper axis
+//! (`DriveConfig::paper_axis`, the settings of `dcfo hil`'s plant, as the QEMU image runs
+//! them) behind the `dcfo::link` protocol on USART2, the ST-LINK virtual COM port at
+//! 921600 8N1. The power stage is initialised with the bridge off and stays off: the
+//! motor here is the host's simulation. **Not tried on hardware** (none here).
+//!
+//! | context | priority | work | budget |
+//! |---|---|---|---|
+//! | SysTick, every 50 ms | 0x80 | link watchdog: `HilServer::watchdog_period` | under 100 instructions |
+//! | thread | — | polls USART2; each byte to `HilServer::on_byte` (an in-order frame runs one `Drive::step`) in a critical section; the answer out | the link sets the pace: a round trip is 73 bytes, about 0.8 ms at 921600 bit/s |
+//!
+//! A silent link (10 watchdog periods, 0.5 s) switches an active drive off, as on QEMU.
+//! ```sh
+//! cargo run -p dcfo-firmware --release --features esc1 --example b_g431b_esc1_hil --target thumbv7em-none-eabihf
+//! cargo run --release -p dcfo-host -- hil --port /dev/ttyACM0 --baud 921600 --check
+//! ```
+#![cfg_attr(target_arch = "arm", no_std)]
+#![cfg_attr(target_arch = "arm", no_main)]
+
+#[cfg(not(target_arch = "arm"))]
+fn main() {
+    eprintln!("b_g431b_esc1_hil is firmware: build it with `--target thumbv7em-none-eabihf`");
+}
+
+#[cfg(target_arch = "arm")]
+mod firmware {
+    use core::cell::RefCell;
+
+    use cortex_m::interrupt::{self, Mutex};
+    use cortex_m::peripheral::scb::SystemHandler;
+    use cortex_m::peripheral::syst::SystClkSource;
+    use cortex_m_rt::{entry, exception};
+    use dcfo::drive::{Drive, DriveConfig};
+    use dcfo::link::ActuationFrame;
+    use dcfo::motor::MotorParams;
+    use dcfo::observer::ObserverKind;
+    use dcfo::units::Base;
+    use dcfo_firmware::board::b_g431b_esc1::{self as esc1, Esc1Config, SYSCLK_HZ};
+    use dcfo_firmware::hil::HilServer;
+    use defmt_rtt as _;
+    use embedded_io::Write as _;
+    use heapless::spsc::{Producer, Queue};
+    use panic_probe as _;
+    use stm32g4::stm32g431 as pac;
+
+    const BAUD: u32 = 921_600;
+    /// Watchdog ticks per second (50 ms); SysTick's reload (24 bits) fits at 170 MHz / 8.
+    const WATCHDOG_TICK_HZ: u32 = 20;
+    const TX_QUEUE_BYTES: usize = 2 * ActuationFrame::WIRE_LEN + 1;
+
+    struct Hil {
+        server: HilServer<f32>,
+        tx: Producer<'static, u8>,
+    }
+
+    static HIL: Mutex<RefCell<Option<Hil>>> = Mutex::new(RefCell::new(None));
+
+    #[entry]
+    fn main() -> ! {
+        let Some(dp) = pac::Peripherals::take() else { panic!("device peripherals taken twice") };
+        let Some(mut cp) = cortex_m::Peripherals::take() else { panic!("core peripherals taken twice") };
+        // The bridge stays off: init leaves MOE clear and nothing here enables it.
+        let board = esc1::init(dp, &Esc1Config { baud: BAUD, ..Esc1Config::default() });
+        let mut uart = board.uart;
+        let motor = MotorParams::paper();
+        let drive = match Drive::<f32>::new(&motor, &DriveConfig::paper_axis(ObserverKind::Dcfo), &Base::SI) {
+            Ok(d) => d,
+            Err(e) => panic!("drive configuration: {}", e.field),
+        };
+        let Some(queue) = cortex_m::singleton!(: Queue<u8, TX_QUEUE_BYTES> = Queue::new()) else {
+            panic!("transmit queue taken twice")
+        };
+        let (producer, mut consumer) = queue.split();
+        interrupt::free(|cs| {
+            HIL.borrow(cs).replace(Some(Hil { server: HilServer::new(drive), tx: producer }))
+        });
+
+        // SAFETY: set before SysTick is enabled; critical sections use PRIMASK.
+        unsafe { cp.SCB.set_priority(SystemHandler::SysTick, 0x80) };
+        cp.SYST.set_clock_source(SystClkSource::External); // HCLK / 8
+        cp.SYST.set_reload(SYSCLK_HZ / 8 / WATCHDOG_TICK_HZ - 1);
+        cp.SYST.clear_current();
+        cp.SYST.enable_interrupt();
+        cp.SYST.enable_counter();
+        defmt::info!("B-G431B-ESC1 HIL target ready at {} bit/s", BAUD);
+
+        loop {
+            match uart.try_read_byte() {
+                Ok(Some(byte)) => interrupt::free(|cs| {
+                    if let Some(h) = HIL.borrow(cs).borrow_mut().as_mut() {
+                        h.server.on_byte(byte, &mut h.tx);
+                    }
+                }),
+                Ok(None) => {}
+                // A lost or garbled byte: the frame's CRC rejects it, the link counts it.
+                Err(e) => defmt::warn!("USART2: {}", defmt::Debug2Format(&e)),
+            }
+            while let Some(byte) = consumer.dequeue() {
+                let _ = uart.write_all(&[byte]);
+            }
+        }
+    }
+
+    #[exception]
+    fn SysTick() {
+        interrupt::free(|cs| {
+            if let Some(h) = HIL.borrow(cs).borrow_mut().as_mut() {
+                h.server.watchdog_period();
+            }
+        });
+    }
+}
