@@ -14,8 +14,9 @@
 //! then `READY`; the firmware then waits for one byte on UART0 (the host switches the
 //! exec log on first, so the warm-up is not traced). Then, per type, a line
 //! `BENCH <type> <region>,<region>,..` naming the regions that follow, in order,
-//! `END <type> <state>` and `STACK <type> <bytes>` (the deepest stack used by one
-//! `Drive::step`, from a painted stack). The firmware exits through semihosting
+//! `END <type> <state>`, `STACK <type> <bytes>` (the deepest stack used by one
+//! `Drive::step`, from a painted stack) and `STACK_HIL <type> <bytes>` (the same for the
+//! HIL image's receive path on the byte that completes a frame). The firmware exits through semihosting
 //! `SYS_EXIT` (status 0, or 1 when a drive could not be built).
 //!
 //! ```sh
@@ -47,6 +48,7 @@ mod firmware {
     use cortex_m_rt::entry;
     use dcfo::drive::{Drive, DriveConfig, DriveState, Measurements, StepOutput};
     use dcfo::estimator::Estimator;
+    use dcfo::link::{SensorFrame, encode};
     use dcfo::motor::MotorParams;
     use dcfo::num::{Angle, Q24, Scalar};
     use dcfo::observer::{Dcfo, FluxObserver, ObserverInput, ObserverKind, ObserverMotor};
@@ -56,6 +58,8 @@ mod firmware {
     use dcfo::transforms::{Abc, AlphaBeta, CosSin, Dq, clarke, inverse_clarke, inverse_park, park};
     use dcfo::units::Base;
     use dcfo_firmware::board::mps2::CmsdkUart;
+    use dcfo_firmware::hil::HilServer;
+    use heapless::spsc::Queue;
 
     /// Control period of the drive and the plant (s).
     const TS: f32 = 1e-4;
@@ -261,9 +265,9 @@ mod firmware {
         }};
     }
 
-    /// Deepest stack (bytes below the caller's stack pointer) of one `Drive::step`.
+    /// Deepest stack (bytes below the caller's stack pointer) used by `f`.
     #[inline(never)]
-    fn stack_depth<T: Scalar>(drive: &mut Drive<T>, m: &Measurements<T>) -> usize {
+    fn stack_depth(f: impl FnOnce()) -> usize {
         let sp = cortex_m::register::msp::read() as usize;
         // Leave 64 bytes under the stack pointer for this function's own calls.
         let top = (sp - 64) & !3;
@@ -273,7 +277,7 @@ mod firmware {
             // (the stack starts at its top), in memory no live frame uses.
             unsafe { core::ptr::write_volatile(a as *mut u32, PAINT) };
         }
-        black_box(stage_step(drive, black_box(m)));
+        f();
         let mut low = top;
         for a in (bottom..top).step_by(4) {
             // SAFETY: as above; reading back the painted words.
@@ -283,6 +287,32 @@ mod firmware {
             }
         }
         sp - low
+    }
+
+    /// Deepest stack of the HIL image's receive path on the byte that completes a frame:
+    /// `HilServer::on_byte` (decode, `Drive::step`, encode, queue), as `qemu_hil`'s UART
+    /// interrupt runs it.
+    fn hil_stack_depth<T: Scalar>(drive: &Drive<T>, vdc_v: f32) -> usize {
+        let mut server = HilServer::new(drive.clone());
+        let mut queue: Queue<u8, 128> = Queue::new();
+        let (mut tx, _rx) = queue.split();
+        let frame = SensorFrame {
+            sequence: 0,
+            i_a: 0.1,
+            i_b: -0.05,
+            i_c: -0.05,
+            vdc: vdc_v,
+            speed_ref: SPEED_M_PER_S,
+            enable: true,
+            clear_faults: false,
+        };
+        let mut wire = [0u8; SensorFrame::WIRE_LEN];
+        let Ok(n) = encode(&frame, &mut wire) else { return 0 };
+        let Some((&last, head)) = wire[..n].split_last() else { return 0 };
+        for &b in head {
+            server.on_byte(b, &mut tx);
+        }
+        stack_depth(|| server.on_byte(black_box(last), &mut tx))
     }
 
     fn state_name(s: DriveState) -> &'static str {
@@ -461,8 +491,11 @@ mod firmware {
             println!("END {name} {}", state_name(self.out.state));
             self.advance();
             let m = self.measure();
-            let depth = stack_depth(&mut self.drive, &m);
+            let depth = stack_depth(|| {
+                black_box(stage_step(&mut self.drive, black_box(&m)));
+            });
             println!("STACK {name} {depth}");
+            println!("STACK_HIL {name} {}", hil_stack_depth(&self.drive, dcfo::drive::PAPER_AXIS_BUS_V));
         }
     }
 

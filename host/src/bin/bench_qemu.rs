@@ -61,6 +61,8 @@ struct Run {
     regions: BTreeMap<String, Vec<(String, u64)>>,
     /// type name -> bytes.
     stack: BTreeMap<String, u64>,
+    /// type name -> bytes of the HIL receive path (a frame's last byte).
+    stack_hil: BTreeMap<String, u64>,
     /// type name -> drive state after the measured steps.
     state: BTreeMap<String, String>,
 }
@@ -138,7 +140,11 @@ fn run() -> Result<()> {
     for (label, ty, _, run) in &columns {
         let stack = run.stack.get(*ty).map_or_else(|| "?".to_owned(), |s| s.to_string());
         let state = run.state.get(*ty).map_or("?", String::as_str);
-        println!("{label} {ty}: drive state {state}, deepest stack of one Drive::step {stack} bytes");
+        let hil = run.stack_hil.get(*ty).map_or_else(|| "?".to_owned(), |s| s.to_string());
+        println!(
+            "{label} {ty}: drive state {state}; deepest stack of one Drive::step {stack} bytes, of the HIL \
+             receive path (decode, step, encode) {hil} bytes"
+        );
     }
 
     println!();
@@ -323,6 +329,9 @@ fn run_traced(board: &Board, elf: &Path) -> Result<Run> {
                 let regions = names.iter().zip(counts).map(|(n, c)| ((*n).to_owned(), *c)).collect();
                 run.regions.insert(ty.to_owned(), regions);
                 next += names.len();
+            }
+            (Some("STACK_HIL"), Some(ty), Some(bytes)) => {
+                run.stack_hil.insert(ty.to_owned(), bytes.parse().context("STACK_HIL line")?);
             }
             (Some("STACK"), Some(ty), Some(bytes)) => {
                 run.stack.insert(ty.to_owned(), bytes.parse().context("STACK line")?);
