@@ -77,6 +77,16 @@ pub trait Scalar:
     /// `self / rhs`, or `None` when `rhs` is zero or the quotient is not representable
     /// (infinite, NaN, or outside the fixed-point range).
     fn checked_div(self, rhs: Self) -> Option<Self>;
+    /// `1 / self`, or `None` when `self` is zero or the result is not representable.
+    /// Accuracy: floats correctly rounded (one division); [`Q24`] within 4 LSB
+    /// absolute plus 2^-22 relative, by normalisation and three Newton steps — no
+    /// 64-bit division, which an FPU-less Cortex-M3 does in software.
+    fn recip(self) -> Option<Self>;
+    /// `1 / sqrt(self)` for `self > 0`; `None` for `self <= 0`, NaN, or a result out of
+    /// range. Accuracy: `f64` correctly rounded sqrt then division; `f32` within 4e-7
+    /// relative (micromath seed, three Newton steps); [`Q24`] within 2^-21 relative
+    /// plus 4 LSB (normalisation, four Newton steps; no division, no bit-serial sqrt).
+    fn inv_sqrt(self) -> Option<Self>;
     /// `true` for a usable number: finite (floats), not saturated (fixed point).
     fn is_valid(self) -> bool;
     /// Cosine and sine of a binary angle. Accuracy: `f64` correctly rounded (libm);
@@ -208,6 +218,21 @@ impl Scalar for f32 {
         let q = self / rhs;
         if q.is_finite() { Some(q) } else { None }
     }
+    fn recip(self) -> Option<f32> {
+        Scalar::checked_div(1.0, self)
+    }
+    fn inv_sqrt(self) -> Option<f32> {
+        if !(self > 0.0 && self.is_finite()) {
+            return None;
+        }
+        // As in `sqrt`: micromath's seed and three Newton steps.
+        let mut r = micromath::F32Ext::invsqrt(self);
+        let half_x = 0.5 * self;
+        for _ in 0..3 {
+            r = r * (1.5 - half_x * r * r);
+        }
+        if r.is_finite() { Some(r) } else { None }
+    }
     fn is_valid(self) -> bool {
         self.is_finite()
     }
@@ -272,6 +297,15 @@ impl Scalar for f64 {
         }
         let q = self / rhs;
         if q.is_finite() { Some(q) } else { None }
+    }
+    fn recip(self) -> Option<f64> {
+        Scalar::checked_div(1.0, self)
+    }
+    fn inv_sqrt(self) -> Option<f64> {
+        if !(self > 0.0 && self.is_finite()) {
+            return None;
+        }
+        Scalar::checked_div(1.0, libm::sqrt(self))
     }
     fn is_valid(self) -> bool {
         self.is_finite()
@@ -354,6 +388,63 @@ const Q24_RAD_TO_COUNTS: i64 = 683_565_276;
 /// `round(π * 2^25)`: binary-angle counts to Q24 radians, with a 32-bit shift.
 const Q24_COUNTS_TO_RAD: i64 = 105_414_357;
 
+/// `(a * b) >> 24` of two Q24 bit patterns, in 64 bits (one `SMULL` on Cortex-M3).
+#[inline(always)]
+fn q24_mul_wide(a: i64, b: i64) -> i64 {
+    (a * b) >> 24
+}
+
+/// 1 / x for Q24 bits `x > 0`: `x = m 2^-k` with `m` in [0.5, 1), the linear seed
+/// `48/17 - 32/17 m` (max relative error 1/17), three Newton steps `y (2 - m y)`
+/// (error 1/17 -> 3.5e-3 -> 1.2e-5 -> 1.5e-10, then truncation), and the shift back.
+/// `None` for `x <= 0` or a result beyond the Q24 range.
+fn q24_recip_positive(x: i32) -> Option<i32> {
+    if x <= 0 {
+        return None;
+    }
+    // Bit 23 is the leading one of m (2^23 = 0.5): 8 leading zeros.
+    let k = x.leading_zeros() as i32 - 8;
+    let m = i64::from(if k >= 0 { x << k } else { x >> -k });
+    const SEED_C0: i64 = (48 << 24) / 17;
+    const SEED_C1: i64 = (32 << 24) / 17;
+    const TWO: i64 = 2 << 24;
+    let mut y = SEED_C0 - q24_mul_wide(SEED_C1, m);
+    for _ in 0..3 {
+        y = q24_mul_wide(y, TWO - q24_mul_wide(m, y));
+    }
+    // 1/x = 2^k / m = y 2^k, y in (1, 2].
+    let r = if k >= 0 { y.checked_shl(k as u32)? } else { (y + (1 << (-k - 1))) >> -k };
+    i32::try_from(r).ok().filter(|&r| r < i32::MAX)
+}
+
+/// 1 / sqrt(x) for Q24 bits `x > 0`: `x = m 2^-2j` with `m` in [0.25, 1), a quadratic
+/// seed through `1/sqrt(m)` at m = 1/4, 1/2 and 1 (max relative error 6.6 %), four
+/// Newton steps `y (3 - m y^2) / 2` (error 6.5e-3, 6.3e-5, 6e-9, then truncation), and
+/// the shift back by `j`. `None` for `x <= 0` or a result beyond the Q24 range.
+fn q24_inv_sqrt_positive(x: i32) -> Option<i32> {
+    if x <= 0 {
+        return None;
+    }
+    // m's leading one at bit 23 or 22 (8 or 9 leading zeros): an even shift.
+    let lz = x.leading_zeros() as i32;
+    let two_j = (lz - 8) & !1;
+    let m = i64::from(if two_j >= 0 { x << two_j } else { x >> -two_j });
+    let j = two_j / 2;
+    const THREE: i64 = 3 << 24;
+    // The seed c0 - c1 m + c2 m^2 in Q24: 2.838240, 3.857864, 2.019625.
+    const C0: i64 = 47_617_758;
+    const C1: i64 = 64_724_224;
+    const C2: i64 = 33_883_682;
+    let mut y = C0 - q24_mul_wide(C1, m) + q24_mul_wide(C2, q24_mul_wide(m, m));
+    for _ in 0..4 {
+        let my2 = q24_mul_wide(m, q24_mul_wide(y, y));
+        y = q24_mul_wide(y, THREE - my2) >> 1;
+    }
+    // 1/sqrt(x) = 2^j / sqrt(m) = y 2^j.
+    let r = if j >= 0 { y.checked_shl(j as u32)? } else { (y + (1 << (-j - 1))) >> -j };
+    i32::try_from(r).ok().filter(|&r| r < i32::MAX)
+}
+
 impl Scalar for Q24 {
     const ZERO: Q24 = Q24(I8F24::ZERO);
     const ONE: Q24 = Q24(I8F24::ONE);
@@ -382,6 +473,14 @@ impl Scalar for Q24 {
     }
     fn checked_div(self, rhs: Q24) -> Option<Q24> {
         self.0.checked_div(rhs.0).map(Q24)
+    }
+    fn recip(self) -> Option<Q24> {
+        let x = self.to_bits();
+        let r = q24_recip_positive(x.checked_abs()?)?;
+        Some(Q24::from_bits(if x < 0 { -r } else { r }))
+    }
+    fn inv_sqrt(self) -> Option<Q24> {
+        q24_inv_sqrt_positive(self.to_bits()).map(Q24::from_bits)
     }
     fn is_valid(self) -> bool {
         // Strictly inside (-MAX, MAX): a saturated value, or the negation of one

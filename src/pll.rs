@@ -144,7 +144,8 @@ pub struct Pll<T> {
     two_zeta: T,
     min_wp: T,
     max_wp: T,
-    min_flux: T,
+    /// The smallest flux amplitude that steers, squared (working units).
+    min_flux_sq: T,
     max_omega: T,
     speed_per_omega: T,
     lock_rate: T,
@@ -182,7 +183,10 @@ impl<T: Scalar> Pll<T> {
             two_zeta: T::from_f32(2.0 * config.damping),
             min_wp: base.omega(config.min_bandwidth_rad_s),
             max_wp: base.omega(config.max_bandwidth_rad_s),
-            min_flux: base.flux(config.min_flux_wb),
+            min_flux_sq: {
+                let m: T = base.flux(config.min_flux_wb);
+                m * m
+            },
             max_omega: base.omega(config.max_omega_rad_s),
             speed_per_omega: T::from_f32(base.omega_rad_s * pole_pitch_m / core::f32::consts::PI),
             lock_rate: base.rate(1.0 / config.lock_filter_s),
@@ -205,8 +209,14 @@ impl<T: Scalar> Pll<T> {
         let theta = self.theta;
         let cos_sin = CosSin::new(theta);
         let eps = psi_ab.beta * cos_sin.cos - psi_ab.alpha * cos_sin.sin;
-        let magnitude = psi_ab.norm();
-        let normalised = if magnitude >= self.min_flux { eps.checked_div(magnitude) } else { None };
+        // eps / |psi| as eps * (|psi|^2)^-1/2: no square root and no division (both are
+        // software routines in fixed point on an FPU-less core).
+        let magnitude_sq = psi_ab.alpha * psi_ab.alpha + psi_ab.beta * psi_ab.beta;
+        let normalised = if magnitude_sq >= self.min_flux_sq {
+            magnitude_sq.inv_sqrt().map(|inv| eps * inv)
+        } else {
+            None
+        };
         let (error, tracking) = match normalised {
             Some(e) => (e.clamp_to(-T::ONE, T::ONE), true),
             None => (T::ZERO, false),

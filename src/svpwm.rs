@@ -61,12 +61,14 @@ pub fn svpwm<T: Scalar>(u: AlphaBeta<T>, vdc: T) -> Result<Modulation<T>, SvpwmE
     if !u.is_valid() {
         return Err(SvpwmError::BadCommand);
     }
-    let inv_vdc = T::ONE.checked_div(vdc).ok_or(SvpwmError::BadDcBus)?;
+    // Reciprocals and the inverse square root avoid division and a square root, which
+    // are software routines in fixed point on an FPU-less core.
+    let inv_vdc = vdc.recip().ok_or(SvpwmError::BadDcBus)?;
     let v_max = vdc * T::INV_SQRT3;
     let m2 = u.norm_squared();
     let (u, limited) = if m2 > v_max * v_max {
-        // |u| > v_max > 0, so the division is safe; checked anyway.
-        let k = v_max.checked_div(m2.sqrt()).ok_or(SvpwmError::BadCommand)?;
+        // |u| > v_max > 0, so the inverse square root exists; checked anyway.
+        let k = v_max * m2.inv_sqrt().ok_or(SvpwmError::BadCommand)?;
         (u.scale(k), true)
     } else {
         (u, false)

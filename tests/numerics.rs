@@ -140,3 +140,83 @@ fn q24_saturates_and_reports_it() {
         assert!((c.to_f32() as f64 - x).abs() <= 2f64.powi(-24));
     }
 }
+
+/// Every Q24 bit pattern in a dense sweep (plus the extremes), against f64.
+fn q24_sweep() -> impl Iterator<Item = i32> {
+    (1..i32::MAX).step_by(65_537).chain([
+        1,
+        2,
+        3,
+        0x7f,
+        1 << 23,
+        1 << 24,
+        (1 << 24) + 1,
+        i32::MAX - 1,
+        i32::MAX,
+    ])
+}
+
+#[test]
+fn recip_accuracy_floats_rounded_q24_4_lsb_plus_2e_22_relative() {
+    let lsb = 2f64.powi(-24);
+    let mut worst_lsb = 0.0f64;
+    for bits in q24_sweep() {
+        let x = bits as f64 * lsb;
+        let exact = 1.0 / x;
+        for sign in [1, -1] {
+            let got = Scalar::recip(Q24::from_bits(sign * bits));
+            if exact >= 128.0 - 4.0 * lsb {
+                // Beyond (or at the edge of) the range: refused, never a wrong number.
+                if let Some(g) = got {
+                    assert!((g.to_bits() as f64 * lsb).abs() >= 127.9, "{bits}");
+                }
+                continue;
+            }
+            let Some(got) = got else { panic!("1/{x} refused") };
+            let err = (got.to_bits() as f64 * lsb - sign as f64 * exact).abs();
+            let bound = 4.0 * lsb + exact * 2f64.powi(-22);
+            assert!(err <= bound, "1/{x}: error {err:e} > {bound:e}");
+            worst_lsb = worst_lsb.max((err - exact * 2f64.powi(-22)) / lsb);
+        }
+    }
+    println!("Q24 recip worst error beyond the relative term: {worst_lsb:.2} LSB");
+    assert_eq!(Scalar::recip(Q24::ZERO), None);
+    assert_eq!(Scalar::recip(0.0f32), None);
+    assert_eq!(Scalar::recip(4.0f32), Some(0.25));
+    assert_eq!(Scalar::recip(-8.0f64), Some(-0.125));
+}
+
+#[test]
+fn inv_sqrt_accuracy_f32_4e_7_q24_2e_21_relative_plus_4_lsb() {
+    let lsb = 2f64.powi(-24);
+    let mut worst_rel = 0.0f64;
+    for bits in q24_sweep() {
+        let x = bits as f64 * lsb;
+        let exact = 1.0 / x.sqrt();
+        let got = Scalar::inv_sqrt(Q24::from_bits(bits));
+        if exact >= 128.0 - 4.0 * lsb {
+            assert!(got.is_none_or(|g| g.to_bits() as f64 * lsb >= 127.9), "{bits}");
+            continue;
+        }
+        let Some(got) = got else { panic!("1/sqrt({x}) refused") };
+        let err = (got.to_bits() as f64 * lsb - exact).abs();
+        assert!(err <= 4.0 * lsb + exact * 2f64.powi(-21), "1/sqrt({x}): error {err:e}");
+        worst_rel = worst_rel.max(err / exact);
+    }
+    println!("Q24 inv_sqrt worst relative error {worst_rel:.2e}");
+    let mut worst = 0.0f64;
+    let mut x = 1e-30f32;
+    while x < 1e30 {
+        let exact = 1.0 / (x as f64).sqrt();
+        let got = Scalar::inv_sqrt(x).expect("positive") as f64;
+        worst = worst.max(((got - exact) / exact).abs());
+        x *= 1.013;
+    }
+    println!("f32 inv_sqrt worst relative error {worst:.2e}");
+    assert!(worst < 4e-7);
+    for bad in [0.0f32, -1.0, f32::NAN, f32::INFINITY] {
+        assert_eq!(Scalar::inv_sqrt(bad), None, "{bad}");
+    }
+    assert_eq!(Scalar::inv_sqrt(Q24::ZERO), None);
+    assert_eq!(Scalar::inv_sqrt(Q24::from_f32(-1.0)), None);
+}

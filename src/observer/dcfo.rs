@@ -199,7 +199,7 @@ impl<T: Scalar> FluxObserver<T> for Dcfo<T> {
         let a = th * (T::ONE + th2 * (T::ONE_THIRD + th2 * self.tan_c5));
         let ka = self.k * a;
         let a2 = a * a;
-        let Some(inv) = T::ONE.checked_div(T::ONE + ka + a2) else {
+        let Some(inv) = (T::ONE + ka + a2).recip() else {
             return Err(ObserverFault::InvalidPeriod);
         };
         let sogi = SogiStep { a, ka, keep: T::ONE - ka - a2, inv };

@@ -46,7 +46,7 @@ impl<T: Scalar> FluxObserver<T> for LpfObserver<T> {
         // y_k (1 + c) = y_{k-1} (1 - c) + increment, with c = wc dt / 2. A bad period
         // is refused by the shared update before these are used.
         let c = self.cutoff * input.dt * T::HALF;
-        let Some(inv) = T::ONE.checked_div(T::ONE + c) else {
+        let Some(inv) = (T::ONE + c).recip() else {
             return Err(ObserverFault::InvalidPeriod);
         };
         self.flux.update(input, T::ONE - c, inv)
