@@ -15,7 +15,7 @@
 //!
 //! | context | priority | work | budget |
 //! |---|---|---|---|
-//! | `ADC1_2` (end of injected conversions) | 0x00, highest | `ControlLoop::step`: sample, `Drive::step`, duties / bridge, telemetry record into the queue | one PWM period, 100 µs = 17,000 cycles at 170 MHz; the f32 step is 1340 instructions on QEMU's Cortex-M4F (`bench_qemu`) |
+//! | `ADC1_2` (end of injected conversions) | 0x00, highest | `ControlLoop::step`: sample, `Drive::step`, duties / bridge, telemetry record into the queue | one PWM period, 100 µs = 17,000 cycles at 170 MHz; the f32 step is about 1220 instructions on QEMU's Cortex-M4F (`bench_qemu`) |
 //! | thread | — | commands in, telemetry out, command watchdog, LED, defmt | — |
 //!
 //! Command watchdog: while enabled, if no valid command frame arrives for 0.5 s the

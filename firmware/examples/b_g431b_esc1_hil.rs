@@ -6,7 +6,7 @@
 //!
 //! | context | priority | work | budget |
 //! |---|---|---|---|
-//! | SysTick, every 50 ms | 0x80 | link watchdog: `HilServer::watchdog_period` | under 100 instructions |
+//! | SysTick, every 50 ms | 0x80 | link watchdog: `HilServer::watchdog_period` | a counter and a compare (not measured) |
 //! | thread | — | polls USART2; each byte to `HilServer::on_byte` (an in-order frame runs one `Drive::step`) in a critical section; the answer out | the link sets the pace: a round trip is 73 bytes, about 0.8 ms at 921600 bit/s |
 //!
 //! A silent link (10 watchdog periods, 0.5 s) switches an active drive off, as on QEMU.

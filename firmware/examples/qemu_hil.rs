@@ -10,8 +10,8 @@
 //!
 //! | context | priority | work | budget |
 //! |---|---|---|---|
-//! | UART0 RX interrupt (IRQ 0) | 0x00, highest | per byte: `LinkServer::on_byte`; per complete in-order frame: one `Drive::step` and the encoded `ActuationFrame` into the TX queue | one control step: 1340 instructions on Cortex-M4F (f32), 4231 on Cortex-M3 (Q24), measured by `bench_qemu`; plus about 50 per byte |
-//! | SysTick, every 50 ms | 0x80 | link watchdog: `LinkServer::silent_period` | under 100 instructions |
+//! | UART0 RX interrupt (IRQ 0) | 0x00, highest | per byte: `HilServer::on_byte`; per complete in-order frame: one `Drive::step` and the encoded `ActuationFrame` into the TX queue | one control step: about 1220 instructions on Cortex-M4F (f32), 3640 on Cortex-M3 (Q24), measured by `bench_qemu`, plus the per-byte COBS decoding (not measured separately) |
+//! | SysTick, every 50 ms | 0x80 | link watchdog: `HilServer::watchdog_period` | a counter and a compare (not measured) |
 //! | thread | — | moves the TX queue into UART0, sleeps when it is empty | — |
 //!
 //! A silent link (no in-order frame for 10 watchdog periods, 0.5 s of wall-clock time)
