@@ -201,15 +201,7 @@ impl Scalar for f32 {
         if self == f32::INFINITY {
             return self;
         }
-        // micromath's bit-trick seed (within 3.5 %) refined by three Newton steps on
-        // 1/sqrt(x): the error squares each step (3.5e-2, 1.8e-3, 5e-6, f32 rounding),
-        // nine multiplications in all. Bounded time, no division, no libm.
-        let mut r = micromath::F32Ext::invsqrt(self);
-        let half_x = 0.5 * self;
-        for _ in 0..3 {
-            r = r * (1.5 - half_x * r * r);
-        }
-        self * r
+        self * f32_inv_sqrt(self)
     }
     fn checked_div(self, rhs: f32) -> Option<f32> {
         if rhs == 0.0 {
@@ -225,12 +217,7 @@ impl Scalar for f32 {
         if !(self > 0.0 && self.is_finite()) {
             return None;
         }
-        // As in `sqrt`: micromath's seed and three Newton steps.
-        let mut r = micromath::F32Ext::invsqrt(self);
-        let half_x = 0.5 * self;
-        for _ in 0..3 {
-            r = r * (1.5 - half_x * r * r);
-        }
+        let r = f32_inv_sqrt(self);
         if r.is_finite() { Some(r) } else { None }
     }
     fn is_valid(self) -> bool {
@@ -387,6 +374,18 @@ impl Neg for Q24 {
 const Q24_RAD_TO_COUNTS: i64 = 683_565_276;
 /// `round(π * 2^25)`: binary-angle counts to Q24 radians, with a 32-bit shift.
 const Q24_COUNTS_TO_RAD: i64 = 105_414_357;
+
+/// 1/sqrt(x) for finite `x > 0`: micromath's bit-trick seed (within 3.5 %) refined by
+/// three Newton steps; the error squares each step (3.5e-2, 1.8e-3, 5e-6, f32
+/// rounding), nine multiplications in all. Bounded time, no division, no libm.
+fn f32_inv_sqrt(x: f32) -> f32 {
+    let mut r = micromath::F32Ext::invsqrt(x);
+    let half_x = 0.5 * x;
+    for _ in 0..3 {
+        r = r * (1.5 - half_x * r * r);
+    }
+    r
+}
 
 /// `(a * b) >> 24` of two Q24 bit patterns, in 64 bits (one `SMULL` on Cortex-M3).
 #[inline(always)]
