@@ -8,6 +8,7 @@
 //! Having this composition in one place is what makes a replayed trace reproduce a
 //! closed-loop run's estimates bit for bit.
 
+use crate::fll::{Fll, FllConfig, FllConfigError};
 use crate::motor::MotorParams;
 use crate::num::{Angle, Scalar};
 use crate::observer::{
@@ -30,20 +31,39 @@ pub struct EstimatorConfig {
     pub cfo_cutoff_rad_s: f32,
     /// PLL tuning.
     pub pll: PllConfig,
+    /// Frequency-locked loop that tunes the DCFO's notch and feeds the PLL forward
+    /// (used when `observer` is [`ObserverKind::Dcfo`]); `None`: the notch follows the
+    /// PLL's frequency integrator, as the paper's method does. Opt-in for now (see
+    /// [`crate::fll`] for what it does better and worse).
+    pub fll: Option<FllConfig>,
 }
 
 impl EstimatorConfig {
     /// Defaults for `motor` with the given observer: [`DcfoConfig::default`],
     /// [`PllConfig::for_flux`], and a CFO cut-off of `2 pi * 2.5 Hz` (15.7 rad/s). The
     /// paper gives no cut-off; this one makes the CFO's phase lead at 10 Hz the 14
-    /// degrees of the paper's Fig. 17 (`atan(15.7 / 62.8)`).
+    /// degrees of the paper's Fig. 17 (`atan(15.7 / 62.8)`). No FLL (see
+    /// [`EstimatorConfig::with_fll`]).
     pub fn for_motor(motor: &MotorParams, observer: ObserverKind) -> Self {
         EstimatorConfig {
             observer,
             dcfo: DcfoConfig::default(),
             cfo_cutoff_rad_s: 2.0 * core::f32::consts::PI * 2.5,
             pll: PllConfig::for_flux(motor.psi_f_wb),
+            fll: None,
         }
+    }
+
+    /// This configuration with the DCFO's notch tuned by an FLL:
+    /// [`FllConfig::for_motor`] with the motor's rated phase peak voltage and the DCFO's
+    /// notch floor.
+    pub fn with_fll(mut self, motor: &MotorParams) -> Self {
+        self.fll = Some(FllConfig::for_motor(
+            motor.psi_f_wb,
+            motor.rated_voltage_v * 0.816_496_6,
+            self.dcfo.omega_floor_rad_s,
+        ));
+        self
     }
 }
 
@@ -57,6 +77,8 @@ pub enum EstimatorConfigError {
     Cfo(LpfConfigError),
     /// The PLL settings were refused.
     Pll(PllConfigError),
+    /// The FLL settings were refused.
+    Fll(FllConfigError),
 }
 
 /// Why the estimator refused a sample.
@@ -93,6 +115,9 @@ pub struct Estimate<T> {
 pub struct Estimator<T> {
     observer: AnyObserver<T>,
     pll: Pll<T>,
+    /// The DCFO's frequency-locked loop (`None` for the other observers, which run the
+    /// paper's plain PLL).
+    fll: Option<Fll<T>>,
 }
 
 impl<T: Scalar> Estimator<T> {
@@ -114,7 +139,11 @@ impl<T: Scalar> Estimator<T> {
             }
         };
         let pll = Pll::new(&config.pll, motor.pole_pitch_m, base).map_err(EstimatorConfigError::Pll)?;
-        Ok(Estimator { observer, pll })
+        let fll = match (config.observer, &config.fll) {
+            (ObserverKind::Dcfo, Some(fll)) => Some(Fll::new(fll, base).map_err(EstimatorConfigError::Fll)?),
+            _ => None,
+        };
+        Ok(Estimator { observer, pll, fll })
     }
 
     /// One sample: `u_applied` is the voltage applied during the period that just ended
@@ -125,9 +154,23 @@ impl<T: Scalar> Estimator<T> {
         i: AlphaBeta<T>,
         dt: T,
     ) -> Result<Estimate<T>, EstimatorFault> {
-        let input = ObserverInput { u_ab: u_applied, i_ab: i, omega_e: self.pll.omega_integral(), dt };
+        let notch = match &self.fll {
+            Some(fll) => fll.notch_omega(),
+            None => self.pll.omega_integral(),
+        };
+        let input = ObserverInput { u_ab: u_applied, i_ab: i, omega_e: notch, dt };
         let flux = self.observer.update(&input).map_err(EstimatorFault::Observer)?;
-        let out = self.pll.update(flux.psi_ab, dt).map_err(EstimatorFault::Pll)?;
+        let (out, settled) = match (&mut self.fll, flux.flux_increment_ab) {
+            (Some(fll), Some(increment)) => {
+                let f = fll.update(flux.psi_ab, increment, dt);
+                let out = self
+                    .pll
+                    .update_with_feedforward(flux.psi_ab, f.omega_e, f.notch_omega, dt)
+                    .map_err(EstimatorFault::Pll)?;
+                (out, f.settled)
+            }
+            _ => (self.pll.update(flux.psi_ab, dt).map_err(EstimatorFault::Pll)?, true),
+        };
         Ok(Estimate {
             theta_e: out.theta_e,
             cos_sin: out.cos_sin,
@@ -135,20 +178,43 @@ impl<T: Scalar> Estimator<T> {
             speed_m_per_s: out.speed_m_per_s,
             psi_ab: flux.psi_ab,
             disturbance_ab: flux.disturbance_ab,
-            locked: out.locked,
+            locked: out.locked && settled,
         })
     }
 
     /// Sets the PLL's angle (for its next sample) and speed (rad/s, working units),
     /// e.g. from an open-loop start-up; the observer keeps its state.
     pub fn preset_pll(&mut self, theta_e: Angle, omega_e: T) {
-        self.pll.preset(theta_e, omega_e);
+        match &mut self.fll {
+            Some(fll) => {
+                fll.preset(omega_e);
+                self.pll.preset(theta_e, T::ZERO);
+            }
+            None => self.pll.preset(theta_e, omega_e),
+        }
     }
 
     /// Back to the initial state; clears latched faults.
     pub fn reset(&mut self) {
         self.observer.reset();
         self.pll.reset();
+        if let Some(fll) = &mut self.fll {
+            fll.reset();
+        }
+    }
+
+    /// The frequency the observer's notch will be tuned to at the next sample (rad/s,
+    /// working units): the FLL's for the DCFO, the PLL integrator's otherwise.
+    pub fn notch_omega(&self) -> T {
+        match &self.fll {
+            Some(fll) => fll.notch_omega(),
+            None => self.pll.omega_integral(),
+        }
+    }
+
+    /// The FLL's signed frequency estimate (rad/s, working units), where it runs.
+    pub fn fll_omega(&self) -> Option<T> {
+        self.fll.as_ref().map(|f| f.omega())
     }
 
     /// Which observer runs.

@@ -17,6 +17,7 @@
 //! | [`svpwm`] | §5 | space-vector modulation |
 //! | [`observer`] | §2–3 | pure integrator, LPF (CFO) and DCFO flux observers |
 //! | [`pll`] | §4 | angle and speed from the flux |
+//! | [`fll`] | — | the frequency from the flux vector's rotation: tunes the DCFO's notch, acquires a moving mover |
 //! | [`estimator`] | §4–5 | observer + PLL as the drive and trace replay run them |
 //! | [`drive`] | §5 | the control step: FOC loop, I/f start-up, protection state machine |
 //! | [`link`] | — | hardware-in-the-loop serial protocol: sensor and actuation frames, COBS + CRC-16, receiver, watchdog |
@@ -41,6 +42,7 @@
 
 pub mod drive;
 pub mod estimator;
+pub mod fll;
 pub mod link;
 pub mod motor;
 pub mod motor_image;

@@ -198,12 +198,29 @@ impl<T: Scalar> Pll<T> {
     }
 
     /// Processes the flux estimate `psi_ab` (Wb) of this sample, `dt` (s) after the
-    /// previous one.
+    /// previous one: the paper's loop, its gains scheduled on its own frequency estimate.
     pub fn update(&mut self, psi_ab: AlphaBeta<T>, dt: T) -> Result<PllOutput<T>, PllFault> {
+        let schedule = self.integral.abs();
+        self.update_with_feedforward(psi_ab, T::ZERO, schedule, dt)
+    }
+
+    /// Processes `psi_ab` (Wb) with a frequency feed-forward `omega_ff` (rad/s, from an
+    /// independent frequency estimate such as [`crate::fll`]): the angle advances at
+    /// `omega_ff + integral + kp eps_n`, so the integrator only tracks what the
+    /// feed-forward misses and a speed ramp that the feed-forward follows costs no
+    /// phase. `schedule_omega` (rad/s, >= 0) sets the bandwidth, `w_p = beta
+    /// schedule_omega` within the configured range.
+    pub fn update_with_feedforward(
+        &mut self,
+        psi_ab: AlphaBeta<T>,
+        omega_ff: T,
+        schedule_omega: T,
+        dt: T,
+    ) -> Result<PllOutput<T>, PllFault> {
         if !dt.is_valid() || dt <= T::ZERO {
             return Err(PllFault::InvalidPeriod);
         }
-        if !psi_ab.is_valid() {
+        if !psi_ab.is_valid() || !omega_ff.is_valid() || !schedule_omega.is_valid() {
             return Err(PllFault::InvalidInput);
         }
         let theta = self.theta;
@@ -223,14 +240,14 @@ impl<T: Scalar> Pll<T> {
         };
         // Gains scheduled on the frequency estimate: kp = 2 zeta_p w_p, ki = w_p^2 (in
         // working units both scale with the omega base as they should).
-        let wp = (self.beta * self.integral.abs()).clamp_to(self.min_wp, self.max_wp);
+        let wp = (self.beta * schedule_omega.abs()).clamp_to(self.min_wp, self.max_wp);
         let kp = self.two_zeta * wp;
         if tracking {
             self.integral = (self.integral + wp * wp * dt * error).clamp_to(-self.max_omega, self.max_omega);
             let rate = (self.lock_rate * dt).min(T::ONE);
             self.lock_metric = self.lock_metric + rate * (error.abs() - self.lock_metric);
         }
-        let omega = self.integral + kp * error;
+        let omega = omega_ff + self.integral + kp * error;
         self.theta = theta + (omega * dt).radians_to_angle();
         Ok(PllOutput {
             theta_e: theta,

@@ -57,9 +57,28 @@ pub enum Command {
     /// Hardware-in-the-loop: run a scenario with the drive on a target (QEMU or a board
     /// on a serial port) in lock-step with the simulated plant.
     Hil(HilArgs),
+    /// Acquisition benchmark: cold starts of the estimator on a mover already moving,
+    /// 12 speeds x 2 directions x 8 positions x 3 input offsets, f32 and Q8.24.
+    Acquire(AcquireArgs),
     /// Write a motor image: the motor (file or preset) and the bus voltage as the binary
     /// record a drive board reads from its reserved flash page (dcfo::motor_image).
     MotorImage(MotorImageArgs),
+}
+
+/// Arguments of `dcfo acquire`.
+#[derive(Debug, Clone, Args)]
+pub struct AcquireArgs {
+    /// Print exactly one JSON object (the totals and the per-speed table) on stdout.
+    #[arg(long)]
+    pub json: bool,
+    /// Tune the DCFO's notch with the frequency-locked loop (dcfo::fll), in the
+    /// recording drive and in the cold-started estimators; without it, the drive's
+    /// default (notch on the PLL's frequency integrator).
+    #[arg(long)]
+    pub fll: bool,
+    /// Directory for `acquire.json` (every cold start) and `acquire.csv` (the table).
+    #[arg(long, value_name = "DIR", default_value = "out/acquire")]
+    pub out: PathBuf,
 }
 
 /// Arguments of `dcfo motor-image`.
@@ -259,7 +278,53 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             run_motor_image(&args)?;
             Ok(ExitCode::SUCCESS)
         }
+        Command::Acquire(args) => {
+            run_acquire(&args)?;
+            Ok(ExitCode::SUCCESS)
+        }
     }
+}
+
+/// `dcfo acquire`: the acquisition sweep on the simulated paper axis.
+pub fn run_acquire(args: &AcquireArgs) -> anyhow::Result<()> {
+    use crate::acquire::{Options, summarise, sweep, table};
+    let mut setup = crate::sim::Setup::paper(ObserverKind::Dcfo);
+    if args.fll {
+        setup.drive.estimator = setup.drive.estimator.with_fll(&setup.motor);
+    }
+    let started = Instant::now();
+    let starts = sweep(&setup, &Options::full(), |done, total| eprintln!("acquire: {done}/{total} speeds"))
+        .map_err(|e| anyhow::anyhow!(e))?;
+    let summary = summarise(&starts);
+    std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
+    let all = serde_json::json!({ "summary": &summary, "starts": &starts });
+    std::fs::write(args.out.join("acquire.json"), serde_json::to_string_pretty(&all)?)
+        .with_context(|| format!("writing {}", args.out.join("acquire.json").display()))?;
+    let mut csv = String::from(
+        "speed_m_per_s,budget_s,lock_time_median_s,lock_time_max_s,budget_violations,runs,false_locks\n",
+    );
+    let opt = |x: Option<f64>| x.map(|v| format!("{v:.6}")).unwrap_or_default();
+    for r in &summary.speeds {
+        csv += &format!(
+            "{},{:.6},{},{},{},{},{}\n",
+            r.speed_m_per_s,
+            r.budget_s,
+            opt(r.lock_time_median_s),
+            opt(r.lock_time_max_s),
+            r.budget_violations,
+            r.runs,
+            r.false_locks
+        );
+    }
+    std::fs::write(args.out.join("acquire.csv"), csv)
+        .with_context(|| format!("writing {}", args.out.join("acquire.csv").display()))?;
+    eprintln!("acquire: {:.1} s; results in {}", started.elapsed().as_secs_f64(), args.out.display());
+    if args.json {
+        println!("{}", serde_json::to_string(&summary)?);
+    } else {
+        print!("{}", table(&summary));
+    }
+    Ok(())
 }
 
 /// `dcfo motor-image`: validates the motor and the bus voltage exactly as the firmware

@@ -2,6 +2,7 @@
 #![forbid(unsafe_code)]
 #![deny(missing_docs)]
 
+pub mod acquire;
 pub mod cli;
 pub mod hil;
 pub mod motor_file;

@@ -220,12 +220,14 @@ impl<T: Scalar> FluxObserver<T> for Dcfo<T> {
             self.faulted = true;
             return Err(ObserverFault::StateOverflow);
         }
+        let increment =
+            AlphaBeta::new(psi_i.alpha - self.psi_i_prev.alpha, psi_i.beta - self.psi_i_prev.beta);
         self.z = z;
         self.psi_i_prev = psi_i;
         self.x1 = x1;
         self.x2 = x2;
         self.d = d;
-        Ok(FluxEstimate { psi_ab: x1, disturbance_ab: Some(d) })
+        Ok(FluxEstimate { psi_ab: x1, disturbance_ab: Some(d), flux_increment_ab: Some(increment) })
     }
 
     fn reset(&mut self) {

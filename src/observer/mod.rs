@@ -59,6 +59,11 @@ pub struct FluxEstimate<T> {
     /// The observer's own disturbance estimate (Wb), where it has one: for the DCFO,
     /// the notch filter's output `d` (DC offset and harmonics of the integrator state).
     pub disturbance_ab: Option<AlphaBeta<T>>,
+    /// The increment over this sample of the flux before the observer's output filter
+    /// (Wb), where the observer has one: for the DCFO, of its integrator state `psi_i`
+    /// (the back-EMF `e dt` plus the observer's DC correction). With `psi_ab` it gives
+    /// the frequency discriminator of [`crate::fll`].
+    pub flux_increment_ab: Option<AlphaBeta<T>>,
 }
 
 /// Why an observer refused a sample. The state is left as it was for input faults;

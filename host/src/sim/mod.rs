@@ -55,6 +55,8 @@ pub struct Sample {
     pub v_ref: f64,
     /// Drive state code ([`DriveState::code`]).
     pub state: u8,
+    /// The estimator's lock flag (`None` over a link, which does not carry it).
+    pub locked: Option<bool>,
 }
 
 /// The result of one simulated run.
@@ -259,6 +261,7 @@ pub fn run_with(
         }
         let Some(e) = f.estimate else { continue };
         let v_ref = if f.state == DriveState::Running { v_ref_target } else { f64::NAN };
+        let locked = step.detail.and_then(|out| out.estimate).map(|est| est.locked);
         let (observer_u, observer_i, i_dq, i_dq_ref, theta_hat, psi_hat) = match step.detail {
             Some(out) => match out.estimate {
                 Some(est) => (
@@ -308,6 +311,7 @@ pub fn run_with(
             i_q: i_dq[1],
             v_ref,
             state: f.state.code(),
+            locked,
         });
         if k % 4096 == 0 {
             progress(k as f64 / n as f64);

@@ -1,0 +1,424 @@
+//! `dcfo acquire`: how fast the estimator finds a mover that is already moving.
+//!
+//! For each speed and direction the closed-loop drive runs the simulated axis (inverter
+//! with dead time and drops, sensors with offsets, gain errors, noise and
+//! quantisation, a 10 N load) up to that speed and holds it; its observer inputs are
+//! the trace, as a recording that starts mid-motion would hold them. A fresh estimator
+//! (zero state, not told the speed) is then started on that trace at eight instants a
+//! pole pitch apart in eighths (eight initial mover angles), with and without a
+//! constant +0.2 A on `i_beta` or +2 V on `u_alpha` present from its first sample, in
+//! f32 and in Q8.24 per-unit.
+//!
+//! Per start: the **lock time** is the time after which `|theta - theta_hat| < 5 deg`
+//! holds to the end of the window (issue floor: within `max(60 ms, 2 electrical
+//! periods)`), and a **false lock** is any sample where the estimator's `locked` flag is
+//! set while the true error exceeds 15 deg.
+
+use std::f64::consts::PI;
+
+use dcfo::estimator::Estimator;
+use dcfo::motor::MotorParams;
+use dcfo::num::{Q24, Scalar};
+use dcfo::transforms::AlphaBeta;
+use dcfo::units::Base;
+use serde::Serialize;
+
+use crate::sim::{self, Event, Scenario, Setup};
+use crate::trace::wrap_angle;
+
+/// Lock criterion: the error stays below this from the lock time on, electrical degrees.
+pub const LOCK_DEG: f64 = 5.0;
+/// A `locked` flag with a true error above this is a false lock, electrical degrees.
+pub const FALSE_LOCK_DEG: f64 = 15.0;
+/// Load on the axis while the trace is recorded, opposing the motion, N.
+pub const LOAD_N: f64 = 10.0;
+
+/// Disturbance present in the estimator's inputs from its first sample.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Offset {
+    /// None beyond the sensors' own.
+    None,
+    /// +0.2 A on `i_beta`.
+    CurrentBeta,
+    /// +2 V on `u_alpha`.
+    VoltageAlpha,
+}
+
+impl Offset {
+    /// All variants.
+    pub const ALL: [Offset; 3] = [Offset::None, Offset::CurrentBeta, Offset::VoltageAlpha];
+
+    /// (u offset V, i offset A), alpha-beta.
+    fn values(self) -> ([f64; 2], [f64; 2]) {
+        match self {
+            Offset::None => ([0.0; 2], [0.0; 2]),
+            Offset::CurrentBeta => ([0.0; 2], [0.0, 0.2]),
+            Offset::VoltageAlpha => ([2.0, 0.0], [0.0; 2]),
+        }
+    }
+
+    /// Short label.
+    pub fn label(self) -> &'static str {
+        match self {
+            Offset::None => "none",
+            Offset::CurrentBeta => "+0.2 A",
+            Offset::VoltageAlpha => "+2 V",
+        }
+    }
+}
+
+/// What to sweep.
+#[derive(Clone, Debug)]
+pub struct Options {
+    /// Speeds, m/s (positive; each is run in both directions).
+    pub speeds_m_per_s: Vec<f64>,
+    /// Start instants per speed, spread over one electrical period.
+    pub positions: usize,
+    /// Offsets to run.
+    pub offsets: Vec<Offset>,
+    /// Also run the Q8.24 estimator and compare it with f32.
+    pub fixed_point: bool,
+}
+
+impl Options {
+    /// The benchmark's sweep: 12 speeds from 0.1 to 2.0 m/s, 8 positions, all offsets,
+    /// fixed point included.
+    pub fn full() -> Self {
+        Options {
+            speeds_m_per_s: vec![0.1, 0.15, 0.2, 0.3, 0.42, 0.6, 0.8, 1.0, 1.2, 1.5, 1.75, 2.0],
+            positions: 8,
+            offsets: Offset::ALL.to_vec(),
+            fixed_point: true,
+        }
+    }
+}
+
+/// One cold start.
+#[derive(Clone, Debug, Serialize)]
+pub struct Start {
+    /// Signed speed, m/s.
+    pub speed_m_per_s: f64,
+    /// Electrical frequency, Hz.
+    pub electrical_hz: f64,
+    /// Position index (0..positions).
+    pub position: usize,
+    /// Offset present from the start.
+    pub offset: Offset,
+    /// Time to lock, s (`None`: not locked by the end of the window).
+    pub lock_time_s: Option<f64>,
+    /// The budget, `max(60 ms, 2 electrical periods)`, s.
+    pub budget_s: f64,
+    /// Samples with the lock flag set and the true error above 15 degrees.
+    pub false_lock_samples: usize,
+    /// When the lock flag was first set, s (`None`: never).
+    pub flag_time_s: Option<f64>,
+    /// Largest |theta_q24 - theta_f32| after the f32 lock time, degrees (`None` if not
+    /// run or not locked).
+    pub q24_deviation_deg: Option<f64>,
+    /// Lock time of the Q8.24 estimator, s.
+    pub q24_lock_time_s: Option<f64>,
+}
+
+impl Start {
+    /// Locked within its budget.
+    pub fn within_budget(&self) -> bool {
+        self.lock_time_s.is_some_and(|t| t <= self.budget_s)
+    }
+}
+
+/// Electrical frequency of `v` (m/s) on `motor`, Hz.
+pub fn electrical_hz(motor: &MotorParams, v: f64) -> f64 {
+    v.abs() / (2.0 * f64::from(motor.pole_pitch_m))
+}
+
+/// The lock budget at `v`: `max(60 ms, 2 electrical periods)`, s.
+pub fn budget_s(motor: &MotorParams, v: f64) -> f64 {
+    (2.0 / electrical_hz(motor, v)).max(0.06)
+}
+
+/// The closed-loop run that records the trace at `v` (m/s, signed), and the time from
+/// which the speed is settled.
+fn record(setup: &Setup, v: f64, window_s: f64, period_s: f64) -> Result<(sim::Run, f64), sim::SimError> {
+    let accel = f64::from(setup.drive.accel_limit_m_per_s2);
+    // Hand-over about 1 s after enable, then the ramp, then 0.5 s to settle.
+    let settled = 1.0 + v.abs() / accel + 0.5;
+    let scenario = Scenario {
+        name: "acquire",
+        description: "constant speed for the acquisition sweep",
+        duration_s: settled + period_s + window_s + 0.01,
+        events: vec![(0.0, Event::Speed(v)), (settled - 0.4, Event::Load(LOAD_N * v.signum()))],
+        plant_rs_factor: None,
+        event_s: settled,
+        window_s,
+        paper: "",
+    };
+    Ok((sim::run(setup, &scenario, |_| {})?, settled))
+}
+
+/// Runs a fresh estimator over `rows[start..]` with `offset` added; returns the angle
+/// estimates (rad) and lock flags.
+fn cold_run<T: Scalar>(
+    setup: &Setup,
+    base: &Base,
+    run: &sim::Run,
+    start: usize,
+    end: usize,
+    offset: Offset,
+) -> Result<Vec<(f64, bool)>, String> {
+    let mut est: Estimator<T> = Estimator::new(&setup.motor, &setup.drive.estimator, base)
+        .map_err(|e| format!("estimator: {e:?}"))?;
+    let (du, di) = offset.values();
+    let dt = base.time(run.period_s as f32);
+    let mut out = Vec::with_capacity(end - start);
+    // As `dcfo replay` does: a row's voltage acts during the period after it, so sample
+    // k is given row k - 1's voltage, and the first sample none (a recording that
+    // starts mid-motion has no earlier voltage).
+    let mut u_prev = [0.0f64; 2];
+    for s in &run.samples[start..end] {
+        let r = &s.row;
+        let u = AlphaBeta::new(
+            base.voltage((u_prev[0] + du[0]) as f32),
+            base.voltage((u_prev[1] + du[1]) as f32),
+        );
+        u_prev = [r.u_alpha, r.u_beta];
+        let i =
+            AlphaBeta::new(base.current((r.i_alpha + di[0]) as f32), base.current((r.i_beta + di[1]) as f32));
+        let e = est.update(u, i, dt).map_err(|e| format!("estimator fault at t = {:.4} s: {e:?}", r.t))?;
+        out.push((e.theta_e.to_radians::<f64>(), e.locked));
+    }
+    Ok(out)
+}
+
+/// Lock time (s) of `estimates` against the truth of `samples`: the time after which
+/// the error stays below [`LOCK_DEG`]; `None` if the last sample is still outside.
+fn lock_time(samples: &[sim::Sample], estimates: &[(f64, bool)], dt: f64) -> Option<f64> {
+    let mut last_bad = None;
+    for (j, (s, e)) in samples.iter().zip(estimates).enumerate() {
+        let err = wrap_angle(s.row.theta.unwrap_or(f64::NAN) - e.0).to_degrees();
+        if err.abs().is_nan() || err.abs() >= LOCK_DEG {
+            last_bad = Some(j);
+        }
+    }
+    match last_bad {
+        None => Some(0.0),
+        Some(j) if j + 1 < samples.len() => Some((j + 1) as f64 * dt),
+        Some(_) => None,
+    }
+}
+
+/// All cold starts at one signed speed.
+fn starts_at(setup: &Setup, v: f64, options: &Options) -> Result<Vec<Start>, String> {
+    let motor = &setup.motor;
+    let budget = budget_s(motor, v);
+    let period = 1.0 / electrical_hz(motor, v);
+    // The window shows that the lock holds: at least 0.3 s and three budgets.
+    let window = (3.0 * budget).max(budget + 0.3);
+    let (run, settled) = record(setup, v, window, period).map_err(|e| format!("{v} m/s: {e}"))?;
+    if !run.faults.is_empty() || run.handover_s.is_none() {
+        return Err(format!("{v} m/s: the recording drive did not run ({:?})", run.faults));
+    }
+    let dt = run.period_s;
+    let pu = Base::for_motor(motor);
+    let mut starts = Vec::new();
+    for position in 0..options.positions {
+        let t_start = settled + period * position as f64 / options.positions as f64;
+        let start = run.samples.iter().position(|s| s.row.t >= t_start).ok_or("trace too short")?;
+        let end = (start + (window / dt).round() as usize).min(run.samples.len());
+        let samples = &run.samples[start..end];
+        for &offset in &options.offsets {
+            let f = cold_run::<f32>(setup, &Base::SI, &run, start, end, offset)?;
+            let lock = lock_time(samples, &f, dt);
+            let false_lock_samples = samples
+                .iter()
+                .zip(&f)
+                .filter(|(s, e)| {
+                    e.1 && wrap_angle(s.row.theta.unwrap_or(0.0) - e.0).to_degrees().abs() > FALSE_LOCK_DEG
+                })
+                .count();
+            let flag_time_s = f.iter().position(|e| e.1).map(|j| j as f64 * dt);
+            let (q24_deviation_deg, q24_lock_time_s) = if options.fixed_point {
+                let q = cold_run::<Q24>(setup, &pu, &run, start, end, offset)?;
+                let from = lock.map(|t| (t / dt).round() as usize);
+                let dev = from.map(|j0| {
+                    f[j0.min(f.len())..]
+                        .iter()
+                        .zip(&q[j0.min(q.len())..])
+                        .map(|(a, b)| wrap_angle(a.0 - b.0).to_degrees().abs())
+                        .fold(0.0, f64::max)
+                });
+                (dev, lock_time(samples, &q, dt))
+            } else {
+                (None, None)
+            };
+            starts.push(Start {
+                speed_m_per_s: v,
+                electrical_hz: electrical_hz(motor, v),
+                position,
+                offset,
+                lock_time_s: lock,
+                budget_s: budget,
+                false_lock_samples,
+                flag_time_s,
+                q24_deviation_deg,
+                q24_lock_time_s,
+            });
+        }
+    }
+    Ok(starts)
+}
+
+/// Runs the sweep on `setup` (both directions of every speed), two speeds at a time,
+/// calling `progress(done, total)` after each.
+pub fn sweep(
+    setup: &Setup,
+    options: &Options,
+    progress: impl Fn(usize, usize) + Sync,
+) -> Result<Vec<Start>, String> {
+    let speeds: Vec<f64> = options.speeds_m_per_s.iter().flat_map(|&v| [v, -v]).collect();
+    let threads = std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1).min(speeds.len().max(1));
+    let next = std::sync::atomic::AtomicUsize::new(0);
+    let done = std::sync::atomic::AtomicUsize::new(0);
+    let results = std::sync::Mutex::new(Vec::new());
+    std::thread::scope(|scope| {
+        for _ in 0..threads {
+            scope.spawn(|| {
+                loop {
+                    let j = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                    let Some(&v) = speeds.get(j) else { break };
+                    let r = starts_at(setup, v, options);
+                    results.lock().map(|mut g| g.push((j, r))).ok();
+                    let d = done.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
+                    progress(d, speeds.len());
+                }
+            });
+        }
+    });
+    let mut results = results.into_inner().map_err(|_| "a sweep thread panicked".to_string())?;
+    results.sort_by_key(|(j, _)| *j);
+    let mut all = Vec::new();
+    for (_, r) in results {
+        all.extend(r?);
+    }
+    Ok(all)
+}
+
+/// The electrical angular speed of `v` on `motor`, rad/s.
+pub fn omega_e(motor: &MotorParams, v: f64) -> f64 {
+    PI * v / f64::from(motor.pole_pitch_m)
+}
+
+/// One row of the table: one signed speed, over its positions and offsets.
+#[derive(Clone, Debug, Serialize)]
+pub struct SpeedRow {
+    /// Signed speed, m/s.
+    pub speed_m_per_s: f64,
+    /// Electrical frequency, Hz.
+    pub electrical_hz: f64,
+    /// Budget, s.
+    pub budget_s: f64,
+    /// Median lock time over the starts that locked, s.
+    pub lock_time_median_s: Option<f64>,
+    /// Largest lock time, s (`None` if a start never locked).
+    pub lock_time_max_s: Option<f64>,
+    /// Starts over the budget (or never locked).
+    pub budget_violations: usize,
+    /// Starts with a false lock.
+    pub false_locks: usize,
+    /// Largest Q8.24 deviation from f32 after lock, degrees.
+    pub q24_deviation_max_deg: Option<f64>,
+    /// Starts.
+    pub runs: usize,
+}
+
+/// The sweep's totals, as `dcfo acquire --json` prints them.
+#[derive(Clone, Debug, Serialize)]
+pub struct Summary {
+    /// Cold starts run.
+    pub runs: usize,
+    /// Largest lock time over every start, s (`None` if any start never locked).
+    pub lock_time_max_s: Option<f64>,
+    /// Starts that did not lock within `max(60 ms, 2 electrical periods)`.
+    pub lock_time_budget_violations: usize,
+    /// Starts that never locked within their window.
+    pub never_locked: usize,
+    /// Starts in which `locked` was claimed with a true error above 15 degrees.
+    pub false_locks: usize,
+    /// Largest Q8.24 deviation from f32 after lock, degrees.
+    pub q24_deviation_max_deg: Option<f64>,
+    /// Per signed speed.
+    pub speeds: Vec<SpeedRow>,
+}
+
+fn max_opt(mut xs: impl Iterator<Item = Option<f64>>) -> Option<f64> {
+    xs.try_fold(0.0f64, |m, x| Some(m.max(x?)))
+}
+
+/// Totals and the per-speed table of `starts`.
+pub fn summarise(starts: &[Start]) -> Summary {
+    let mut speeds: Vec<f64> = Vec::new();
+    for s in starts {
+        if !speeds.contains(&s.speed_m_per_s) {
+            speeds.push(s.speed_m_per_s);
+        }
+    }
+    let rows = speeds
+        .iter()
+        .map(|&v| {
+            let of: Vec<&Start> = starts.iter().filter(|s| s.speed_m_per_s == v).collect();
+            let mut locked: Vec<f64> = of.iter().filter_map(|s| s.lock_time_s).collect();
+            locked.sort_by(f64::total_cmp);
+            SpeedRow {
+                speed_m_per_s: v,
+                electrical_hz: of.first().map(|s| s.electrical_hz).unwrap_or(0.0),
+                budget_s: of.first().map(|s| s.budget_s).unwrap_or(0.0),
+                lock_time_median_s: locked.get(locked.len() / 2).copied(),
+                lock_time_max_s: max_opt(of.iter().map(|s| s.lock_time_s)),
+                budget_violations: of.iter().filter(|s| !s.within_budget()).count(),
+                false_locks: of.iter().filter(|s| s.false_lock_samples > 0).count(),
+                q24_deviation_max_deg: of.iter().filter_map(|s| s.q24_deviation_deg).reduce(f64::max),
+                runs: of.len(),
+            }
+        })
+        .collect();
+    Summary {
+        runs: starts.len(),
+        lock_time_max_s: max_opt(starts.iter().map(|s| s.lock_time_s)),
+        lock_time_budget_violations: starts.iter().filter(|s| !s.within_budget()).count(),
+        never_locked: starts.iter().filter(|s| s.lock_time_s.is_none()).count(),
+        false_locks: starts.iter().filter(|s| s.false_lock_samples > 0).count(),
+        q24_deviation_max_deg: starts.iter().filter_map(|s| s.q24_deviation_deg).reduce(f64::max),
+        speeds: rows,
+    }
+}
+
+/// The table as text (times in ms).
+pub fn table(summary: &Summary) -> String {
+    let ms = |x: Option<f64>| x.map(|t| format!("{:.0}", t * 1e3)).unwrap_or_else(|| "never".into());
+    let mut out = String::from(
+        "speed m/s   f_e Hz  budget ms  lock median ms  lock max ms  over budget  false locks  Q24-f32 max deg\n",
+    );
+    for r in &summary.speeds {
+        out += &format!(
+            "{:>9.2}  {:>7.1}  {:>9.0}  {:>14}  {:>11}  {:>8} /{:>2}  {:>11}  {:>15}\n",
+            r.speed_m_per_s,
+            r.electrical_hz,
+            r.budget_s * 1e3,
+            ms(r.lock_time_median_s),
+            ms(r.lock_time_max_s),
+            r.budget_violations,
+            r.runs,
+            r.false_locks,
+            r.q24_deviation_max_deg.map(|d| format!("{d:.3}")).unwrap_or_else(|| "-".into()),
+        );
+    }
+    out += &format!(
+        "{} cold starts: {} over budget, {} never locked, {} false locks; largest lock time {}\n",
+        summary.runs,
+        summary.lock_time_budget_violations,
+        summary.never_locked,
+        summary.false_locks,
+        ms(summary.lock_time_max_s)
+    );
+    out
+}
