@@ -2,11 +2,40 @@
 //! runs them every control period and as trace replay runs them on recorded data.
 //!
 //! Per sample: the observer takes the voltage applied during the period that just
-//! ended and the currents sampled now; its flux estimate feeds the PLL; the PLL's
-//! frequency integrator tunes the DCFO's notch for the *next* sample (see
-//! [`crate::pll`] for why the integrator and not the full speed estimate).
-//! Having this composition in one place is what makes a replayed trace reproduce a
-//! closed-loop run's estimates bit for bit.
+//! ended and the currents sampled now; its flux estimate feeds the PLL (and, for the
+//! DCFO, the FLL of [`crate::fll`]); one of them tunes the DCFO's notch for the *next*
+//! sample. Having this composition in one place is what makes a replayed trace
+//! reproduce a closed-loop run's estimates bit for bit.
+//!
+//! ## Who tunes the notch ([`NotchTuning`], default `AcquireWithFll`)
+//! ```text
+//!            reset / reacquire()
+//!                   |
+//!                   v
+//!   FLL steers: notch = FLL, PLL fed forward with the FLL's frequency
+//!      |  PLL locked and FLL frequency settled: PLL integrator := FLL frequency
+//!      v
+//!   PLL steers: notch = PLL integrator (the paper's loop, see crate::pll)
+//!      |  PLL frequency off a settled FLL's by more than 2 x settle_tolerance
+//!      +--> back to "FLL steers"
+//! ```
+//! The FLL reads the frequency from the flux whatever the notch's tuning, so it finds
+//! a moving mover from the zero state (the paper's loop, notch at its floor, never
+//! pulls in above about 20 Hz) and follows speed transients the PLL's slow integrator
+//! lags (the 40 N load step: 13.8 deg instead of 27). It is biased by back-EMF errors
+//! along q (a wrong Rs under load, a DC step while the DCFO settles), which the PLL is
+//! not; so the PLL keeps the steady state, and an FLL that is not settled never takes
+//! the notch back.
+//!
+//! ## Two flags
+//! - [`Estimate::tracking`]: the PLL is locked and, with an FLL, both frequencies
+//!   agree. What a drive may close its loops on (the hand-over from I/f, the lock
+//!   supervision).
+//! - [`Estimate::locked`]: `tracking`, and the FLL is [settled](crate::fll::FllOutput::settled):
+//!   the flux estimate is steady and has been for the DCFO's settling time. What a user
+//!   may trust the angle by: over the acquisition sweep (576 cold starts) and the paper
+//!   scenarios it is never set while the true error exceeds 15 deg, except for 78 ms
+//!   after the +2 V step of the paper's Fig. 14 (README, status).
 
 use crate::fll::{Fll, FllConfig, FllConfigError};
 use crate::motor::MotorParams;
@@ -31,39 +60,51 @@ pub struct EstimatorConfig {
     pub cfo_cutoff_rad_s: f32,
     /// PLL tuning.
     pub pll: PllConfig,
-    /// Frequency-locked loop that tunes the DCFO's notch and feeds the PLL forward
-    /// (used when `observer` is [`ObserverKind::Dcfo`]); `None`: the notch follows the
-    /// PLL's frequency integrator, as the paper's method does. Opt-in for now (see
-    /// [`crate::fll`] for what it does better and worse).
-    pub fll: Option<FllConfig>,
+    /// What tunes the DCFO's notch (see the module docs).
+    pub notch_tuning: NotchTuning,
+    /// The frequency-locked loop (used by the DCFO unless `notch_tuning` is
+    /// [`NotchTuning::Pll`]).
+    pub fll: FllConfig,
+}
+
+/// What tunes the DCFO's notch frequency (and feeds the PLL forward).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum NotchTuning {
+    /// The PLL's frequency integrator, always: the paper's method. From a cold start the
+    /// notch sits at its floor and finds a fast mover slowly or never.
+    Pll,
+    /// The FLL while acquiring (from reset, and whenever the PLL's frequency leaves the
+    /// FLL's), then the PLL's frequency integrator once locked. The default.
+    AcquireWithFll,
+    /// The FLL, always, with its frequency fed forward to the PLL: the fastest transients
+    /// (the 40 N load step: 3.8 deg instead of 27), but a DC step in the observer's input
+    /// disturbs it more, and the closed-loop drive oscillates with a plant resistance
+    /// twice the motor file's (see [`crate::fll`]).
+    Fll,
 }
 
 impl EstimatorConfig {
     /// Defaults for `motor` with the given observer: [`DcfoConfig::default`],
     /// [`PllConfig::for_flux`], and a CFO cut-off of `2 pi * 2.5 Hz` (15.7 rad/s). The
     /// paper gives no cut-off; this one makes the CFO's phase lead at 10 Hz the 14
-    /// degrees of the paper's Fig. 17 (`atan(15.7 / 62.8)`). No FLL (see
-    /// [`EstimatorConfig::with_fll`]).
+    /// degrees of the paper's Fig. 17 (`atan(15.7 / 62.8)`).
+    /// [`NotchTuning::AcquireWithFll`] with [`FllConfig::for_motor`] (the motor's rated
+    /// phase peak voltage, the DCFO's notch floor).
     pub fn for_motor(motor: &MotorParams, observer: ObserverKind) -> Self {
+        let dcfo = DcfoConfig::default();
         EstimatorConfig {
             observer,
-            dcfo: DcfoConfig::default(),
+            dcfo,
             cfo_cutoff_rad_s: 2.0 * core::f32::consts::PI * 2.5,
             pll: PllConfig::for_flux(motor.psi_f_wb),
-            fll: None,
+            notch_tuning: NotchTuning::AcquireWithFll,
+            fll: FllConfig::for_motor(
+                motor.psi_f_wb,
+                motor.rated_voltage_v * 0.816_496_6,
+                dcfo.omega_floor_rad_s,
+            ),
         }
-    }
-
-    /// This configuration with the DCFO's notch tuned by an FLL:
-    /// [`FllConfig::for_motor`] with the motor's rated phase peak voltage and the DCFO's
-    /// notch floor.
-    pub fn with_fll(mut self, motor: &MotorParams) -> Self {
-        self.fll = Some(FllConfig::for_motor(
-            motor.psi_f_wb,
-            motor.rated_voltage_v * 0.816_496_6,
-            self.dcfo.omega_floor_rad_s,
-        ));
-        self
     }
 }
 
@@ -106,8 +147,16 @@ pub struct Estimate<T> {
     pub psi_ab: AlphaBeta<T>,
     /// The observer's disturbance estimate (Wb), where it has one.
     pub disturbance_ab: Option<AlphaBeta<T>>,
-    /// `true` while the PLL reports lock.
+    /// `true` while the estimate can be trusted: the PLL is locked and, for the DCFO
+    /// with an FLL, the FLL agrees (see the module docs).
     pub locked: bool,
+    /// `true` while the FLL tunes the notch (acquiring, or [`NotchTuning::Fll`]).
+    pub acquiring: bool,
+    /// `true` while the loops track the flux: the PLL is locked and, with an FLL, the
+    /// frequencies agree. Weaker than `locked` (it does not wait for the flux estimate
+    /// to be steady): what a drive may close its loops on, e.g. out of an open-loop
+    /// start whose mover still swings.
+    pub tracking: bool,
 }
 
 /// Observer + PLL. See the module documentation.
@@ -115,9 +164,17 @@ pub struct Estimate<T> {
 pub struct Estimator<T> {
     observer: AnyObserver<T>,
     pll: Pll<T>,
-    /// The DCFO's frequency-locked loop (`None` for the other observers, which run the
-    /// paper's plain PLL).
+    /// The DCFO's frequency-locked loop (`None` for the other observers and for
+    /// [`NotchTuning::Pll`], which run the paper's plain PLL).
     fll: Option<Fll<T>>,
+    tuning: NotchTuning,
+    /// The FLL tunes the notch and feeds the PLL forward (the PLL's integrator then holds
+    /// only what the feed-forward misses).
+    fll_steers: bool,
+    /// Relative frequency disagreement that counts (dimensionless).
+    agreement_tolerance: T,
+    /// The smallest frequency the agreement is measured against (rad/s).
+    agreement_floor: T,
 }
 
 impl<T: Scalar> Estimator<T> {
@@ -139,11 +196,22 @@ impl<T: Scalar> Estimator<T> {
             }
         };
         let pll = Pll::new(&config.pll, motor.pole_pitch_m, base).map_err(EstimatorConfigError::Pll)?;
-        let fll = match (config.observer, &config.fll) {
-            (ObserverKind::Dcfo, Some(fll)) => Some(Fll::new(fll, base).map_err(EstimatorConfigError::Fll)?),
+        let fll = match (config.observer, config.notch_tuning) {
+            (ObserverKind::Dcfo, NotchTuning::AcquireWithFll | NotchTuning::Fll) => {
+                Some(Fll::new(&config.fll, base).map_err(EstimatorConfigError::Fll)?)
+            }
             _ => None,
         };
-        Ok(Estimator { observer, pll, fll })
+        let fll_steers = fll.is_some();
+        Ok(Estimator {
+            observer,
+            pll,
+            fll,
+            tuning: config.notch_tuning,
+            fll_steers,
+            agreement_tolerance: T::from_f32(config.fll.settle_tolerance * 2.0),
+            agreement_floor: base.omega(config.fll.floor_rad_s),
+        })
     }
 
     /// One sample: `u_applied` is the voltage applied during the period that just ended
@@ -154,22 +222,52 @@ impl<T: Scalar> Estimator<T> {
         i: AlphaBeta<T>,
         dt: T,
     ) -> Result<Estimate<T>, EstimatorFault> {
-        let notch = match &self.fll {
-            Some(fll) => fll.notch_omega(),
-            None => self.pll.omega_integral(),
-        };
+        let notch = self.notch_omega();
         let input = ObserverInput { u_ab: u_applied, i_ab: i, omega_e: notch, dt };
         let flux = self.observer.update(&input).map_err(EstimatorFault::Observer)?;
-        let (out, settled) = match (&mut self.fll, flux.flux_increment_ab) {
-            (Some(fll), Some(increment)) => {
-                let f = fll.update(flux.psi_ab, increment, dt);
-                let out = self
-                    .pll
-                    .update_with_feedforward(flux.psi_ab, f.omega_e, f.notch_omega, dt)
-                    .map_err(EstimatorFault::Pll)?;
-                (out, f.settled)
+        let (Some(fll), Some(increment)) = (&mut self.fll, flux.flux_increment_ab) else {
+            let out = self.pll.update(flux.psi_ab, dt).map_err(EstimatorFault::Pll)?;
+            return Ok(Estimate {
+                theta_e: out.theta_e,
+                cos_sin: out.cos_sin,
+                omega_e: out.omega_e,
+                speed_m_per_s: out.speed_m_per_s,
+                psi_ab: flux.psi_ab,
+                disturbance_ab: flux.disturbance_ab,
+                locked: out.locked,
+                acquiring: false,
+                tracking: out.locked,
+            });
+        };
+        let f = fll.update(flux.psi_ab, increment, dt);
+        let acquiring = self.fll_steers;
+        let (out, locked, tracking) = if self.fll_steers {
+            let out = self
+                .pll
+                .update_with_feedforward(flux.psi_ab, f.omega_e, f.notch_omega, dt)
+                .map_err(EstimatorFault::Pll)?;
+            let tracking = out.locked && f.frequency_settled;
+            if tracking && self.tuning == NotchTuning::AcquireWithFll {
+                // Hand the notch to the PLL: its integrator takes the FLL's frequency (the
+                // notch does not jump; the residual it held was the feed-forward's error).
+                self.pll.set_integral(f.omega_e);
+                self.fll_steers = false;
             }
-            _ => (self.pll.update(flux.psi_ab, dt).map_err(EstimatorFault::Pll)?, true),
+            (out, out.locked && f.settled, tracking)
+        } else {
+            let out = self.pll.update(flux.psi_ab, dt).map_err(EstimatorFault::Pll)?;
+            // The FLL reads the frequency whatever the notch's tuning. When the PLL's
+            // frequency leaves a settled FLL's (a speed transient that the PLL's slow
+            // integrator lags, e.g. a load step), the estimate is not trusted and the FLL
+            // takes the notch back until both agree again. An FLL that is not settled
+            // (a DC step in the inputs modulates its reading) leaves the PLL in charge.
+            let reference = f.omega_e.abs().max(self.agreement_floor);
+            let agree = (self.pll.omega_integral() - f.omega_e).abs() <= self.agreement_tolerance * reference;
+            if !agree && f.settled {
+                self.pll.set_integral(T::ZERO);
+                self.fll_steers = true;
+            }
+            (out, out.locked && agree && f.settled, out.locked && agree)
         };
         Ok(Estimate {
             theta_e: out.theta_e,
@@ -178,19 +276,36 @@ impl<T: Scalar> Estimator<T> {
             speed_m_per_s: out.speed_m_per_s,
             psi_ab: flux.psi_ab,
             disturbance_ab: flux.disturbance_ab,
-            locked: out.locked && settled,
+            locked,
+            acquiring,
+            tracking,
         })
     }
 
     /// Sets the PLL's angle (for its next sample) and speed (rad/s, working units),
     /// e.g. from an open-loop start-up; the observer keeps its state.
     pub fn preset_pll(&mut self, theta_e: Angle, omega_e: T) {
-        match &mut self.fll {
-            Some(fll) => {
-                fll.preset(omega_e);
-                self.pll.preset(theta_e, T::ZERO);
+        if let Some(fll) = &mut self.fll {
+            fll.preset(omega_e);
+        }
+        if self.fll_steers {
+            self.pll.preset(theta_e, T::ZERO);
+        } else {
+            self.pll.preset(theta_e, omega_e);
+        }
+    }
+
+    /// Acquires again without forgetting: the FLL takes the notch back from its present
+    /// frequency estimate (it reads the frequency whatever the notch's tuning) and the
+    /// lock is declared again only once both loops agree. For a drive that has lost
+    /// lock with the mover still moving (flying restart). No effect without an FLL.
+    pub fn reacquire(&mut self) {
+        if let Some(fll) = &mut self.fll {
+            if !self.fll_steers {
+                self.pll.set_integral(T::ZERO);
+                self.fll_steers = true;
             }
-            None => self.pll.preset(theta_e, omega_e),
+            fll.restart_acquisition();
         }
     }
 
@@ -201,15 +316,22 @@ impl<T: Scalar> Estimator<T> {
         if let Some(fll) = &mut self.fll {
             fll.reset();
         }
+        self.fll_steers = self.fll.is_some();
     }
 
     /// The frequency the observer's notch will be tuned to at the next sample (rad/s,
-    /// working units): the FLL's for the DCFO, the PLL integrator's otherwise.
+    /// working units): the FLL's while it steers, the PLL integrator's otherwise (plus
+    /// the FLL's fast part while tracking with an FLL).
     pub fn notch_omega(&self) -> T {
         match &self.fll {
-            Some(fll) => fll.notch_omega(),
-            None => self.pll.omega_integral(),
+            Some(fll) if self.fll_steers => fll.notch_omega(),
+            _ => self.pll.omega_integral(),
         }
+    }
+
+    #[doc(hidden)]
+    pub fn debug_fll(&self) -> Option<&Fll<T>> {
+        self.fll.as_ref()
     }
 
     /// The FLL's signed frequency estimate (rad/s, working units), where it runs.

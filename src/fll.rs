@@ -19,13 +19,24 @@
 //! out. Sampled, the increment is a chord centred half a sample before `x1`, so the
 //! band-pass phase `phi` is read as `phi + w dt / 2`: a relative error up to
 //! `(|w| dt / 2) |tan phi|` while the notch is off (1.5 % at 400 rad/s with the notch at
-//! half the frequency), none once it is on (`tests/fll.rs`). Nor is the FLL a loop with
-//! the PLL: the PLL's estimate never tunes the notch,
-//! which removes the notch-PLL coupling and the PLL's slow pole from every transient.
-//! In steady state a DC offset `dc` in the observer's voltage is cancelled inside
-//! `dpsi_i` by the DCFO's feedback (`dc + (h/Ls) d = 0`), so it biases nothing; during
-//! the DCFO's own settling it puts a ripple at `w` on `dtheta`, which the FLL's low-pass
-//! averages.
+//! half the frequency), none once it is on (`tests/fll.rs`).
+//!
+//! ## What biases it
+//! The discriminator is `e_q / |psi|`: the back-EMF component along the rotation. Any
+//! error in the back-EMF along q reads as speed. In steady state a DC offset `dc` in the
+//! observer's voltage is cancelled inside `dpsi_i` by the DCFO's feedback
+//! (`dc + (h/Ls) d = 0`), but while the DCFO settles it puts a ripple at `w` of
+//! amplitude `|dc| / |psi|` rad/s on the reading (12.5 rad/s for the paper's +2 V at
+//! 0.16 Wb). A resistance error `dR` reads as `dR i_q / psi_f` rad/s (31 rad/s per
+//! ampere for a doubled Rs on the paper motor), a bias that grows with thrust. The
+//! PLL on `x1` has neither: it follows the rotation of the estimate, whatever its
+//! amplitude. Hence [`crate::estimator::NotchTuning::AcquireWithFll`]: the FLL finds
+//! the frequency and takes over in speed transients; the PLL holds the steady state.
+//! Tried and not kept: the rotation rate of `x1` itself (`Im(conj(x1) dx1)`, unbiased,
+//! but it closes a loop through the band-pass phase: 1.7x peaking and a closed-loop
+//! drive that lost lock), a notch at `w` on the reading, subtracting the drift of the
+//! DCFO's DC estimate from `dpsi_i` (neither moved the +2 V step), and an
+//! acceleration state (below).
 //!
 //! ## The loop
 //! Two first-order trackers with the rate `g = gain_per_omega * w_n` (1/s), scaled
@@ -38,7 +49,8 @@
 //!
 //! Below `psi_ref` a measurement is weighted down by `|x1|^2 / psi_ref^2` (the `max` in
 //! the denominator): a weak or absent flux reads as "no rotation", so the notch sweeps
-//! *down*. Division-free but for one reciprocal of a quantity bounded below.
+//! *down*. Division-free but for the reciprocals of a quantity bounded below and of
+//! the period.
 //!
 //! ## Why the notch must follow fast: `gain_per_omega = 4`
 //! With the notch exactly on the instantaneous frequency, the SOGI passes a
@@ -47,17 +59,14 @@
 //! error is therefore the notch's error `dw`, seen through `dw / (zeta w)`. A tracker
 //! of rate `g` lags a ramp of `a` rad/s^2 by `a / g`, so `g` should be as large as the
 //! noise allows. Measured on a synthetic 10 Hz flux whose speed wobbles by +-7 rad/s at
-//! 6 Hz (estimator alone, ideal voltage): max angle error 8.8 deg at
-//! `g = 0.25 w`, 7.7 at `w`, 4.8 at `2 w`, 2.4 at `4 w`. In the closed-loop drive,
-//! `4 w` gives the paper's 40 N load step 3.8 deg (PLL-tuned notch: 26.8 deg). An
-//! added acceleration state (critically damped alpha-beta tracker) made the same
-//! wobble worse (11 deg at `w`): its double pole sits at `g / 2`. `g dt` stays below
-//! 1/2 for any period (at the start frequency of the paper motor and 10 kHz: 0.45).
-//! The price: a DC step in the observer's input puts a ripple at `w` of amplitude
-//! `|dc| / |psi|` rad/s on the measurement while the DCFO settles, which a fast
-//! tracker passes to the notch (the +2 V step of the paper's Fig. 14: 37 deg, against
-//! 20 deg with the PLL-tuned notch). A notch on the measurement at `w` did not help in
-//! the closed loop.
+//! 6 Hz (estimator alone, ideal voltage, the FLL tuning the notch throughout): max
+//! angle error 8.8 deg at `g = 0.25 w`, 7.7 at `w`, 4.8 at `2 w`, 2.4 at `4 w`; its
+//! phase-modulation response stays within 1.00-1.19 in gain and 0 to -17 deg up to 8 Hz
+//! (PLL-tuned notch: -29 deg at 4 Hz). In the closed-loop drive with the FLL always
+//! tuning the notch, `4 w` takes the paper's 40 N load step to 3.8 deg (PLL-tuned
+//! notch: 26.8 deg). An added acceleration state (critically damped alpha-beta tracker)
+//! made the wobble worse (11 deg at `w`): its double pole sits at `g / 2`. `g dt` stays
+//! below 1/2 for any period (at the paper motor's start frequency and 10 kHz: 0.45).
 //!
 //! ## Acquisition: start high, sweep down
 //! From reset the notch starts at `start_omega_rad_s`, above any speed the motor reaches
@@ -67,19 +76,23 @@
 //! below it is passed with its rotation intact (attenuated by `2 zeta w / w_n`). With no
 //! usable flux the notch sweeps down as `d w_n / dt = -gain w_n^2`, reaching a speed `w`
 //! after about `1 / (gain w)`, i.e. `1 / (2 pi gain)` electrical periods; with a flux
-//! it converges on `|w|` at the rate `g`. The sweep needs no knowledge of the speed and no search logic: it is the
-//! same update.
+//! it converges on `|w|` at the rate `g`. The sweep needs no knowledge of the speed and
+//! no search logic: it is the same update.
 //!
 //! ## Settled
-//! [`FllOutput::settled`] says the frequency estimate is usable: the measurement has
-//! had full weight, and `|omega|` and the notch frequency agree within
-//! [`FllConfig::settle_tolerance`], both filtered at `g / 4`; and the flux amplitude is
-//! steady: an offset `c` left in `x1` (the integrator's initial flux, a DC step not yet
-//! removed) modulates `|x1|^2` at `w` by `2 c |psi|`, so the filtered mean absolute
-//! deviation of `|x1|^2` must stay below 0.2 of its mean (`c / |psi|` below about 0.16,
-//! an angle error below about 9 deg), filtered at `w_n / 4`. The estimator's lock flag
-//! requires it besides the PLL's own lock, so that it never claims lock on a flux
-//! estimate that is still settling.
+//! [`FllOutput::frequency_settled`]: the measurement has had full weight, and `|omega|`
+//! and the notch frequency agree within [`FllConfig::settle_tolerance`], both filtered
+//! at `g / 4`. [`FllOutput::settled`] adds that the flux estimate is trustworthy:
+//! - its amplitude is steady: an offset `c` left in `x1` (the integrator's initial flux,
+//!   a DC step not yet removed) modulates `|x1|^2` at `w` by `2 c |psi|`, so the mean
+//!   absolute deviation of `|x1|^2` from its mean (over about three periods) must stay
+//!   below 0.3 of that mean (`c / |psi|` below about 0.24, 14 deg); the deviation rises
+//!   within a sixth of a period and decays over two thirds of one;
+//! - and it has been so for [`FllConfig::settle_guard_rad`] of electrical angle (default
+//!   15 rad, 2.4 periods): four time constants of the DCFO's slowest pole (`0.263 w` for
+//!   `zeta = 1`, `h = -0.2 Ls w`), the time it needs to remove what acquisition left in
+//!   its integrator. Without the guard the acquisition sweep claimed lock on
+//!   decaying 17 deg transients in 213 of 576 cold starts; with it, in none.
 
 use crate::num::Scalar;
 use crate::transforms::AlphaBeta;
@@ -98,6 +111,10 @@ pub struct FllConfig {
     pub floor_rad_s: f32,
     /// Flux amplitude from which a measurement counts fully (Wb, > 0).
     pub ref_flux_wb: f32,
+    /// Electrical angle the estimate must have stayed settled over before `settled` is
+    /// claimed (rad, >= 0): time for the DCFO to remove what acquisition left in its
+    /// integrator (see the module docs).
+    pub settle_guard_rad: f32,
     /// Relative disagreement between `|omega|` and the notch frequency below which the
     /// FLL counts as settled (dimensionless, in (0, 1)).
     pub settle_tolerance: f32,
@@ -116,6 +133,7 @@ impl FllConfig {
             floor_rad_s,
             ref_flux_wb: 0.5 * psi_f_wb,
             settle_tolerance: 0.1,
+            settle_guard_rad: 15.0,
         }
     }
 }
@@ -130,7 +148,7 @@ pub enum FllConfigError {
     BadRange,
     /// `ref_flux_wb` is not a valid positive number.
     BadFlux,
-    /// `settle_tolerance` is not in (0, 1).
+    /// `settle_tolerance` is not in (0, 1), or `settle_guard_rad` is negative or not finite.
     BadTolerance,
 }
 
@@ -141,7 +159,10 @@ pub struct FllOutput<T> {
     pub omega_e: T,
     /// Notch frequency for the next sample (rad/s, >= floor).
     pub notch_omega: T,
-    /// The frequency estimate is usable (see the module docs).
+    /// The frequency estimate is usable: full-weight flux, `|omega|` and the notch agree
+    /// (see the module docs).
+    pub frequency_settled: bool,
+    /// `frequency_settled`, and the flux amplitude is steady (see the module docs).
     pub settled: bool,
 }
 
@@ -171,6 +192,10 @@ pub struct Fll<T> {
     flux_sq_mean: T,
     /// Filtered `| |x1|^2 - mean |` (Wb^2).
     flux_sq_ripple: T,
+    /// Electrical angle travelled while settled (rad), up to `guard`.
+    settled_angle: T,
+    /// `settle_guard_rad`.
+    guard: T,
 }
 
 impl<T: Scalar> Fll<T> {
@@ -189,7 +214,11 @@ impl<T: Scalar> Fll<T> {
         if !positive(config.ref_flux_wb) {
             return Err(FllConfigError::BadFlux);
         }
-        if !(positive(config.settle_tolerance) && config.settle_tolerance < 1.0) {
+        if !(positive(config.settle_tolerance)
+            && config.settle_tolerance < 1.0
+            && config.settle_guard_rad.is_finite()
+            && config.settle_guard_rad >= 0.0)
+        {
             return Err(FllConfigError::BadTolerance);
         }
         let start = base.omega(config.start_omega_rad_s);
@@ -211,9 +240,11 @@ impl<T: Scalar> Fll<T> {
             disagreement: start,
             weight: T::ZERO,
             ripple_rate: T::from_f32(0.25),
-            max_ripple: T::from_f32(0.2),
+            max_ripple: T::from_f32(0.3),
             flux_sq_mean: T::ZERO,
             flux_sq_ripple: T::ZERO,
+            settled_angle: T::ZERO,
+            guard: T::from_f32(config.settle_guard_rad),
         };
         fll.reset();
         Ok(fll)
@@ -245,24 +276,47 @@ impl<T: Scalar> Fll<T> {
         let diff = (omega.abs() - notch).abs();
         // Flux-amplitude ripple: an offset c in x1 modulates |x1|^2 at w by 2 c |psi|.
         let slow = self.notch * dt * self.ripple_rate;
-        self.flux_sq_mean = self.flux_sq_mean + slow * (mag_sq - self.flux_sq_mean);
+        // The mean follows over about three periods (so that a disturbance shows as a
+        // deviation from it), the ripple rises within a sixth of a period and decays over
+        // two thirds of one.
+        // Until the measurement has full weight the mean follows at the fast rate, so
+        // that it starts from the flux it sees rather than from zero.
+        let mean_rate = if self.weight > self.settled_weight { slow * T::from_f32(0.2) } else { slow };
+        self.flux_sq_mean = self.flux_sq_mean + mean_rate * (mag_sq - self.flux_sq_mean);
         self.flux_sq_ripple =
             self.flux_sq_ripple + slow * ((mag_sq - self.flux_sq_mean).abs() - self.flux_sq_ripple);
         self.disagreement = self.disagreement + rate * (diff - self.disagreement);
         self.weight = self.weight + rate * (weight - self.weight);
         self.omega = omega.clamp_to(-self.start, self.start);
         self.notch = notch;
+        self.settled_angle = if self.steady() {
+            (self.settled_angle + self.notch * dt).min(self.guard + self.guard)
+        } else {
+            T::ZERO
+        };
         self.output()
+    }
+
+    fn frequency_settled(&self) -> bool {
+        self.disagreement < self.tolerance * self.notch && self.weight > self.settled_weight
+    }
+
+    fn steady(&self) -> bool {
+        self.frequency_settled() && self.flux_sq_ripple < self.max_ripple * self.flux_sq_mean
     }
 
     fn output(&self) -> FllOutput<T> {
         FllOutput {
             omega_e: self.omega,
             notch_omega: self.notch,
-            settled: self.disagreement < self.tolerance * self.notch
-                && self.weight > self.settled_weight
-                && self.flux_sq_ripple < self.max_ripple * self.flux_sq_mean,
+            frequency_settled: self.frequency_settled(),
+            settled: self.steady() && self.settled_angle >= self.guard,
         }
+    }
+
+    #[doc(hidden)]
+    pub fn debug_metrics(&self) -> (T, T, T, T) {
+        (self.disagreement, self.weight, self.flux_sq_mean, self.flux_sq_ripple)
     }
 
     /// The notch frequency to use for the next sample (rad/s).
@@ -284,6 +338,16 @@ impl<T: Scalar> Fll<T> {
         self.weight = T::ZERO;
         self.flux_sq_mean = T::ZERO;
         self.flux_sq_ripple = T::ZERO;
+        self.settled_angle = T::ZERO;
+    }
+
+    /// Acquires again from the present frequency estimate: the settle detector starts
+    /// over (unsettled), the trackers keep their state.
+    pub fn restart_acquisition(&mut self) {
+        self.disagreement = self.notch;
+        self.weight = T::ZERO;
+        self.flux_sq_ripple = self.flux_sq_mean;
+        self.settled_angle = T::ZERO;
     }
 
     /// Back to the acquisition start: frequency unknown, notch at the top of the sweep.
@@ -294,5 +358,6 @@ impl<T: Scalar> Fll<T> {
         self.weight = T::ZERO;
         self.flux_sq_mean = T::ZERO;
         self.flux_sq_ripple = T::ZERO;
+        self.settled_angle = T::ZERO;
     }
 }

@@ -497,6 +497,7 @@ fn state_from_code(code: u8) -> Option<DriveState> {
         2 => Some(DriveState::Starting),
         3 => Some(DriveState::Running),
         4 => Some(DriveState::Fault),
+        5 => Some(DriveState::Reacquiring),
         _ => None,
     }
 }
@@ -1002,9 +1003,10 @@ mod tests {
             DriveState::Starting,
             DriveState::Running,
             DriveState::Fault,
+            DriveState::Reacquiring,
         ] {
             assert_eq!(state_from_code(s.code()), Some(s));
         }
-        assert_eq!(state_from_code(5), None);
+        assert_eq!(state_from_code(6), None);
     }
 }

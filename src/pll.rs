@@ -268,6 +268,13 @@ impl<T: Scalar> Pll<T> {
         self.lock_metric = T::ONE;
     }
 
+    /// Sets the frequency integrator to `omega_e` (rad/s, working units), keeping the
+    /// angle and the lock detector: moves the frequency between a feed-forward and the
+    /// integrator.
+    pub fn set_integral(&mut self, omega_e: T) {
+        self.integral = omega_e.clamp_to(-self.max_omega, self.max_omega);
+    }
+
     /// Back to angle 0, speed 0, unlocked.
     pub fn reset(&mut self) {
         self.preset(Angle::ZERO, T::ZERO);

@@ -29,6 +29,7 @@ fn discriminator_reads_the_true_frequency_through_a_mistuned_band_pass() {
                 floor_rad_s: 10.0,
                 ref_flux_wb: 0.01,
                 settle_tolerance: 0.1,
+                settle_guard_rad: 15.0,
             };
             let mut fll = Fll::<f64>::new(&config, &Base::SI).unwrap();
             let mut theta = 0.4;
@@ -65,6 +66,7 @@ fn without_a_flux_the_notch_sweeps_down_to_its_floor_and_never_settles() {
         floor_rad_s: 10.0,
         ref_flux_wb: 0.08,
         settle_tolerance: 0.1,
+        settle_guard_rad: 15.0,
     };
     let mut fll = Fll::<f32>::new(&config, &Base::SI).unwrap();
     assert_eq!(fll.notch_omega(), 1000.0);

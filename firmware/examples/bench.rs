@@ -335,6 +335,7 @@ mod firmware {
             DriveState::Starting => "starting",
             DriveState::Running => "running",
             DriveState::Fault => "fault",
+            DriveState::Reacquiring => "reacquiring",
         }
     }
 

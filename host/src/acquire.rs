@@ -1,9 +1,12 @@
 //! `dcfo acquire`: how fast the estimator finds a mover that is already moving.
 //!
-//! For each speed and direction the closed-loop drive runs the simulated axis (inverter
-//! with dead time and drops, sensors with offsets, gain errors, noise and
-//! quantisation, a 10 N load) up to that speed and holds it; its observer inputs are
-//! the trace, as a recording that starts mid-motion would hold them. A fresh estimator
+//! For each speed and direction the simulated axis (inverter with dead time and drops,
+//! sensors with offsets, gain errors, noise and quantisation) is held at that speed by
+//! the load machine (the plant's speed clamp) while a *sensored* current controller on
+//! the plant's true angle drives the thrust current of a 10 N load, with the drive's
+//! dead-time compensation; what it commands (less the compensation) and measures is the
+//! trace, as a recording that starts mid-motion would hold it. The recorder does not
+//! depend on the estimator under test, and the speed is exact. A fresh estimator
 //! (zero state, not told the speed) is then started on that trace at eight instants a
 //! pole pitch apart in eighths (eight initial mover angles), with and without a
 //! constant +0.2 A on `i_beta` or +2 V on `u_alpha` present from its first sample, in
@@ -23,7 +26,7 @@ use dcfo::transforms::AlphaBeta;
 use dcfo::units::Base;
 use serde::Serialize;
 
-use crate::sim::{self, Event, Scenario, Setup};
+use crate::sim::Setup;
 use crate::trace::wrap_angle;
 
 /// Lock criterion: the error stays below this from the lock time on, electrical degrees.
@@ -137,54 +140,105 @@ pub fn budget_s(motor: &MotorParams, v: f64) -> f64 {
     (2.0 / electrical_hz(motor, v)).max(0.06)
 }
 
-/// The closed-loop run that records the trace at `v` (m/s, signed), and the time from
-/// which the speed is settled.
-fn record(setup: &Setup, v: f64, window_s: f64, period_s: f64) -> Result<(sim::Run, f64), sim::SimError> {
-    let accel = f64::from(setup.drive.accel_limit_m_per_s2);
-    // Hand-over about 1 s after enable, then the ramp, then 0.5 s to settle.
-    let settled = 1.0 + v.abs() / accel + 0.5;
-    let scenario = Scenario {
-        name: "acquire",
-        description: "constant speed for the acquisition sweep",
-        duration_s: settled + period_s + window_s + 0.01,
-        events: vec![(0.0, Event::Speed(v)), (settled - 0.4, Event::Load(LOAD_N * v.signum()))],
-        plant_rs_factor: None,
-        event_s: settled,
-        window_s,
-        paper: "",
-    };
-    Ok((sim::run(setup, &scenario, |_| {})?, settled))
+/// One recorded period: the observer's inputs as a trace row holds them, and the truth.
+#[derive(Clone, Copy, Debug)]
+struct Row {
+    /// Voltage applied during `[t_k, t_k + Ts)` as the controller intended it, V.
+    u: [f64; 2],
+    /// Measured currents at `t_k`, A.
+    i: [f64; 2],
+    /// True electrical angle at `t_k`, rad.
+    theta: f64,
 }
 
-/// Runs a fresh estimator over `rows[start..]` with `offset` added; returns the angle
-/// estimates (rad) and lock flags.
+/// Records `duration_s` of the plant held at `v` (m/s, signed), from mover position
+/// `x0_m`, under sensored current control of the thrust current for [`LOAD_N`]. The
+/// first 0.1 s (current loops settling) are dropped.
+fn record(setup: &Setup, v: f64, x0_m: f64, duration_s: f64) -> Result<Vec<Row>, String> {
+    use dcfo::pi::Pi;
+    use dcfo::svpwm::svpwm;
+    use dcfo::transforms::{Abc, CosSin, Dq, clarke, inverse_clarke, inverse_park, park};
+
+    let err = |e: &dyn std::fmt::Debug| format!("{v} m/s: {e:?}");
+    let motor = &setup.motor;
+    let mut plant = crate::plant::Plant::new(&setup.plant).map_err(|e| err(&e))?;
+    plant.set_position(x0_m).map_err(|e| err(&e))?;
+    plant.set_speed_clamp(Some(v)).map_err(|e| err(&e))?;
+    let ts = plant.pwm_period_s();
+    let wc = f64::from(setup.drive.current_bandwidth_rad_s);
+    let (l, r, psi) = (f64::from(motor.lq_h), f64::from(motor.rs_ohm), f64::from(motor.psi_f_wb));
+    let pi = |lim: f64| Pi::new(l * wc, r * wc * ts, -lim, lim).map_err(|e| err(&e));
+    let vmax = setup.plant.inverter.dc_bus_v / 3f64.sqrt();
+    let (mut pi_d, mut pi_q) = (pi(vmax)?, pi(vmax)?);
+    let iq_ref = LOAD_N * v.signum() / f64::from(motor.thrust_constant_n_per_a());
+    let omega = omega_e(motor, v);
+    let comp = setup.drive.dead_time_compensation;
+    let skip = (0.1 / ts).round() as usize;
+    let n = skip + (duration_s / ts).round() as usize;
+    let mut rows = Vec::with_capacity(n);
+    let mut pending = [0.5f64; 3];
+    let mut u_pending = [0.0f64; 2];
+    for k in 0..n {
+        let reading = plant.sample();
+        let theta = plant.state().theta_e_rad;
+        let i_ab = dcfo::transforms::AlphaBeta::new(reading.i_alpha_a, reading.i_beta_a);
+        let cs = CosSin { cos: theta.cos(), sin: theta.sin() };
+        let i_dq = park(i_ab, &cs);
+        let u_d = pi_d.update(-i_dq.d) - omega * l * i_dq.q;
+        let u_q = pi_q.update(iq_ref - i_dq.q) + omega * (l * i_dq.d + psi);
+        let apply = theta + 1.5 * omega * ts;
+        let cs_apply = CosSin { cos: apply.cos(), sin: apply.sin() };
+        let u_ab = inverse_park(Dq::new(u_d, u_q), &cs_apply);
+        // The drive's inverter compensation, from the current carried to the window.
+        let c = match comp {
+            Some(c) => {
+                let amp = reading.vdc_v * f64::from(c.dead_time_s) / ts + f64::from(c.device_drop_v);
+                let band = f64::from(c.current_band_a);
+                let i = inverse_clarke(inverse_park(i_dq, &cs_apply));
+                let sign = |x: f64| (x / band).clamp(-1.0, 1.0);
+                clarke(Abc { a: amp * sign(i.a), b: amp * sign(i.b), c: amp * sign(i.c) })
+            }
+            None => dcfo::transforms::AlphaBeta::new(0.0, 0.0),
+        };
+        let m =
+            svpwm(dcfo::transforms::AlphaBeta::new(u_ab.alpha + c.alpha, u_ab.beta + c.beta), reading.vdc_v)
+                .map_err(|e| err(&e))?;
+        if k >= skip {
+            rows.push(Row { u: u_pending, i: [i_ab.alpha, i_ab.beta], theta });
+        }
+        plant.step(pending, 0.0);
+        pending = [m.duties.a, m.duties.b, m.duties.c];
+        u_pending = [m.u_applied.alpha - c.alpha, m.u_applied.beta - c.beta];
+    }
+    Ok(rows)
+}
+
+/// Runs a fresh estimator over `rows` with `offset` added; returns the angle estimates
+/// (rad) and lock flags.
 fn cold_run<T: Scalar>(
     setup: &Setup,
     base: &Base,
-    run: &sim::Run,
-    start: usize,
-    end: usize,
+    rows: &[Row],
+    ts: f64,
     offset: Offset,
 ) -> Result<Vec<(f64, bool)>, String> {
     let mut est: Estimator<T> = Estimator::new(&setup.motor, &setup.drive.estimator, base)
         .map_err(|e| format!("estimator: {e:?}"))?;
     let (du, di) = offset.values();
-    let dt = base.time(run.period_s as f32);
-    let mut out = Vec::with_capacity(end - start);
+    let dt = base.time(ts as f32);
+    let mut out = Vec::with_capacity(rows.len());
     // As `dcfo replay` does: a row's voltage acts during the period after it, so sample
     // k is given row k - 1's voltage, and the first sample none (a recording that
     // starts mid-motion has no earlier voltage).
     let mut u_prev = [0.0f64; 2];
-    for s in &run.samples[start..end] {
-        let r = &s.row;
+    for (k, r) in rows.iter().enumerate() {
         let u = AlphaBeta::new(
             base.voltage((u_prev[0] + du[0]) as f32),
             base.voltage((u_prev[1] + du[1]) as f32),
         );
-        u_prev = [r.u_alpha, r.u_beta];
-        let i =
-            AlphaBeta::new(base.current((r.i_alpha + di[0]) as f32), base.current((r.i_beta + di[1]) as f32));
-        let e = est.update(u, i, dt).map_err(|e| format!("estimator fault at t = {:.4} s: {e:?}", r.t))?;
+        u_prev = r.u;
+        let i = AlphaBeta::new(base.current((r.i[0] + di[0]) as f32), base.current((r.i[1] + di[1]) as f32));
+        let e = est.update(u, i, dt).map_err(|e| format!("estimator fault at sample {k}: {e:?}"))?;
         out.push((e.theta_e.to_radians::<f64>(), e.locked));
     }
     Ok(out)
@@ -192,17 +246,17 @@ fn cold_run<T: Scalar>(
 
 /// Lock time (s) of `estimates` against the truth of `samples`: the time after which
 /// the error stays below [`LOCK_DEG`]; `None` if the last sample is still outside.
-fn lock_time(samples: &[sim::Sample], estimates: &[(f64, bool)], dt: f64) -> Option<f64> {
+fn lock_time(rows: &[Row], estimates: &[(f64, bool)], dt: f64) -> Option<f64> {
     let mut last_bad = None;
-    for (j, (s, e)) in samples.iter().zip(estimates).enumerate() {
-        let err = wrap_angle(s.row.theta.unwrap_or(f64::NAN) - e.0).to_degrees();
+    for (j, (r, e)) in rows.iter().zip(estimates).enumerate() {
+        let err = wrap_angle(r.theta - e.0).to_degrees();
         if err.abs().is_nan() || err.abs() >= LOCK_DEG {
             last_bad = Some(j);
         }
     }
     match last_bad {
         None => Some(0.0),
-        Some(j) if j + 1 < samples.len() => Some((j + 1) as f64 * dt),
+        Some(j) if j + 1 < rows.len() => Some((j + 1) as f64 * dt),
         Some(_) => None,
     }
 }
@@ -211,34 +265,26 @@ fn lock_time(samples: &[sim::Sample], estimates: &[(f64, bool)], dt: f64) -> Opt
 fn starts_at(setup: &Setup, v: f64, options: &Options) -> Result<Vec<Start>, String> {
     let motor = &setup.motor;
     let budget = budget_s(motor, v);
-    let period = 1.0 / electrical_hz(motor, v);
     // The window shows that the lock holds: at least 0.3 s and three budgets.
     let window = (3.0 * budget).max(budget + 0.3);
-    let (run, settled) = record(setup, v, window, period).map_err(|e| format!("{v} m/s: {e}"))?;
-    if !run.faults.is_empty() || run.handover_s.is_none() {
-        return Err(format!("{v} m/s: the recording drive did not run ({:?})", run.faults));
-    }
-    let dt = run.period_s;
+    let dt = setup.plant.inverter.pwm_period_s;
     let pu = Base::for_motor(motor);
     let mut starts = Vec::new();
     for position in 0..options.positions {
-        let t_start = settled + period * position as f64 / options.positions as f64;
-        let start = run.samples.iter().position(|s| s.row.t >= t_start).ok_or("trace too short")?;
-        let end = (start + (window / dt).round() as usize).min(run.samples.len());
-        let samples = &run.samples[start..end];
+        // Eight mover positions spread over a pole pair (one electrical period).
+        let x0 = 2.0 * f64::from(motor.pole_pitch_m) * position as f64 / options.positions as f64;
+        let rows = record(setup, v, x0, window)?;
         for &offset in &options.offsets {
-            let f = cold_run::<f32>(setup, &Base::SI, &run, start, end, offset)?;
-            let lock = lock_time(samples, &f, dt);
-            let false_lock_samples = samples
+            let f = cold_run::<f32>(setup, &Base::SI, &rows, dt, offset)?;
+            let lock = lock_time(&rows, &f, dt);
+            let false_lock_samples = rows
                 .iter()
                 .zip(&f)
-                .filter(|(s, e)| {
-                    e.1 && wrap_angle(s.row.theta.unwrap_or(0.0) - e.0).to_degrees().abs() > FALSE_LOCK_DEG
-                })
+                .filter(|(r, e)| e.1 && wrap_angle(r.theta - e.0).to_degrees().abs() > FALSE_LOCK_DEG)
                 .count();
             let flag_time_s = f.iter().position(|e| e.1).map(|j| j as f64 * dt);
             let (q24_deviation_deg, q24_lock_time_s) = if options.fixed_point {
-                let q = cold_run::<Q24>(setup, &pu, &run, start, end, offset)?;
+                let q = cold_run::<Q24>(setup, &pu, &rows, dt, offset)?;
                 let from = lock.map(|t| (t / dt).round() as usize);
                 let dev = from.map(|j0| {
                     f[j0.min(f.len())..]
@@ -247,7 +293,7 @@ fn starts_at(setup: &Setup, v: f64, options: &Options) -> Result<Vec<Start>, Str
                         .map(|(a, b)| wrap_angle(a.0 - b.0).to_degrees().abs())
                         .fold(0.0, f64::max)
                 });
-                (dev, lock_time(samples, &q, dt))
+                (dev, lock_time(&rows, &q, dt))
             } else {
                 (None, None)
             };

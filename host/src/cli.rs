@@ -65,17 +65,40 @@ pub enum Command {
     MotorImage(MotorImageArgs),
 }
 
+/// What tunes the DCFO's notch (`dcfo::estimator::NotchTuning`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum NotchArg {
+    /// The FLL while acquiring, then the PLL's frequency integrator.
+    Acquire,
+    /// The FLL always.
+    Fll,
+    /// The PLL's frequency integrator always (the paper's method).
+    Pll,
+}
+
+impl NotchArg {
+    /// The library's setting.
+    pub fn tuning(self) -> dcfo::estimator::NotchTuning {
+        use dcfo::estimator::NotchTuning;
+        match self {
+            NotchArg::Acquire => NotchTuning::AcquireWithFll,
+            NotchArg::Fll => NotchTuning::Fll,
+            NotchArg::Pll => NotchTuning::Pll,
+        }
+    }
+}
+
 /// Arguments of `dcfo acquire`.
 #[derive(Debug, Clone, Args)]
 pub struct AcquireArgs {
     /// Print exactly one JSON object (the totals and the per-speed table) on stdout.
     #[arg(long)]
     pub json: bool,
-    /// Tune the DCFO's notch with the frequency-locked loop (dcfo::fll), in the
-    /// recording drive and in the cold-started estimators; without it, the drive's
-    /// default (notch on the PLL's frequency integrator).
-    #[arg(long)]
-    pub fll: bool,
+    /// What tunes the DCFO's notch, in the recording drive and in the cold-started
+    /// estimators: `acquire` (the FLL while acquiring, then the PLL; the default), `fll`
+    /// (the FLL always), `pll` (the PLL's integrator always: the paper's method).
+    #[arg(long, value_enum, default_value = "acquire")]
+    pub notch: NotchArg,
     /// Directory for `acquire.json` (every cold start) and `acquire.csv` (the table).
     #[arg(long, value_name = "DIR", default_value = "out/acquire")]
     pub out: PathBuf,
@@ -289,9 +312,7 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
 pub fn run_acquire(args: &AcquireArgs) -> anyhow::Result<()> {
     use crate::acquire::{Options, summarise, sweep, table};
     let mut setup = crate::sim::Setup::paper(ObserverKind::Dcfo);
-    if args.fll {
-        setup.drive.estimator = setup.drive.estimator.with_fll(&setup.motor);
-    }
+    setup.drive.estimator.notch_tuning = args.notch.tuning();
     let started = Instant::now();
     let starts = sweep(&setup, &Options::full(), |done, total| eprintln!("acquire: {done}/{total} speeds"))
         .map_err(|e| anyhow::anyhow!(e))?;

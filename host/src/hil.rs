@@ -112,6 +112,12 @@ impl<W: Write> Controller for SerialController<W> {
         ))
     }
 
+    fn reset_estimator(&mut self) -> Result<(), SimError> {
+        Err(SimError::Controller(
+            "the HIL link cannot reset the drive's estimator: that scenario runs in-process only".into(),
+        ))
+    }
+
     fn step(&mut self, sensor: &SensorFrame) -> Result<ControlStep, SimError> {
         let mut buf = [0u8; SensorFrame::WIRE_LEN];
         let n = encode(sensor, &mut buf).map_err(|e| SimError::Controller(format!("encoding: {e}")))?;

@@ -54,6 +54,9 @@ pub struct FaultConfig {
     pub bus_max_v: f32,
     /// Longest time the PLL may be unlocked while running sensorless, s (> 0).
     pub lock_loss_s: f32,
+    /// Time the drive waits in `Reacquiring` for the estimator to lock again before it
+    /// trips `LOCK_LOST`, s (> 0).
+    pub reacquire_timeout_s: f32,
     /// Samples averaged by the current-offset calibration (bridge off), count (> 0).
     pub calibration_samples: u16,
     /// Largest acceptable current offset, A (> 0).
@@ -132,6 +135,7 @@ impl DriveConfig {
                 bus_min_v: 0.6 * bus_v,
                 bus_max_v: 1.3 * bus_v,
                 lock_loss_s: 0.05,
+                reacquire_timeout_s: 0.5,
                 calibration_samples: 1024,
                 max_offset_a: 0.1 * rated_peak,
             },
@@ -188,7 +192,7 @@ impl DriveConfig {
     pub fn validate(&self) -> Result<(), DriveConfigError> {
         let pos = |x: f32| x.is_finite() && x > 0.0;
         let non_neg = |x: f32| x.is_finite() && x >= 0.0;
-        let checks: [(bool, &'static str); 20] = [
+        let checks: [(bool, &'static str); 21] = [
             (pos(self.control_period_s), "control_period_s"),
             (self.speed_loop_divider >= 1, "speed_loop_divider"),
             (pos(self.current_bandwidth_rad_s), "current_bandwidth_rad_s"),
@@ -211,6 +215,7 @@ impl DriveConfig {
             (pos(self.faults.overcurrent_a), "faults.overcurrent_a"),
             (pos(self.faults.bus_min_v) && self.faults.bus_max_v > self.faults.bus_min_v, "faults.bus_max_v"),
             (pos(self.faults.lock_loss_s), "faults.lock_loss_s"),
+            (pos(self.faults.reacquire_timeout_s), "faults.reacquire_timeout_s"),
             (self.faults.calibration_samples > 0, "faults.calibration_samples"),
             (pos(self.faults.max_offset_a), "faults.max_offset_a"),
         ];

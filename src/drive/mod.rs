@@ -57,10 +57,15 @@ pub enum DriveState {
     Running,
     /// Latched fault, bridge off.
     Fault,
+    /// The estimator lost lock while running: no thrust (zero current references, the
+    /// bridge on and the current loops holding zero), the estimator re-acquires the moving
+    /// mover, and the drive resumes `Running` from the estimated speed once it is locked
+    /// again, or trips `LOCK_LOST` after [`FaultConfig::reacquire_timeout_s`].
+    Reacquiring,
 }
 
 impl DriveState {
-    /// A small number for telemetry frames (0..=4 in declaration order).
+    /// A small number for telemetry frames (0..=5 in declaration order).
     pub fn code(self) -> u8 {
         match self {
             DriveState::Disabled => 0,
@@ -68,6 +73,7 @@ impl DriveState {
             DriveState::Starting => 2,
             DriveState::Running => 3,
             DriveState::Fault => 4,
+            DriveState::Reacquiring => 5,
         }
     }
 }
@@ -139,6 +145,7 @@ struct Constants<T> {
     startup_timeout_samples: u32,
     id_ramp_step: T,
     lock_loss_samples: u32,
+    reacquire_timeout_samples: u32,
     delay_periods: T,
     dead_time_ratio: T,
     device_drop: T,
@@ -262,6 +269,7 @@ impl<T: Scalar> Drive<T> {
             startup_timeout_samples: samples(config.startup.dwell_s).saturating_mul(10).max(samples(1.0)),
             id_ramp_step: base.current(config.startup.current_a * ts / config.startup.id_ramp_s),
             lock_loss_samples: samples(config.faults.lock_loss_s).max(1),
+            reacquire_timeout_samples: samples(config.faults.reacquire_timeout_s).max(1),
             delay_periods: T::from_f32(1.5),
             dead_time_ratio: T::from_f32(dead_time_ratio),
             device_drop: base.voltage(device_drop),
@@ -308,6 +316,13 @@ impl<T: Scalar> Drive<T> {
             self.observer_u_offset = u_offset;
             self.observer_i_offset = i_offset;
         }
+    }
+
+    /// Resets the estimator to its zero state, as if it had lost the mover: fault
+    /// injection for tests of the flying restart (a running drive then goes through
+    /// `Reacquiring`).
+    pub fn reset_estimator(&mut self) {
+        self.estimator.reset();
     }
 
     /// Asks the drive to run: from `Disabled` it calibrates, starts and runs.
@@ -400,9 +415,9 @@ impl<T: Scalar> Drive<T> {
                 }
             }
             DriveState::Calibrating => self.calibrate(m),
-            DriveState::Starting | DriveState::Running => self.control(m, &mut out),
+            DriveState::Starting | DriveState::Running | DriveState::Reacquiring => self.control(m, &mut out),
         }
-        if self.state != DriveState::Starting && self.state != DriveState::Running {
+        if !matches!(self.state, DriveState::Starting | DriveState::Running | DriveState::Reacquiring) {
             // Bridge off: nothing is applied, the history is cleared.
             self.u_prev = AlphaBeta::default();
             self.u_prev2 = AlphaBeta::default();
@@ -495,10 +510,10 @@ impl<T: Scalar> Drive<T> {
         self.omega_filtered =
             self.omega_filtered + k.speed_filter_rate * (estimate.omega_e - self.omega_filtered);
 
-        let (theta, omega) = if self.state == DriveState::Starting {
-            self.startup_references(&estimate)
-        } else {
-            self.running_references(&estimate)
+        let (theta, omega) = match self.state {
+            DriveState::Starting => self.startup_references(&estimate),
+            DriveState::Reacquiring => self.reacquiring_references(&estimate),
+            _ => self.running_references(&estimate),
         };
         if self.state == DriveState::Fault {
             return;
@@ -513,7 +528,7 @@ impl<T: Scalar> Drive<T> {
 
         // Current loops with decoupling feed-forward (Running only: in open loop the
         // control frame is not the rotor frame), limited to the voltage circle.
-        let (ff_d, ff_q) = if self.state == DriveState::Running {
+        let (ff_d, ff_q) = if self.state != DriveState::Starting {
             (-omega * k.lq * i_dq.q, omega * (k.ld * i_dq.d + k.psi_f))
         } else {
             (T::ZERO, T::ZERO)
@@ -588,7 +603,7 @@ impl<T: Scalar> Drive<T> {
         // Dwell: lower the open-loop current towards the hand-over level.
         self.i_dq_ref.q = (self.i_dq_ref.q - k.startup_current_step).max(k.handover_current);
         let close = (estimate.omega_e - target).abs() < target.abs() * k.handover_tolerance;
-        if self.counter >= k.dwell_samples && estimate.locked && close {
+        if self.counter >= k.dwell_samples && estimate.tracking && close {
             self.hand_over(theta, estimate);
             return (estimate.theta_e, estimate.omega_e);
         }
@@ -642,13 +657,44 @@ impl<T: Scalar> Drive<T> {
             if d > T::ZERO { (d - k.id_ramp_step).max(T::ZERO) } else { (d + k.id_ramp_step).min(T::ZERO) };
         let limit = k.current_limit;
         self.i_dq_ref.q = self.i_dq_ref.q.clamp_to(-limit, limit);
-        if estimate.locked {
+        if estimate.tracking {
             self.counter = 0;
         } else {
             self.counter = self.counter.saturating_add(1);
-            if self.counter > k.lock_loss_samples {
-                self.trip(Faults::LOCK_LOST);
+            // An estimator that has lost the frequency too (acquiring) has no angle to
+            // ride through on: stop pushing at once. Otherwise allow `lock_loss_s`.
+            if self.counter > k.lock_loss_samples || estimate.acquiring {
+                // Flying restart: stop pushing on an angle that is not trusted, and
+                // let the estimator find the mover again.
+                self.state = DriveState::Reacquiring;
+                self.counter = 0;
+                self.i_dq_ref = Dq::default();
+                self.iq_bridge = T::ZERO;
+                self.pi_speed.reset();
+                self.estimator.reacquire();
             }
+        }
+        (estimate.theta_e, estimate.omega_e)
+    }
+
+    /// Reacquiring: zero current references (the current loops hold zero current on the
+    /// estimated angle, with the back-EMF feed-forward, so the bridge neither pushes nor
+    /// brakes), until the estimator is locked again; then `Running` resumes from the
+    /// estimated speed (speed loop at rest, reference from the estimate, ramping to the
+    /// target at the acceleration limit).
+    fn reacquiring_references(&mut self, estimate: &Estimate<T>) -> (Angle, T) {
+        let k = &self.k;
+        self.i_dq_ref = Dq::default();
+        self.counter = self.counter.saturating_add(1);
+        if estimate.tracking {
+            self.state = DriveState::Running;
+            self.counter = 0;
+            self.speed_divider_count = 0;
+            self.pi_speed.reset();
+            self.omega_ref = estimate.omega_e;
+            self.omega_filtered = estimate.omega_e;
+        } else if self.counter > k.reacquire_timeout_samples {
+            self.trip(Faults::LOCK_LOST);
         }
         (estimate.theta_e, estimate.omega_e)
     }

@@ -136,6 +136,9 @@ pub trait Controller {
     fn set_observer_offsets(&mut self, u_v: [f64; 2], i_a: [f64; 2]) -> Result<(), SimError>;
     /// One control step on the sensor frame (measurements and commands) of this period.
     fn step(&mut self, sensor: &SensorFrame) -> Result<ControlStep, SimError>;
+    /// Resets the drive's estimator to its zero state (fault injection: a lock loss at
+    /// speed); only an in-process drive can.
+    fn reset_estimator(&mut self) -> Result<(), SimError>;
 }
 
 /// The library's drive in this process: `Drive<f32>` in SI units ([`LocalDrive::new`]),
@@ -169,6 +172,11 @@ impl LocalDrive<Q24> {
 }
 
 impl<T: Scalar + 'static> Controller for LocalDrive<T> {
+    fn reset_estimator(&mut self) -> Result<(), SimError> {
+        self.drive.reset_estimator();
+        Ok(())
+    }
+
     fn set_observer_offsets(&mut self, u_v: [f64; 2], i_a: [f64; 2]) -> Result<(), SimError> {
         let b = &self.base;
         self.drive.set_observer_offsets(
@@ -230,6 +238,7 @@ pub fn run_with(
                 Event::Speed(v) => v_ref_target = v,
                 Event::Load(f) => load_n = f,
                 Event::ObserverOffsets { u_v, i_a } => controller.set_observer_offsets(u_v, i_a)?,
+                Event::ResetEstimator => controller.reset_estimator()?,
             }
             next_event += 1;
         }

@@ -138,11 +138,11 @@ fn fmt_recovery(r: Option<f64>) -> String {
 /// The table of `dcfo paper`, one line per scenario and observer.
 pub fn table(report: &PaperReport) -> String {
     let mut s = String::new();
-    s.push_str("scenario     observer  theta_err max/rms [deg el]  v_err max [m/s]  flux DC max/end [Wb]  |psi| recovery [s]  ok\n");
+    s.push_str("scenario     observer  theta_err max/rms [deg el]  v_err max [m/s]  flux DC max/end [Wb]  |psi| recovery [s]  ok   false locks\n");
     for r in &report.scenarios {
         for (name, f) in [("CFO", &r.cfo), ("DCFO", &r.dcfo)] {
             s.push_str(&format!(
-                "{:<12} {:<8}  {:>9.2} / {:>6.2}            {:>8.3}         {:>7.4} / {:>7.4}      {}          {}\n",
+                "{:<12} {:<8}  {:>9.2} / {:>6.2}            {:>8.3}         {:>7.4} / {:>7.4}      {}          {:<3}  {}\n",
                 r.scenario,
                 name,
                 f.theta_err_max_deg,
@@ -151,7 +151,8 @@ pub fn table(report: &PaperReport) -> String {
                 f.flux_drift_wb,
                 f.flux_offset_end_wb,
                 fmt_recovery(f.flux_recovery_s),
-                if f.healthy { "yes" } else { "NO" }
+                if f.healthy { "yes" } else { "NO" },
+                f.false_lock_samples
             ));
         }
         s.push_str(&format!("{:<12} paper:    {}\n", "", r.paper));

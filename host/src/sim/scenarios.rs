@@ -17,6 +17,8 @@ pub enum Event {
         /// Current offset, A.
         i_a: [f64; 2],
     },
+    /// The drive's estimator is reset to its zero state (a lock loss at speed).
+    ResetEstimator,
 }
 
 /// A named experiment.
@@ -162,6 +164,9 @@ pub struct Figures {
     pub flux_recovery_s: Option<f64>,
     /// `true` when the run reached sensorless operation and ended without a fault.
     pub healthy: bool,
+    /// Samples of the whole run in which the estimator claimed lock while the true angle
+    /// error exceeded 15 electrical degrees (0 when the lock flag is not known).
+    pub false_lock_samples: usize,
 }
 
 /// Measures `run` over `[event_s, event_s + window_s]` (one electrical period of
@@ -233,5 +238,10 @@ pub fn figures(run: &Run, scenario: &Scenario) -> Figures {
         flux_offset_end_wb: mean_a.hypot(mean_b),
         flux_recovery_s,
         healthy: run.handover_s.is_some() && run.faults.is_empty(),
+        false_lock_samples: run
+            .samples
+            .iter()
+            .filter(|s| s.locked == Some(true) && theta_err_deg(s).abs() > 15.0)
+            .count(),
     }
 }
