@@ -16,7 +16,7 @@
 //!      |  PLL locked and FLL frequency settled: PLL integrator := FLL frequency
 //!      v
 //!   PLL steers: notch = PLL integrator (the paper's loop, see crate::pll)
-//!      |  PLL frequency off a settled FLL's by more than 2 x settle_tolerance
+//!      |  PLL frequency off a settled FLL's by more than 2 settle_tolerance (20 %)
 //!      +--> back to "FLL steers"
 //! ```
 //! The FLL reads the frequency from the flux whatever the notch's tuning, so it finds
@@ -209,7 +209,7 @@ impl<T: Scalar> Estimator<T> {
             fll,
             tuning: config.notch_tuning,
             fll_steers,
-            agreement_tolerance: T::from_f32(config.fll.settle_tolerance * 2.0),
+            agreement_tolerance: T::from_f32(2.0 * config.fll.settle_tolerance),
             agreement_floor: base.omega(config.fll.floor_rad_s),
         })
     }

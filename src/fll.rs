@@ -192,6 +192,9 @@ pub struct Fll<T> {
     flux_sq_mean: T,
     /// Filtered `| |x1|^2 - mean |` (Wb^2).
     flux_sq_ripple: T,
+    /// The last period (s) and its reciprocal (1/s).
+    dt: T,
+    inv_dt: T,
     /// Electrical angle travelled while settled (rad), up to `guard`.
     settled_angle: T,
     /// `settle_guard_rad`.
@@ -245,6 +248,8 @@ impl<T: Scalar> Fll<T> {
             flux_sq_ripple: T::ZERO,
             settled_angle: T::ZERO,
             guard: T::from_f32(config.settle_guard_rad),
+            dt: T::ZERO,
+            inv_dt: T::ZERO,
         };
         fll.reset();
         Ok(fll)
@@ -264,9 +269,16 @@ impl<T: Scalar> Fll<T> {
             None => T::ZERO,
         };
         let weight = (mag_sq * self.inv_ref_flux_sq).min(T::ONE);
-        let Some(inv_dt) = dt.recip() else {
-            return self.output();
-        };
+        // The period rarely changes: its reciprocal is cached (a division or a Newton
+        // reciprocal per sample saved).
+        if dt != self.dt {
+            let Some(inv) = dt.recip() else {
+                return self.output();
+            };
+            self.dt = dt;
+            self.inv_dt = inv;
+        }
+        let inv_dt = self.inv_dt;
         // Tracker rate g (1/s), with g dt <= 1/2 so that any period is stable.
         let g = (self.gain * self.notch).min(T::HALF * inv_dt);
         let omega = self.omega + g * (dtheta - self.omega * dt);

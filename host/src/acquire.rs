@@ -468,3 +468,46 @@ pub fn table(summary: &Summary) -> String {
     );
     out
 }
+
+/// The figure of `dcfo acquire`: median and largest lock time against |speed| for each
+/// direction, with the budget, in ms (log x axis). A start that never locked is drawn at
+/// its window's end.
+pub fn figure(starts: &[Start]) -> crate::plot::Figure {
+    use crate::plot::{Figure, Panel, Series};
+    let summary = summarise(starts);
+    let window_end = |v: f64| {
+        starts
+            .iter()
+            .filter(|s| s.speed_m_per_s == v)
+            .map(|s| (3.0 * s.budget_s).max(s.budget_s + 0.3))
+            .fold(0.0, f64::max)
+    };
+    let mut series = Vec::new();
+    for (dir, sign) in [("+", 1.0), ("-", -1.0)] {
+        let rows: Vec<&SpeedRow> = summary.speeds.iter().filter(|r| r.speed_m_per_s * sign > 0.0).collect();
+        let point = |r: &&SpeedRow, t: Option<f64>| {
+            (r.speed_m_per_s.abs(), 1e3 * t.unwrap_or(window_end(r.speed_m_per_s)))
+        };
+        series.push(Series::line(
+            format!("max, {dir}"),
+            rows.iter().map(|r| point(r, r.lock_time_max_s)).collect(),
+        ));
+        series.push(Series::markers(
+            format!("median, {dir}"),
+            rows.iter().map(|r| point(r, r.lock_time_median_s)).collect(),
+        ));
+    }
+    let mut budget: Vec<(f64, f64)> =
+        summary.speeds.iter().map(|r| (r.speed_m_per_s.abs(), 1e3 * r.budget_s)).collect();
+    budget.sort_by(|a, b| a.0.total_cmp(&b.0));
+    budget.dedup_by(|a, b| a.0 == b.0);
+    series.push(Series::dashed("budget max(60 ms, 2 periods)", budget));
+    Figure {
+        title: "cold-start acquisition: time to lock (< 5 deg from then on)".into(),
+        x_label: "speed (m/s)".into(),
+        x_log: true,
+        x_range: None,
+        panels: vec![Panel::new("lock time (ms)", series)],
+        size: None,
+    }
+}

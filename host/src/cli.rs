@@ -99,7 +99,8 @@ pub struct AcquireArgs {
     /// (the FLL always), `pll` (the PLL's integrator always: the paper's method).
     #[arg(long, value_enum, default_value = "acquire")]
     pub notch: NotchArg,
-    /// Directory for `acquire.json` (every cold start) and `acquire.csv` (the table).
+    /// Directory for `acquire.json` (every cold start), `acquire.csv` (the table) and
+    /// `acquire.png` / `acquire.svg` (lock time against speed).
     #[arg(long, value_name = "DIR", default_value = "out/acquire")]
     pub out: PathBuf,
 }
@@ -339,6 +340,7 @@ pub fn run_acquire(args: &AcquireArgs) -> anyhow::Result<()> {
     }
     std::fs::write(args.out.join("acquire.csv"), csv)
         .with_context(|| format!("writing {}", args.out.join("acquire.csv").display()))?;
+    crate::plot::write_figure(&crate::acquire::figure(&starts), &args.out.join("acquire"))?;
     eprintln!("acquire: {:.1} s; results in {}", started.elapsed().as_secs_f64(), args.out.display());
     if args.json {
         println!("{}", serde_json::to_string(&summary)?);

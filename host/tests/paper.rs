@@ -57,9 +57,10 @@ fn speed_step_0_24_to_0_45_m_per_s() {
     let r = scenario("speed-step");
     assert!(r.dcfo.theta_err_max_deg < r.cfo.theta_err_max_deg);
     assert!(r.dcfo.v_err_max < r.cfo.v_err_max);
-    // Measured 12.9 deg: the notch lags the PLL's frequency estimate during the 0.5 m/s^2
-    // ramp (pll module docs).
-    assert!(r.dcfo.theta_err_max_deg <= 15.0);
+    // Issue target <= 6 deg. Measured 12.9 deg: the PLL's integrator lags the 0.5 m/s^2
+    // ramp (pll module docs) by less than the 20 % at which the FLL takes the notch
+    // (10 % gets 8.9 deg but tosses the notch between the two in steady state).
+    assert!(r.dcfo.theta_err_max_deg <= 15.0, "{}", r.dcfo.theta_err_max_deg);
 }
 
 /// The DC-step scenarios: the CFO keeps the offset the analysis predicts, the DCFO
@@ -72,7 +73,7 @@ fn dc_step(r: &ScenarioResult, cfo_offset_expected_wb: f64) {
         r.cfo.flux_offset_end_wb
     );
     assert!(r.dcfo.flux_offset_end_wb < 2e-3, "DCFO keeps an offset {}", r.dcfo.flux_offset_end_wb);
-    // Issue target: within 2 mWb within 0.3 s. Measured 0.36 s (+0.2 A) and 0.77 s (+2 V):
+    // Issue target: within 2 mWb within 0.3 s. Measured 0.38 s (+0.2 A) and 0.77 s (+2 V):
     // the closed loop is slower than the observer's own slowest pole (0.26 w, 61 ms).
     // With the FLL hand-over the +2 V step disturbs the drive's speed loop more than it
     // did with the PLL-tuned notch alone (0.37 s then; README, status); the bound
