@@ -41,10 +41,10 @@ use crate::fll::{Fll, FllConfig, FllConfigError};
 use crate::motor::MotorParams;
 use crate::num::{Angle, Scalar};
 use crate::observer::{
-    AnyObserver, Dcfo, DcfoConfig, DcfoConfigError, FluxObserver, LpfConfigError, LpfObserver, ObserverFault,
-    ObserverInput, ObserverKind, ObserverMotor, PureIntegrator,
+    AnyObserver, Dcfo, DcfoConfig, DcfoConfigError, FluxEstimate, FluxObserver, LpfConfigError, LpfObserver,
+    ObserverFault, ObserverInput, ObserverKind, ObserverMotor, PureIntegrator,
 };
-use crate::pll::{Pll, PllConfig, PllConfigError, PllFault};
+use crate::pll::{Pll, PllConfig, PllConfigError, PllFault, PllOutput};
 use crate::transforms::{AlphaBeta, CosSin};
 use crate::units::Base;
 
@@ -159,6 +159,28 @@ pub struct Estimate<T> {
     pub tracking: bool,
 }
 
+impl<T: Copy> Estimate<T> {
+    fn from_parts(
+        out: &PllOutput<T>,
+        flux: &FluxEstimate<T>,
+        locked: bool,
+        tracking: bool,
+        acquiring: bool,
+    ) -> Self {
+        Estimate {
+            theta_e: out.theta_e,
+            cos_sin: out.cos_sin,
+            omega_e: out.omega_e,
+            speed_m_per_s: out.speed_m_per_s,
+            psi_ab: flux.psi_ab,
+            disturbance_ab: flux.disturbance_ab,
+            locked,
+            tracking,
+            acquiring,
+        }
+    }
+}
+
 /// Observer + PLL. See the module documentation.
 #[derive(Clone, Debug)]
 pub struct Estimator<T> {
@@ -227,17 +249,7 @@ impl<T: Scalar> Estimator<T> {
         let flux = self.observer.update(&input).map_err(EstimatorFault::Observer)?;
         let (Some(fll), Some(increment)) = (&mut self.fll, flux.flux_increment_ab) else {
             let out = self.pll.update(flux.psi_ab, dt).map_err(EstimatorFault::Pll)?;
-            return Ok(Estimate {
-                theta_e: out.theta_e,
-                cos_sin: out.cos_sin,
-                omega_e: out.omega_e,
-                speed_m_per_s: out.speed_m_per_s,
-                psi_ab: flux.psi_ab,
-                disturbance_ab: flux.disturbance_ab,
-                locked: out.locked,
-                acquiring: false,
-                tracking: out.locked,
-            });
+            return Ok(Estimate::from_parts(&out, &flux, out.locked, out.locked, false));
         };
         let f = fll.update(flux.psi_ab, increment, dt);
         let acquiring = self.fll_steers;
@@ -269,17 +281,7 @@ impl<T: Scalar> Estimator<T> {
             }
             (out, out.locked && agree && f.settled, out.locked && agree)
         };
-        Ok(Estimate {
-            theta_e: out.theta_e,
-            cos_sin: out.cos_sin,
-            omega_e: out.omega_e,
-            speed_m_per_s: out.speed_m_per_s,
-            psi_ab: flux.psi_ab,
-            disturbance_ab: flux.disturbance_ab,
-            locked,
-            acquiring,
-            tracking,
-        })
+        Ok(Estimate::from_parts(&out, &flux, locked, tracking, acquiring))
     }
 
     /// Sets the PLL's angle (for its next sample) and speed (rad/s, working units),
