@@ -24,7 +24,11 @@
 //! until [`Drive::clear_faults`]. Hand-over from I/f keeps the current vector continuous:
 //! the current controllers' integrators are rotated into the estimated frame, the speed
 //! controller is preset to the present thrust current, and the start-up vector's d-axis
-//! part is ramped to zero.
+//! part is ramped to zero. The drive closes its loops on [`Estimate::tracking`] (the
+//! hand-over from I/f waits for it); when it is lost while running, the drive goes to
+//! `Reacquiring` (no thrust, the estimator re-acquires) and back to `Running` from the
+//! estimated speed, instead of tripping: `Running <-> Reacquiring -> Fault` only after
+//! `faults.reacquire_timeout_s` without the estimate tracking again.
 
 mod config;
 mod faults;
@@ -57,10 +61,11 @@ pub enum DriveState {
     Running,
     /// Latched fault, bridge off.
     Fault,
-    /// The estimator lost lock while running: no thrust (zero current references, the
-    /// bridge on and the current loops holding zero), the estimator re-acquires the moving
-    /// mover, and the drive resumes `Running` from the estimated speed once it is locked
-    /// again, or trips `LOCK_LOST` after [`FaultConfig::reacquire_timeout_s`].
+    /// The estimate stopped tracking while running (for `lock_loss_s`, or at once if the
+    /// estimator lost the frequency too): no thrust (zero current references, the bridge
+    /// on and the current loops holding zero), the estimator re-acquires the moving mover,
+    /// and the drive resumes `Running` from the estimated speed once it tracks again, or
+    /// trips `LOCK_LOST` after [`FaultConfig::reacquire_timeout_s`] (flying restart).
     Reacquiring,
 }
 
@@ -679,7 +684,7 @@ impl<T: Scalar> Drive<T> {
 
     /// Reacquiring: zero current references (the current loops hold zero current on the
     /// estimated angle, with the back-EMF feed-forward, so the bridge neither pushes nor
-    /// brakes), until the estimator is locked again; then `Running` resumes from the
+    /// brakes), until the estimate tracks again; then `Running` resumes from the
     /// estimated speed (speed loop at rest, reference from the estimate, ramping to the
     /// target at the acceleration limit).
     fn reacquiring_references(&mut self, estimate: &Estimate<T>) -> (Angle, T) {
