@@ -24,7 +24,10 @@
 //!   a sustained +-10 degree oscillation.
 //! - notch at the integrator alone ([`Pll::omega_integral`], the loop's frequency
 //!   estimate without the phase correction): `s^2 + (kp - c ki) s + ki`, stable while
-//!   `w_p < 2 zeta_p zeta w`. This is what the drive uses.
+//!   `w_p < 2 zeta_p zeta w`. This is what the drive uses in steady state; while
+//!   acquiring and in speed transients the FLL of [`crate::fll`] tunes the notch and
+//!   feeds this loop forward ([`Pll::update_with_feedforward`], see
+//!   [`crate::estimator`]).
 //!
 //! ## Bandwidth scaled with speed
 //! That condition ties the PLL's bandwidth to the electrical speed, so the gains are
