@@ -23,6 +23,9 @@ use std::time::{Duration, Instant};
 /// How long to wait for an answer before declaring the link dead.
 pub const ANSWER_TIMEOUT: Duration = Duration::from_secs(5);
 
+/// Until the target has answered once, how long to wait before sending the frame again.
+pub const START_RESEND: Duration = Duration::from_millis(500);
+
 /// A drive behind a byte-stream link: frames out through `writer`, bytes in from a
 /// reader thread.
 pub struct SerialController<W: Write> {
@@ -35,6 +38,8 @@ pub struct SerialController<W: Write> {
     /// Lock-step round trips completed.
     pub round_trips: u64,
     started: Instant,
+    /// The last frame written, as sent (for the start-up resend).
+    last_sent: Vec<u8>,
 }
 
 impl<W: Write> SerialController<W> {
@@ -70,6 +75,7 @@ impl<W: Write> SerialController<W> {
             stale_frames: 0,
             round_trips: 0,
             started: Instant::now(),
+            last_sent: Vec::new(),
         }
     }
 
@@ -78,8 +84,13 @@ impl<W: Write> SerialController<W> {
         self.round_trips as f64 / self.started.elapsed().as_secs_f64().max(1e-9)
     }
 
+    /// Waits for the answer to `sequence`. Until the first answer has arrived, the frame
+    /// is sent again every [`START_RESEND`]: a target that is still booting (QEMU takes
+    /// about a second) can lose or garble the first bytes, and the drive drops a
+    /// duplicate of a frame it did take, so a resend never steps it twice.
     fn await_answer(&mut self, sequence: u16) -> Result<ActuationFrame, SimError> {
         let deadline = Instant::now() + ANSWER_TIMEOUT;
+        let mut resend_at = Instant::now() + START_RESEND;
         loop {
             while let Some(byte) = self.pending.pop_front() {
                 match self.receiver.push(byte) {
@@ -88,10 +99,20 @@ impl<W: Write> SerialController<W> {
                     Some(Err(_)) | None => {}
                 }
             }
-            let left = deadline.saturating_duration_since(Instant::now());
-            match self.incoming.recv_timeout(left) {
+            let starting = self.round_trips == 0;
+            let now = Instant::now();
+            let left = deadline.saturating_duration_since(now);
+            let wait = if starting { left.min(resend_at.saturating_duration_since(now)) } else { left };
+            match self.incoming.recv_timeout(wait) {
                 Ok(Ok(bytes)) => self.pending.extend(bytes),
                 Ok(Err(e)) => return Err(SimError::Controller(format!("link read failed: {e}"))),
+                Err(_) if starting && Instant::now() < deadline => {
+                    self.writer
+                        .write_all(&self.last_sent)
+                        .and_then(|_| self.writer.flush())
+                        .map_err(|e| SimError::Controller(format!("link write failed: {e}")))?;
+                    resend_at = Instant::now() + START_RESEND;
+                }
                 Err(_) => {
                     return Err(SimError::Controller(format!(
                         "no answer to frame {sequence} within {} s (link stats: {:?})",
@@ -121,6 +142,8 @@ impl<W: Write> Controller for SerialController<W> {
     fn step(&mut self, sensor: &SensorFrame) -> Result<ControlStep, SimError> {
         let mut buf = [0u8; SensorFrame::WIRE_LEN];
         let n = encode(sensor, &mut buf).map_err(|e| SimError::Controller(format!("encoding: {e}")))?;
+        self.last_sent.clear();
+        self.last_sent.extend_from_slice(&buf[..n]);
         self.writer
             .write_all(&buf[..n])
             .and_then(|_| self.writer.flush())
