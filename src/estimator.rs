@@ -101,7 +101,7 @@ impl EstimatorConfig {
             notch_tuning: NotchTuning::AcquireWithFll,
             fll: FllConfig::for_motor(
                 motor.psi_f_wb,
-                motor.rated_voltage_v * 0.816_496_6,
+                Base::for_motor(motor).voltage_v,
                 dcfo.omega_floor_rad_s,
             ),
         }
@@ -329,11 +329,6 @@ impl<T: Scalar> Estimator<T> {
             Some(fll) if self.fll_steers => fll.notch_omega(),
             _ => self.pll.omega_integral(),
         }
-    }
-
-    #[doc(hidden)]
-    pub fn debug_fll(&self) -> Option<&Fll<T>> {
-        self.fll.as_ref()
     }
 
     /// The FLL's signed frequency estimate (rad/s, working units), where it runs.

@@ -326,11 +326,6 @@ impl<T: Scalar> Fll<T> {
         }
     }
 
-    #[doc(hidden)]
-    pub fn debug_metrics(&self) -> (T, T, T, T) {
-        (self.disagreement, self.weight, self.flux_sq_mean, self.flux_sq_ripple)
-    }
-
     /// The notch frequency to use for the next sample (rad/s).
     pub fn notch_omega(&self) -> T {
         self.notch
