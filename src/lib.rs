@@ -44,6 +44,7 @@ pub mod drive;
 pub mod estimator;
 pub mod fll;
 pub mod link;
+pub mod motion;
 pub mod motor;
 pub mod motor_image;
 pub mod num;
