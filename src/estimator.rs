@@ -16,6 +16,7 @@
 //!      |  PLL locked and FLL frequency settled: PLL integrator := FLL frequency
 //!      v
 //!   PLL steers: notch = PLL integrator (the paper's loop, see crate::pll)
+//!               + its lag on the ramp the drive commands (set_commanded_acceleration)
 //!      |  PLL frequency off a settled FLL's by more than 2 settle_tolerance (20 %)
 //!      +--> back to "FLL steers"
 //! ```
@@ -197,6 +198,15 @@ pub struct Estimator<T> {
     agreement_tolerance: T,
     /// The smallest frequency the agreement is measured against (rad/s).
     agreement_floor: T,
+    /// Magnet flux (Wb), for seeding.
+    psi_f: T,
+    /// Commanded electrical acceleration (rad/s^2, working units): the ramp the notch
+    /// is fed forward with.
+    commanded_accel: T,
+    /// The PLL's linear model on the commanded ramp: phase error (rad) and integrator
+    /// lag (rad/s, added to the notch).
+    ramp_phase: T,
+    ramp_lag: T,
 }
 
 impl<T: Scalar> Estimator<T> {
@@ -233,6 +243,10 @@ impl<T: Scalar> Estimator<T> {
             fll_steers,
             agreement_tolerance: T::from_f32(2.0 * config.fll.settle_tolerance),
             agreement_floor: base.omega(config.fll.floor_rad_s),
+            psi_f: base.flux(motor.psi_f_wb),
+            commanded_accel: T::ZERO,
+            ramp_phase: T::ZERO,
+            ramp_lag: T::ZERO,
         })
     }
 
@@ -247,6 +261,11 @@ impl<T: Scalar> Estimator<T> {
         let notch = self.notch_omega();
         let input = ObserverInput { u_ab: u_applied, i_ab: i, omega_e: notch, dt };
         let flux = self.observer.update(&input).map_err(EstimatorFault::Observer)?;
+        if self.fll_steers && self.fll.is_some() {
+            self.clear_ramp_model();
+        } else {
+            self.advance_ramp_model(dt);
+        }
         let (Some(fll), Some(increment)) = (&mut self.fll, flux.flux_increment_ab) else {
             let out = self.pll.update(flux.psi_ab, dt).map_err(EstimatorFault::Pll)?;
             return Ok(Estimate::from_parts(&out, &flux, out.locked, out.locked, false));
@@ -297,6 +316,27 @@ impl<T: Scalar> Estimator<T> {
         }
     }
 
+    /// Starts every stage from a mover known to be at angle `theta_e` (for the next
+    /// sample) moving at `omega_e` (rad/s) with current `i_ab` (A) flowing: the observer
+    /// in the steady state of that flux ([`AnyObserver::seed`]), the PLL on the angle and
+    /// the FLL on the frequency, acquiring (the notch is the FLL's, the lock flags are
+    /// earned again by the measurements). For a drive leaving an open-loop segment whose
+    /// trajectory it knows.
+    pub fn seed(&mut self, theta_e: Angle, omega_e: T, i_ab: AlphaBeta<T>) {
+        let cs = CosSin::<T>::new(theta_e);
+        let psi = AlphaBeta::new(self.psi_f * cs.cos, self.psi_f * cs.sin);
+        self.observer.seed(psi, i_ab, omega_e);
+        if let Some(fll) = &mut self.fll {
+            fll.preset(omega_e);
+            self.fll_steers = true;
+        }
+        if self.fll_steers {
+            self.pll.preset(theta_e, T::ZERO);
+        } else {
+            self.pll.preset(theta_e, omega_e);
+        }
+    }
+
     /// Acquires again without forgetting: the FLL takes the notch back from its present
     /// frequency estimate (it reads the frequency whatever the notch's tuning) and the
     /// lock is declared again only once both loops agree. For a drive that has lost
@@ -313,6 +353,8 @@ impl<T: Scalar> Estimator<T> {
 
     /// Back to the initial state; clears latched faults.
     pub fn reset(&mut self) {
+        self.clear_ramp_model();
+        self.commanded_accel = T::ZERO;
         self.observer.reset();
         self.pll.reset();
         if let Some(fll) = &mut self.fll {
@@ -322,13 +364,51 @@ impl<T: Scalar> Estimator<T> {
     }
 
     /// The frequency the observer's notch will be tuned to at the next sample (rad/s,
-    /// working units): the FLL's while it steers, the PLL integrator's otherwise (plus
-    /// the FLL's fast part while tracking with an FLL).
+    /// working units): the FLL's while it steers, the PLL integrator's otherwise, plus
+    /// the integrator's lag on a commanded ramp ([`Estimator::set_commanded_acceleration`]).
     pub fn notch_omega(&self) -> T {
         match &self.fll {
             Some(fll) if self.fll_steers => fll.notch_omega(),
-            _ => self.pll.omega_integral(),
+            _ => self.pll.omega_integral() + self.ramp_lag,
         }
+    }
+
+    /// Advances the PLL's linear model on the commanded ramp `a` by one sample of `dt`
+    /// (s): `u += (a - ki x) dt`, `x += (u - kp x) dt` (see [`crate::pll`]); bounded by
+    /// the speed range.
+    fn advance_ramp_model(&mut self, dt: T) {
+        if self.commanded_accel == T::ZERO && self.ramp_lag == T::ZERO && self.ramp_phase == T::ZERO {
+            return;
+        }
+        let (kp, ki) = self.pll.gains();
+        let limit = self.pll.max_omega();
+        let step = (self.commanded_accel - ki * self.ramp_phase) * dt;
+        self.ramp_lag = (self.ramp_lag + step).clamp_to(-limit, limit);
+        self.ramp_phase =
+            (self.ramp_phase + (self.ramp_lag - kp * self.ramp_phase) * dt).clamp_to(-T::ONE, T::ONE);
+    }
+
+    fn clear_ramp_model(&mut self) {
+        self.ramp_phase = T::ZERO;
+        self.ramp_lag = T::ZERO;
+    }
+
+    /// Tells the estimator the electrical acceleration (rad/s^2, working units, signed)
+    /// the drive is commanding from the next sample on (its speed reference ramp, a
+    /// move's acceleration): the PLL-tuned notch is led by the integrator's lag on that
+    /// ramp (`kp a / ki` once it has lasted, see [`crate::pll`]), so a commanded ramp
+    /// costs the observer little phase. Zero (the default) for none; a non-finite value
+    /// is ignored. Replay needs it too: traces carry it (host `trace` module).
+    pub fn set_commanded_acceleration(&mut self, alpha_e: T) {
+        if alpha_e.is_valid() {
+            self.commanded_accel = alpha_e;
+        }
+    }
+
+    /// The commanded electrical acceleration the next sample will use (rad/s^2,
+    /// working units).
+    pub fn commanded_acceleration(&self) -> T {
+        self.commanded_accel
     }
 
     /// The FLL's signed frequency estimate (rad/s, working units), where it runs.

@@ -155,6 +155,29 @@ impl<T: Scalar> Dcfo<T> {
         self.psi_i_prev
     }
 
+    /// Starts the observer in the steady state of a mover flux `psi_mover` (Wb, its
+    /// present vector) turning in the direction of `omega_e` (rad/s) at current `i_ab`
+    /// (A): integrator and band-pass on the flux, the SOGI's quadrature state a quarter
+    /// turn behind, no disturbance. For a drive that knows where the mover is (the end
+    /// of an open-loop segment): the observer then needs no settling, only to correct
+    /// what the seed got wrong. Clears a latched overflow.
+    pub fn seed(&mut self, psi_mover: AlphaBeta<T>, i_ab: AlphaBeta<T>, omega_e: T) {
+        let ls = self.model.motor.ls;
+        self.z = AlphaBeta::new(psi_mover.alpha + ls * i_ab.alpha, psi_mover.beta + ls * i_ab.beta);
+        self.model.set_previous_current(i_ab);
+        self.psi_i_prev = psi_mover;
+        self.x1 = psi_mover;
+        // x2' = |w| x1: for x1 = psi (cos th, sin th) with th turning at w, x2 is
+        // sign(w) psi (sin th, -cos th).
+        self.x2 = if omega_e < T::ZERO {
+            AlphaBeta::new(-psi_mover.beta, psi_mover.alpha)
+        } else {
+            AlphaBeta::new(psi_mover.beta, -psi_mover.alpha)
+        };
+        self.d = AlphaBeta::default();
+        self.faulted = false;
+    }
+
     /// The notch frequency used for a speed estimate `omega_e` (rad/s, working units):
     /// `max(|omega_e|, floor)`.
     pub fn notch_omega(&self, omega_e: T) -> T {

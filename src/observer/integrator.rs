@@ -24,6 +24,11 @@ impl<T: Scalar> PureIntegrator<T> {
     pub fn set_stator_flux(&mut self, psi_stator: AlphaBeta<T>) {
         self.flux.set(psi_stator);
     }
+
+    /// Starts from mover flux `psi_mover` (Wb) at current `i_ab` (A).
+    pub fn seed(&mut self, psi_mover: AlphaBeta<T>, i_ab: AlphaBeta<T>) {
+        self.flux.seed(psi_mover, i_ab);
+    }
 }
 
 impl<T: Scalar> FluxObserver<T> for PureIntegrator<T> {

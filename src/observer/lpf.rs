@@ -35,6 +35,15 @@ impl<T: Scalar> LpfObserver<T> {
         Ok(LpfObserver { flux: StatorFlux::new(motor), cutoff })
     }
 
+    /// Starts from mover flux `psi_mover` (Wb) at current `i_ab` (A).
+    pub fn seed(
+        &mut self,
+        psi_mover: crate::transforms::AlphaBeta<T>,
+        i_ab: crate::transforms::AlphaBeta<T>,
+    ) {
+        self.flux.seed(psi_mover, i_ab);
+    }
+
     /// The cut-off frequency (rad/s, working units).
     pub fn cutoff(&self) -> T {
         self.cutoff

@@ -121,6 +121,16 @@ impl<T: Scalar> AnyObserver<T> {
             AnyObserver::Dcfo(_) => ObserverKind::Dcfo,
         }
     }
+
+    /// Starts the observer from a known mover flux `psi_mover` (Wb) turning in the
+    /// direction of `omega_e` (rad/s) at current `i_ab` (A); see [`Dcfo::seed`].
+    pub fn seed(&mut self, psi_mover: AlphaBeta<T>, i_ab: AlphaBeta<T>, omega_e: T) {
+        match self {
+            AnyObserver::PureIntegrator(o) => o.seed(psi_mover, i_ab),
+            AnyObserver::Cfo(o) => o.seed(psi_mover, i_ab),
+            AnyObserver::Dcfo(o) => o.seed(psi_mover, i_ab, omega_e),
+        }
+    }
 }
 
 impl<T: Scalar> FluxObserver<T> for AnyObserver<T> {

@@ -62,6 +62,11 @@ impl<T: Scalar> VoltageModel<T> {
     pub(super) fn reset(&mut self) {
         self.i_prev = None;
     }
+
+    /// Takes `i` (A) as the previous sample's current (no start-up special case next).
+    pub(super) fn set_previous_current(&mut self, i: AlphaBeta<T>) {
+        self.i_prev = Some(i);
+    }
 }
 
 /// The state the pure-integrator and LPF observers share: the stator-flux integral with
@@ -81,6 +86,15 @@ impl<T: Scalar> StatorFlux<T> {
 
     pub(super) fn set(&mut self, psi_stator: AlphaBeta<T>) {
         self.psi_stator = psi_stator;
+    }
+
+    /// Starts from mover flux `psi_mover` (Wb) at current `i` (A); clears a latched
+    /// overflow.
+    pub(super) fn seed(&mut self, psi_mover: AlphaBeta<T>, i: AlphaBeta<T>) {
+        let ls = self.model.motor.ls;
+        self.psi_stator = AlphaBeta::new(psi_mover.alpha + ls * i.alpha, psi_mover.beta + ls * i.beta);
+        self.model.set_previous_current(i);
+        self.faulted = false;
     }
 
     /// One sample (see the struct docs); refuses bad input without touching the state
