@@ -498,6 +498,7 @@ fn state_from_code(code: u8) -> Option<DriveState> {
         3 => Some(DriveState::Running),
         4 => Some(DriveState::Fault),
         5 => Some(DriveState::Reacquiring),
+        6 => Some(DriveState::LowSpeed),
         _ => None,
     }
 }
@@ -1004,9 +1005,10 @@ mod tests {
             DriveState::Running,
             DriveState::Fault,
             DriveState::Reacquiring,
+            DriveState::LowSpeed,
         ] {
             assert_eq!(state_from_code(s.code()), Some(s));
         }
-        assert_eq!(state_from_code(6), None);
+        assert_eq!(state_from_code(7), None);
     }
 }

@@ -336,6 +336,7 @@ mod firmware {
             DriveState::Running => "running",
             DriveState::Fault => "fault",
             DriveState::Reacquiring => "reacquiring",
+            DriveState::LowSpeed => "low speed",
         }
     }
 
@@ -386,6 +387,7 @@ mod firmware {
                 i_dq_ref: Dq::default(),
                 u_applied: AlphaBeta::default(),
                 i_observer: AlphaBeta::default(),
+                alpha_e_ref: T::ZERO,
             };
             let mut b = Bench {
                 name,

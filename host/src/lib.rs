@@ -10,5 +10,6 @@ pub mod plant;
 pub mod plot;
 pub mod replay;
 pub mod sim;
+pub mod stroke;
 pub mod summary;
 pub mod trace;

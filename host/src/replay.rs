@@ -148,8 +148,14 @@ pub fn replay_trace_with_progress(
     let rows = trace.rows();
     let mut out = Vec::with_capacity(rows.len());
     let mut u_applied = AlphaBeta::new(0.0f32, 0.0f32);
+    let accel = trace.commanded_acceleration();
     for (index, row) in rows.iter().enumerate() {
         let [u_alpha, u_beta, i_alpha, i_beta] = to_f32(row, index + 1)?;
+        if let Some(a) = accel.and_then(|a| a.get(index)) {
+            // What the drive commanded its estimator for this update (finite: checked
+            // by the reader).
+            est.set_commanded_acceleration(*a as f32);
+        }
         let e = est
             .update(u_applied, AlphaBeta::new(i_alpha, i_beta), dt)
             .map_err(|fault| ReplayError::Fault { row: index + 1, t: row.t, fault })?;

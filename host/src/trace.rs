@@ -90,6 +90,14 @@ pub const T_STEP_REL_TOL: f64 = 1e-6;
 /// median step). See the module documentation for the reasoning.
 pub const T_STEP_ABS_TOL_S: f64 = 2e-6;
 
+/// Optional drive-input column of an input trace: the electrical acceleration
+/// (rad/s^2) the drive commanded to its estimator for that row's update
+/// (`dcfo::estimator::Estimator::set_commanded_acceleration`). Not part of the shared
+/// format's named columns: other readers ignore it as an unknown column; this
+/// project's writer adds it and its replay uses it, so that a trace of a drive that
+/// ramps its speed still replays bit for bit.
+pub const COMMANDED_ACCEL_COLUMN: &str = "alpha_e_ref";
+
 /// Header of an output trace before the optional error columns.
 pub const OUTPUT_COLUMNS: [&str; 5] = ["t", "theta_hat", "v_hat", "psi_alpha_hat", "psi_beta_hat"];
 
@@ -375,6 +383,8 @@ impl TraceRow {
 pub struct InputTrace {
     rows: Vec<TraceRow>,
     ground_truth: GroundTruth,
+    /// One value per row from the [`COMMANDED_ACCEL_COLUMN`], if the trace has it.
+    commanded_accel: Option<Vec<f64>>,
 }
 
 impl InputTrace {
@@ -422,7 +432,35 @@ impl InputTrace {
         }
         let times: Vec<f64> = rows.iter().map(|r| r.t).collect();
         check_time_step(source, &times, &lines)?;
-        Ok(InputTrace { rows, ground_truth })
+        Ok(InputTrace { rows, ground_truth, commanded_accel: None })
+    }
+
+    /// Adds the commanded electrical acceleration of every row (rad/s^2, see
+    /// [`COMMANDED_ACCEL_COLUMN`]); refused unless there is one finite value per row.
+    pub fn with_commanded_acceleration(mut self, values: Vec<f64>, source: &str) -> Result<Self, TraceError> {
+        if values.len() != self.rows.len() {
+            return Err(TraceError::RowShape {
+                file: source.to_string(),
+                line: 1,
+                column: COMMANDED_ACCEL_COLUMN.to_string(),
+                reason: format!("{} values for {} rows", values.len(), self.rows.len()),
+            });
+        }
+        if let Some(k) = values.iter().position(|v| !v.is_finite()) {
+            return Err(TraceError::NotFinite {
+                file: source.to_string(),
+                line: k as u64 + 2,
+                column: COMMANDED_ACCEL_COLUMN.to_string(),
+                text: values[k].to_string(),
+            });
+        }
+        self.commanded_accel = Some(values);
+        Ok(self)
+    }
+
+    /// The commanded electrical acceleration per row (rad/s^2), if the trace has it.
+    pub fn commanded_acceleration(&self) -> Option<&[f64]> {
+        self.commanded_accel.as_deref()
     }
 
     /// The rows, in time order (at least 2).
@@ -564,6 +602,8 @@ fn split_fields(line: &str) -> Option<Vec<Cow<'_, str>>> {
 struct Header {
     line: u64,
     len: usize,
+    /// Field index of the optional [`COMMANDED_ACCEL_COLUMN`].
+    commanded_accel: Option<usize>,
     /// Field index of t, u_alpha, u_beta, i_alpha, i_beta, theta, v, x.
     index: [Option<usize>; 8],
 }
@@ -598,7 +638,8 @@ impl Header {
                 missing: missing.join(", "),
             });
         }
-        Ok(Header { line, len: fields.len(), index })
+        let commanded_accel = fields.iter().position(|f| f.as_ref() == COMMANDED_ACCEL_COLUMN);
+        Ok(Header { line, len: fields.len(), index, commanded_accel })
     }
 
     fn ground_truth(&self) -> GroundTruth {
@@ -677,6 +718,7 @@ fn parse(mut reader: impl BufRead, file: &str) -> Result<InputTrace, TraceError>
     let mut header: Option<Header> = None;
     let mut rows: Vec<TraceRow> = Vec::new();
     let mut lines: Vec<u64> = Vec::new();
+    let mut accel: Vec<f64> = Vec::new();
     loop {
         buf.clear();
         let n = reader
@@ -700,6 +742,11 @@ fn parse(mut reader: impl BufRead, file: &str) -> Result<InputTrace, TraceError>
             None => header = Some(Header::parse(file, line, &fields)?),
             Some(h) => {
                 let row = h.row(file, line, &fields)?;
+                if let Some(i) = h.commanded_accel {
+                    // The field count was checked by `row`.
+                    let text = fields.get(i).map_or("", |f| f.as_ref());
+                    accel.push(parse_cell(file, line, COMMANDED_ACCEL_COLUMN, text)?);
+                }
                 if let (Some(prev), Some(prev_line)) = (rows.last(), lines.last()) {
                     check_increasing(file, prev, *prev_line, &row, line)?;
                 }
@@ -716,7 +763,8 @@ fn parse(mut reader: impl BufRead, file: &str) -> Result<InputTrace, TraceError>
     }
     let times: Vec<f64> = rows.iter().map(|r| r.t).collect();
     check_time_step(file, &times, &lines)?;
-    Ok(InputTrace { rows, ground_truth: header.ground_truth() })
+    let commanded_accel = header.commanded_accel.map(|_| accel);
+    Ok(InputTrace { rows, ground_truth: header.ground_truth(), commanded_accel })
 }
 
 /// One sample of an observer's output (SI units), paired with the input row of the

@@ -57,10 +57,11 @@ fn speed_step_0_24_to_0_45_m_per_s() {
     let r = scenario("speed-step");
     assert!(r.dcfo.theta_err_max_deg < r.cfo.theta_err_max_deg);
     assert!(r.dcfo.v_err_max < r.cfo.v_err_max);
-    // Issue target <= 6 deg. Measured 12.9 deg: the PLL's integrator lags the 0.5 m/s^2
-    // ramp (pll module docs) by less than the 20 % at which the FLL takes the notch
-    // (10 % gets 8.9 deg but tosses the notch between the two in steady state).
-    assert!(r.dcfo.theta_err_max_deg <= 15.0, "{}", r.dcfo.theta_err_max_deg);
+    // Issue floor <= 6 deg. The PLL's integrator lags the 0.5 m/s^2 ramp by kp a / ki
+    // (pll module docs: 8 a / w^2 of observer phase, 11-13 deg); the drive feeds the
+    // commanded acceleration forward to the notch (Estimator::set_commanded_acceleration):
+    // measured 5.4 deg (Q8.24: 5.5), the rest is the steady error at 0.45 m/s.
+    assert!(r.dcfo.theta_err_max_deg <= 6.0, "{}", r.dcfo.theta_err_max_deg);
 }
 
 /// The DC-step scenarios: the CFO keeps the offset the analysis predicts, the DCFO

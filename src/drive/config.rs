@@ -1,6 +1,7 @@
 //! Drive settings (SI) and the controller gains derived from them.
 
 use crate::estimator::EstimatorConfig;
+use crate::motion::ProfileLimits;
 use crate::motor::MotorParams;
 use crate::observer::ObserverKind;
 
@@ -96,6 +97,82 @@ pub struct DriveConfig {
     pub faults: FaultConfig,
     /// Observer and PLL.
     pub estimator: EstimatorConfig,
+    /// Positioning on a finite stroke (moves through zero speed, position estimate and
+    /// loop); `None`: a speed drive started by I/f (see [`super::Drive`]).
+    pub motion: Option<MotionConfig>,
+}
+
+/// A positioning axis: profile limits, the low-speed (current-vector) mode and the
+/// position loop. See the `drive` module docs and its `positioning` module.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct MotionConfig {
+    /// Speed and acceleration limits of the moves and the stroke the targets must lie in.
+    pub limits: ProfileLimits,
+    /// Below this reference speed the drive runs the low-speed mode, m/s (> 0).
+    pub low_speed_m_per_s: f32,
+    /// The low-speed mode is left above `low_speed_exit_ratio * low_speed_m_per_s`
+    /// (dimensionless, > 1): the hysteresis.
+    pub low_speed_exit_ratio: f32,
+    /// Amplitude of the current vector in the low-speed mode, A (peak, > 0, at most the
+    /// current limit).
+    pub low_speed_current_a: f32,
+    /// Amplitude of the vector at the edge of the low-speed band, A (peak, > 0, at most
+    /// `low_speed_current_a`): the amplitude falls linearly with the reference speed
+    /// from `low_speed_current_a` at rest to this.
+    pub exit_current_a: f32,
+    /// Rate at which the current reference moves between the sensorless and the
+    /// low-speed vectors, A/s (> 0).
+    pub current_slew_a_per_s: f32,
+    /// Position-loop bandwidth (proportional gain), rad/s (> 0).
+    pub position_bandwidth_rad_s: f32,
+}
+
+impl MotionConfig {
+    /// Defaults for `motor` driven with `drive` (its current limit, mass and inverter
+    /// compensation) over `limits`:
+    /// - low-speed threshold: the speed at which the back-EMF `w psi_f` equals the
+    ///   inverter's voltage error before compensation (`dead_time / Ts * V_bus +
+    ///   drop`, at the bus the fault limits centre on), or four times the DCFO's notch
+    ///   floor, whichever is higher: below it the estimate rests entirely on the
+    ///   compensation's accuracy, and the observer's slowest pole (`0.26 w`) is too slow
+    ///   to re-lock within 50 ms. Paper axis: 50 rad/s, 0.24 m/s. Exit at 1.25 times it.
+    /// - low-speed current: the current limit. The mover trails the vector by
+    ///   `asin(F / (K_f I))` and rests within `F_static / (K_f I)` of it, so both the
+    ///   thrust margin and the accuracy at rest scale with `I` (paper axis, 5.9 A: 9 deg
+    ///   for 47 N, 2.5 deg for 13 N of break-away friction; rated current gave 5 deg at
+    ///   rest, above the 3 deg end-position floor). Thermally a transient: a long dwell
+    ///   at the limit is the user's choice to lower it. Measured cost: a wrong `Rs` reads
+    ///   as an angle error `dR I_d / (w psi_f)` while the vector is on d (26 deg at the
+    ///   exit threshold for +20 % on the paper motor), which the hand-over inherits.
+    /// - exit current: twice the thrust current of the profile's acceleration, at least
+    ///   half rated peak, at most the low-speed current. The vector lies mostly on d, and
+    ///   through a resistance error `dR` the estimator reads `dR I_d / (w psi_f)` of
+    ///   angle while it does (26 deg at the exit speed at 5.9 A for +20 % on the paper
+    ///   motor): the hand-over needs a small `I_d`, the hold a large one.
+    /// - current slew: rated peak current in 5 ms (2 % of rated a period).
+    /// - position loop: a quarter of the speed loop's crossover.
+    pub fn for_drive(motor: &MotorParams, drive: &DriveConfig, limits: ProfileLimits) -> Self {
+        let omega_per_speed = core::f32::consts::PI / motor.pole_pitch_m;
+        let bus_v = 0.5 * (drive.faults.bus_min_v / 0.6 + drive.faults.bus_max_v / 1.3);
+        let voltage_error_v = drive
+            .dead_time_compensation
+            .map_or(0.0, |c| c.dead_time_s / drive.control_period_s * bus_v + c.device_drop_v);
+        let omega_ls = (voltage_error_v / motor.psi_f_wb).max(4.0 * drive.estimator.dcfo.omega_floor_rad_s);
+        let rated_peak = motor.rated_current_a * core::f32::consts::SQRT_2;
+        let accel_current =
+            drive.moving_mass_kg * limits.max_accel_m_per_s2 / motor.thrust_constant_n_per_a();
+        let low_speed_current_a = drive.current_limit_a;
+        MotionConfig {
+            limits,
+            low_speed_m_per_s: omega_ls / omega_per_speed,
+            low_speed_exit_ratio: 1.25,
+            low_speed_current_a,
+            exit_current_a: (2.0 * accel_current).max(0.5 * rated_peak).min(low_speed_current_a),
+            current_slew_a_per_s: rated_peak / 0.005,
+            position_bandwidth_rad_s: 0.25 * drive.speed_bandwidth_rad_s,
+        }
+    }
 }
 
 impl DriveConfig {
@@ -140,6 +217,7 @@ impl DriveConfig {
                 max_offset_a: 0.1 * rated_peak,
             },
             estimator: EstimatorConfig::for_motor(motor, observer),
+            motion: None,
         }
     }
 }
@@ -222,6 +300,35 @@ impl DriveConfig {
         for (ok, field) in checks {
             if !ok {
                 return Err(DriveConfigError { field });
+            }
+        }
+        if let Some(m) = self.motion {
+            let checks = [
+                (pos(m.limits.max_speed_m_per_s), "motion.limits.max_speed_m_per_s"),
+                (pos(m.limits.max_accel_m_per_s2), "motion.limits.max_accel_m_per_s2"),
+                (
+                    m.limits.stroke_min_m.is_finite()
+                        && m.limits.stroke_max_m.is_finite()
+                        && m.limits.stroke_max_m > m.limits.stroke_min_m,
+                    "motion.limits.stroke_max_m",
+                ),
+                (pos(m.low_speed_m_per_s), "motion.low_speed_m_per_s"),
+                (
+                    m.low_speed_exit_ratio.is_finite() && m.low_speed_exit_ratio > 1.0,
+                    "motion.low_speed_exit_ratio",
+                ),
+                (
+                    pos(m.low_speed_current_a) && m.low_speed_current_a <= self.current_limit_a,
+                    "motion.low_speed_current_a",
+                ),
+                (pos(m.exit_current_a) && m.exit_current_a <= m.low_speed_current_a, "motion.exit_current_a"),
+                (pos(m.current_slew_a_per_s), "motion.current_slew_a_per_s"),
+                (pos(m.position_bandwidth_rad_s), "motion.position_bandwidth_rad_s"),
+            ];
+            for (ok, field) in checks {
+                if !ok {
+                    return Err(DriveConfigError { field });
+                }
             }
         }
         if let Some(c) = self.dead_time_compensation {

@@ -29,15 +29,28 @@
 //! `Reacquiring` (no thrust, the estimator re-acquires) and back to `Running` from the
 //! estimated speed, instead of tripping: `Running <-> Reacquiring -> Fault` only after
 //! `faults.reacquire_timeout_s` without the estimate tracking again.
+//!
+//! A *positioning* drive ([`DriveConfig::motion`]) replaces the I/f start by an
+//! alignment and the speed reference by queued moves: `Calibrating -> LowSpeed (align,
+//! hold, move slowly) <-> Running (sensorless position loop)`, through zero speed at
+//! every reversal, with a position estimate (`positioning` module docs, [`Drive::push_move`],
+//! [`Drive::position_m`]). A lock loss there falls back to `LowSpeed`.
+//!
+//! The drive tells the estimator the acceleration it commands (the speed reference's
+//! ramp, a move's acceleration): the estimator's notch leads by the PLL's lag on that
+//! ramp ([`Estimator::set_commanded_acceleration`]).
 
 mod config;
 mod faults;
+mod positioning;
 
 pub use config::{
-    DeadTimeCompensation, DriveConfig, DriveConfigError, FaultConfig, PAPER_AXIS_BUS_V,
+    DeadTimeCompensation, DriveConfig, DriveConfigError, FaultConfig, MotionConfig, PAPER_AXIS_BUS_V,
     PAPER_AXIS_PAYLOAD_KG, StartupConfig,
 };
 pub use faults::Faults;
+pub use positioning::MOVE_QUEUE;
+use positioning::Positioning;
 
 use crate::estimator::{Estimate, Estimator};
 use crate::motor::MotorParams;
@@ -67,10 +80,14 @@ pub enum DriveState {
     /// and the drive resumes `Running` from the estimated speed once it tracks again, or
     /// trips `LOCK_LOST` after [`FaultConfig::reacquire_timeout_s`] (flying restart).
     Reacquiring,
+    /// Positioning drives only: below the low-speed threshold the current vector follows
+    /// the reference position (and holds it at rest); see the `positioning` docs of
+    /// [`Drive`]. Also the alignment on enable.
+    LowSpeed,
 }
 
 impl DriveState {
-    /// A small number for telemetry frames (0..=5 in declaration order).
+    /// A small number for telemetry frames (0..=6 in declaration order).
     pub fn code(self) -> u8 {
         match self {
             DriveState::Disabled => 0,
@@ -79,6 +96,7 @@ impl DriveState {
             DriveState::Running => 3,
             DriveState::Fault => 4,
             DriveState::Reacquiring => 5,
+            DriveState::LowSpeed => 6,
         }
     }
 }
@@ -120,6 +138,9 @@ pub struct StepOutput<T> {
     /// Currents as the observer saw them this step (A): `i_ab` plus any observer
     /// offset. The `i_alpha`, `i_beta` of a trace row.
     pub i_observer: AlphaBeta<T>,
+    /// The commanded electrical acceleration the estimator used this step (rad/s^2;
+    /// see [`Estimator::set_commanded_acceleration`]): a trace row's `alpha_e_ref`.
+    pub alpha_e_ref: T,
 }
 
 /// Precomputed gains and limits in working units.
@@ -161,6 +182,14 @@ struct Constants<T> {
     compensate: bool,
     omega_per_speed: f32,
     base: Base,
+    /// Control period, s (SI, for the motion profile).
+    dt_s: f32,
+    /// `1 / dt` (working units).
+    inv_dt: T,
+    /// `1 / omega_base` (s/rad): SI rad/s to working units.
+    inv_omega_base: f32,
+    /// One electrical turn, m (two pole pitches).
+    metres_per_turn: f32,
 }
 
 /// The drive. See the module documentation.
@@ -197,6 +226,20 @@ pub struct Drive<T> {
     /// Offsets added to the observer's voltage and current inputs only (V, A).
     observer_u_offset: AlphaBeta<T>,
     observer_i_offset: AlphaBeta<T>,
+    /// Positioning state (`None` for a speed drive).
+    positioning: Option<Positioning<T>>,
+    /// Unwrapped control angle (binary-angle counts, 2^32 per electrical turn): the
+    /// position estimate.
+    position_counts: i64,
+    /// The control angle of the last step.
+    theta_previous: Angle,
+    /// The current controllers' voltage command of the last step (V, control frame).
+    u_dq_last: Dq<T>,
+    /// The measured currents of the last step in its control frame (A).
+    i_dq_measured: Dq<T>,
+    /// In the low-speed mode, where the mover is expected (the position estimate
+    /// follows it rather than the control angle).
+    low_speed_mover_angle: Option<Angle>,
 }
 
 /// `x` as a working value, or the configuration error naming `field` when the numeric
@@ -285,6 +328,75 @@ impl<T: Scalar> Drive<T> {
             compensate,
             omega_per_speed,
             base: *base,
+            dt_s: ts,
+            inv_dt: representable(1.0 / base.time::<f32>(ts), "control_period_s")?,
+            inv_omega_base: 1.0 / base.omega_rad_s,
+            metres_per_turn: 2.0 * motor.pole_pitch_m,
+        };
+        let positioning = config.motion.map(|m| -> Result<Positioning<T>, DriveConfigError> {
+            let profile = crate::motion::Profile::new(m.limits, 0.0)
+                .map_err(|_| DriveConfigError { field: "motion.limits" })?;
+            Ok(Positioning {
+                setpoint: profile.setpoint(),
+                profile,
+                enter_m_per_s: m.low_speed_m_per_s,
+                exit_m_per_s: m.low_speed_m_per_s * m.low_speed_exit_ratio,
+                low_speed_current: base.current(m.low_speed_current_a),
+                exit_current: base.current(m.exit_current_a),
+                slew_step: base.current(m.current_slew_a_per_s * ts),
+                position_gain: m.position_bandwidth_rad_s,
+                accel_current_per_m_s2: config.moving_mass_kg
+                    / motor.thrust_constant_n_per_a()
+                    / base.current_a,
+                rad_per_m: omega_per_speed,
+                rs: base.resistance(motor.rs_ohm),
+                inv_psi_f: T::from_f32(1.0 / base.flux::<f32>(motor.psi_f_wb)),
+                damping_s_sqrt_a: {
+                    // The vector is a spring: stiffness K_f I pi/tau (N/m) on the moving
+                    // mass, natural frequency w_n = sqrt(K_f I pi / (tau M)); retarding
+                    // the vector by k dw_e gives a force K_f I k (pi/tau) dv: damping
+                    // ratio 0.7 for k = 1.4 / w_n = 1.4 sqrt(M tau / (K_f pi)) / sqrt(I).
+                    1.4 * libm::sqrtf(
+                        config.moving_mass_kg / (motor.thrust_constant_n_per_a() * omega_per_speed),
+                    )
+                },
+                speed_filter_rate: {
+                    let stiffness = motor.thrust_constant_n_per_a() * m.low_speed_current_a * omega_per_speed;
+                    let wn = libm::sqrtf(stiffness / config.moving_mass_kg);
+                    (5.0 * wn * ts).min(1.0)
+                },
+                speed_error_rad_s: 0.0,
+                mass_kg: config.moving_mass_kg,
+                thrust_n_per_a: motor.thrust_constant_n_per_a(),
+                load_force_n: 0.0,
+                // 50 ms
+                load_filter_rate: (ts / 0.05).min(1.0),
+                mover_offset_rad: 0.0,
+                rest_time_s: 0.0,
+                // 0.8 w_n at rest (full current); decaying over three of its periods.
+                dither_rad_s: {
+                    let stiffness = motor.thrust_constant_n_per_a() * m.low_speed_current_a * omega_per_speed;
+                    0.8 * libm::sqrtf(stiffness / config.moving_mass_kg)
+                },
+                dither_decay_per_s: {
+                    let stiffness = motor.thrust_constant_n_per_a() * m.low_speed_current_a * omega_per_speed;
+                    0.8 * libm::sqrtf(stiffness / config.moving_mass_kg) / (3.0 * 2.0 * core::f32::consts::PI)
+                },
+                speed_loop_out: T::ZERO,
+                accel_ff_applied: T::ZERO,
+                mover_filter_rate: {
+                    let stiffness = motor.thrust_constant_n_per_a() * m.low_speed_current_a * omega_per_speed;
+                    (libm::sqrtf(stiffness / config.moving_mass_kg) * ts).min(1.0)
+                },
+                anchor_angle: Angle::ZERO,
+                anchor_x_m: 0.0,
+                seeded: false,
+                aligned: false,
+            })
+        });
+        let positioning = match positioning {
+            Some(p) => Some(p?),
+            None => None,
         };
         Ok(Drive {
             k,
@@ -310,6 +422,12 @@ impl<T: Scalar> Drive<T> {
             u_prev2: AlphaBeta::default(),
             observer_u_offset: AlphaBeta::default(),
             observer_i_offset: AlphaBeta::default(),
+            positioning,
+            position_counts: 0,
+            theta_previous: Angle::ZERO,
+            u_dq_last: Dq::default(),
+            i_dq_measured: Dq::default(),
+            low_speed_mover_angle: None,
         })
     }
 
@@ -338,6 +456,7 @@ impl<T: Scalar> Drive<T> {
     /// Switches the bridge off at the next step and returns to `Disabled`.
     pub fn disable(&mut self) {
         self.enable_requested = false;
+        self.drop_moves();
     }
 
     /// Clears latched faults; the drive returns to `Disabled` (enable again to run).
@@ -353,6 +472,7 @@ impl<T: Scalar> Drive<T> {
     pub fn trip(&mut self, fault: Faults) {
         self.faults.insert(fault);
         self.state = DriveState::Fault;
+        self.drop_moves();
     }
 
     /// Sets the speed reference (electrical rad/s, working units); the drive follows
@@ -397,6 +517,7 @@ impl<T: Scalar> Drive<T> {
             i_dq_ref: self.i_dq_ref,
             u_applied: AlphaBeta::default(),
             i_observer: AlphaBeta::default(),
+            alpha_e_ref: T::ZERO,
         };
         if self.state != DriveState::Fault {
             self.check_measurements(m);
@@ -420,9 +541,14 @@ impl<T: Scalar> Drive<T> {
                 }
             }
             DriveState::Calibrating => self.calibrate(m),
-            DriveState::Starting | DriveState::Running | DriveState::Reacquiring => self.control(m, &mut out),
+            DriveState::Starting | DriveState::Running | DriveState::Reacquiring | DriveState::LowSpeed => {
+                self.control(m, &mut out)
+            }
         }
-        if !matches!(self.state, DriveState::Starting | DriveState::Running | DriveState::Reacquiring) {
+        if !matches!(
+            self.state,
+            DriveState::Starting | DriveState::Running | DriveState::Reacquiring | DriveState::LowSpeed
+        ) {
             // Bridge off: nothing is applied, the history is cleared.
             self.u_prev = AlphaBeta::default();
             self.u_prev2 = AlphaBeta::default();
@@ -495,6 +621,9 @@ impl<T: Scalar> Drive<T> {
         self.iq_bridge = T::ZERO;
         self.u_prev = AlphaBeta::default();
         self.u_prev2 = AlphaBeta::default();
+        if self.positioning.is_some() {
+            self.start_positioning();
+        }
     }
 
     /// Starting and Running: estimator, references, current loops, modulation.
@@ -504,6 +633,7 @@ impl<T: Scalar> Drive<T> {
             out.i_ab.alpha + self.observer_i_offset.alpha,
             out.i_ab.beta + self.observer_i_offset.beta,
         );
+        out.alpha_e_ref = self.estimator.commanded_acceleration();
         let estimate = match self.estimator.update(self.u_prev2, out.i_observer, k.dt) {
             Ok(e) => e,
             Err(_) => {
@@ -518,8 +648,11 @@ impl<T: Scalar> Drive<T> {
         let (theta, omega) = match self.state {
             DriveState::Starting => self.startup_references(&estimate),
             DriveState::Reacquiring => self.reacquiring_references(&estimate),
+            DriveState::LowSpeed => self.low_speed_references(&estimate, out.i_observer),
             _ => self.running_references(&estimate),
         };
+        let position_angle = self.low_speed_mover_angle.take().unwrap_or(theta);
+        self.track_position(position_angle);
         if self.state == DriveState::Fault {
             return;
         }
@@ -530,10 +663,11 @@ impl<T: Scalar> Drive<T> {
         let cs = if theta == estimate.theta_e { estimate.cos_sin } else { CosSin::new(theta) };
         let i_dq = park(out.i_ab, &cs);
         out.i_dq = i_dq;
+        self.i_dq_measured = i_dq;
 
         // Current loops with decoupling feed-forward (Running only: in open loop the
         // control frame is not the rotor frame), limited to the voltage circle.
-        let (ff_d, ff_q) = if self.state != DriveState::Starting {
+        let (ff_d, ff_q) = if !matches!(self.state, DriveState::Starting | DriveState::LowSpeed) {
             (-omega * k.lq * i_dq.q, omega * (k.ld * i_dq.d + k.psi_f))
         } else {
             (T::ZERO, T::ZERO)
@@ -544,6 +678,7 @@ impl<T: Scalar> Drive<T> {
         let v_q_max = (v_max * v_max - u_d * u_d).sqrt();
         let u_q = ff_q + self.pi_q.update_within(self.i_dq_ref.q - i_dq.q, -v_q_max - ff_q, v_q_max - ff_q);
         let u_q = u_q.clamp_to(-v_q_max, v_q_max);
+        self.u_dq_last = Dq::new(u_d, u_q);
 
         // The command is applied from the next period on: rotate it to the middle of
         // its application window.
@@ -649,14 +784,23 @@ impl<T: Scalar> Drive<T> {
     /// Sensorless: rate-limited speed reference, speed loop at its divided rate, d-axis
     /// current ramped to zero, lock supervision.
     fn running_references(&mut self, estimate: &Estimate<T>) -> (Angle, T) {
-        let k = &self.k;
-        let diff = (self.omega_target - self.omega_ref).clamp_to(-k.accel_step, k.accel_step);
-        self.omega_ref = self.omega_ref + diff;
-        self.speed_divider_count += 1;
-        if self.speed_divider_count >= k.speed_loop_divider {
-            self.speed_divider_count = 0;
-            self.i_dq_ref.q = self.pi_speed.update(self.omega_ref - self.omega_filtered);
+        if self.positioning.is_some() {
+            if let Some(low_speed) = self.positioning_references(estimate) {
+                return low_speed;
+            }
+        } else {
+            let k = &self.k;
+            let diff = (self.omega_target - self.omega_ref).clamp_to(-k.accel_step, k.accel_step);
+            self.omega_ref = self.omega_ref + diff;
+            // The ramp is commanded, so known: the estimator's notch leads by its lag.
+            self.estimator.set_commanded_acceleration(diff * k.inv_dt);
+            self.speed_divider_count += 1;
+            if self.speed_divider_count >= k.speed_loop_divider {
+                self.speed_divider_count = 0;
+                self.i_dq_ref.q = self.pi_speed.update(self.omega_ref - self.omega_filtered);
+            }
         }
+        let k = &self.k;
         let d = self.i_dq_ref.d;
         self.i_dq_ref.d =
             if d > T::ZERO { (d - k.id_ramp_step).max(T::ZERO) } else { (d + k.id_ramp_step).min(T::ZERO) };
@@ -668,6 +812,13 @@ impl<T: Scalar> Drive<T> {
             self.counter = self.counter.saturating_add(1);
             // An estimator that has lost the frequency too (acquiring) has no angle to
             // ride through on: stop pushing at once. Otherwise allow `lock_loss_s`.
+            if (self.counter > k.lock_loss_samples || estimate.acquiring) && self.positioning.is_some() {
+                // A positioning drive has a reference to follow: back to the low-speed
+                // mode (the vector on the reference position) until the estimate,
+                // seeded again from the trajectory, tracks.
+                self.counter = 0;
+                return self.enter_low_speed(estimate);
+            }
             if self.counter > k.lock_loss_samples || estimate.acquiring {
                 // Flying restart: stop pushing on an angle that is not trusted, and
                 // let the estimator find the mover again.

@@ -57,6 +57,9 @@ pub struct Sample {
     pub state: u8,
     /// The estimator's lock flag (`None` over a link, which does not carry it).
     pub locked: Option<bool>,
+    /// The commanded electrical acceleration the drive's estimator used, rad/s^2 (NaN
+    /// over a link, which does not carry it).
+    pub alpha_e_ref: f64,
 }
 
 /// The result of one simulated run.
@@ -271,6 +274,7 @@ pub fn run_with(
         let Some(e) = f.estimate else { continue };
         let v_ref = if f.state == DriveState::Running { v_ref_target } else { f64::NAN };
         let locked = step.detail.and_then(|out| out.estimate).map(|est| est.locked);
+        let alpha_e_ref = step.detail.map_or(f64::NAN, |out| f64::from(out.alpha_e_ref));
         let (observer_u, observer_i, i_dq, i_dq_ref, theta_hat, psi_hat) = match step.detail {
             Some(out) => match out.estimate {
                 Some(est) => (
@@ -321,6 +325,7 @@ pub fn run_with(
             v_ref,
             state: f.state.code(),
             locked,
+            alpha_e_ref,
         });
         if k % 4096 == 0 {
             progress(k as f64 / n as f64);

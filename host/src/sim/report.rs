@@ -5,7 +5,9 @@ use super::scenarios::{Figures, Scenario, figures, paper_scenarios, scenario};
 use super::{Run, Setup, run, theta_err_deg};
 use crate::plot::bode::{BodeSetup, bode_figure};
 use crate::plot::{PALETTE, Panel, Rgb, Series, time_series_figure, write_figure};
-use crate::trace::{Estimate, GroundTruth, InputTrace, InputTraceWriter, write_output_trace};
+use crate::trace::{
+    COMMANDED_ACCEL_COLUMN, Estimate, GroundTruth, InputTrace, InputTraceWriter, write_output_trace,
+};
 use anyhow::{Context, Result, bail};
 use dcfo::observer::ObserverKind;
 use indicatif::{ProgressBar, ProgressStyle};
@@ -241,7 +243,13 @@ pub fn run_paper(out: &Path) -> Result<PaperReport> {
 /// the shared trace format.
 pub fn trace_of(run: &Run) -> Result<(InputTrace, Vec<Estimate>)> {
     let rows = run.samples.iter().map(|s| s.row).collect();
-    let trace = InputTrace::from_rows(rows, &run.scenario).context("simulated trace")?;
+    let mut trace = InputTrace::from_rows(rows, &run.scenario).context("simulated trace")?;
+    // The in-process drive reports what it commanded its estimator; over a link it is
+    // not known and the trace goes without it.
+    if run.samples.iter().all(|s| s.alpha_e_ref.is_finite()) {
+        let accel = run.samples.iter().map(|s| s.alpha_e_ref).collect();
+        trace = trace.with_commanded_acceleration(accel, &run.scenario).context("simulated trace")?;
+    }
     let estimates = run
         .samples
         .iter()
@@ -301,11 +309,23 @@ pub fn run_sim(name: &str, observer: ObserverKind, out: &Path) -> Result<Figures
 /// format) and its figure into `out`; `label` names the drive in the figure's title.
 pub fn write_run_outputs(run: &Run, sc: &Scenario, out: &Path, label: &str) -> Result<()> {
     let (trace, estimates) = trace_of(run)?;
-    let mut w = InputTraceWriter::create(out.join("trace.csv"), GroundTruth::ALL, &[])?;
-    for row in trace.rows() {
-        w.write(row, &[])?;
+    match trace.commanded_acceleration() {
+        Some(accel) => {
+            let mut w =
+                InputTraceWriter::create(out.join("trace.csv"), GroundTruth::ALL, &[COMMANDED_ACCEL_COLUMN])?;
+            for (row, a) in trace.rows().iter().zip(accel) {
+                w.write(row, &[*a])?;
+            }
+            w.finish()?;
+        }
+        None => {
+            let mut w = InputTraceWriter::create(out.join("trace.csv"), GroundTruth::ALL, &[])?;
+            for row in trace.rows() {
+                w.write(row, &[])?;
+            }
+            w.finish()?;
+        }
     }
-    w.finish()?;
     write_output_trace(out.join("estimates.csv"), &trace, &estimates)?;
     let panels = vec![
         Panel::new(

@@ -1,0 +1,378 @@
+//! Positioning: moves on a finite stroke through zero speed, with a position estimate.
+//!
+//! ## Modes
+//! - **Low-speed mode** ([`DriveState::LowSpeed`]) while the reference speed is below
+//!   [`MotionConfig::low_speed_m_per_s`]: no back-EMF estimate is trusted there, so the
+//!   drive imposes a current vector along the d axis of the *reference* position:
+//!   angle `theta_ls = theta_anchor + pi (x_ref - x_anchor) / tau`. The mover is held on
+//!   that vector like a stepper's rotor: a spring of stiffness `K_f I pi / tau` (N/m);
+//!   at a force `F` it trails by `asin(F / (K_f I))`, restoring both ways (it
+//!   accelerates and brakes alike) and never slipping a pole while `|F| < K_f I`.
+//!   - Amplitude: [`MotionConfig::low_speed_current_a`] at rest, falling linearly with
+//!     the reference speed to [`MotionConfig::exit_current_a`] at the band's edge:
+//!     stiffness and accuracy at rest, and at the exit a small `I_d`, which a resistance
+//!     error turns into an estimator angle error of `dR I_d / (w psi_f)`.
+//!   - Damping: the spring and the moving mass ring at `w_n = sqrt(K_f I pi / (tau M))`
+//!     (8.6 Hz on the paper axis at 5.9 A) with nothing but friction to damp them. The
+//!     mover's speed is read from the q voltage (in the frame turning at the reference
+//!     speed `u_q = Rs i_q + w_ref Ld i_d + w psi_f cos(delta)`; the inverter's error
+//!     lies along the current, d), and the vector is retarded by `1.4 / w_n` times the
+//!     speed error: damping ratio 0.7.
+//!   - At rest a decaying dither of the vector (twice the learned friction's load angle,
+//!     0.8 `w_n`, over three periods) frees the mover from where friction stopped it.
+//!   - The estimator keeps running and is told the commanded acceleration.
+//! - **Sensorless** ([`DriveState::Running`]) above `low_speed_exit_ratio` times the
+//!   threshold: the position loop `v_cmd = v_ref + k_x (x_ref - x_hat)` feeds the speed
+//!   loop; the profile's acceleration is fed forward as thrust current (`M a_ref / K_f`,
+//!   slewed) and to the estimator's notch. The thrust the axis needs beyond that
+//!   (friction, load) is learned here, along the motion. A lock loss falls back to the
+//!   low-speed mode.
+//!
+//! ## Transitions (bumpless)
+//! Every change of the current reference is slewed at
+//! [`MotionConfig::current_slew_a_per_s`].
+//! - Running -> LowSpeed: the low-speed frame starts on the estimated angle (no jump in
+//!   the control frame), the current reference keeps its value in that frame and slews
+//!   to `(I, 0)`, and the decoupling feed-forward moves into the current controllers'
+//!   integrators.
+//! - LowSpeed -> Running: as the reference speed crosses the exit threshold the
+//!   estimator is seeded ([`crate::estimator::Estimator::seed`]: observer in the steady
+//!   state of the magnet flux at the expected mover angle, PLL on it, FLL on the
+//!   reference speed). The drive stays in the low-speed mode until the estimate tracks
+//!   and agrees with the reference speed within 20 %, then hands over as from I/f
+//!   start-up (current vector rotated into the estimated frame, d current ramped out, the
+//!   speed loop's output continuing from the q current it takes over).
+//!
+//! ## Position estimate
+//! `x_hat` is an unwrapped electrical angle, `tau / pi` metres per radian, counted in
+//! binary-angle steps in an `i64` (no drift, no overflow within 2^31 turns): in
+//! `Running` the estimated angle, in the low-speed mode the *expected mover angle*, the
+//! vector's angle less the load angle `asin(F / (K_f |I|))` with `F` the profile's
+//! `M a_ref` plus the learned load along the motion, filtered at `w_n` (the mover
+//! answers with the spring's dynamics, not at once). Both transitions start from the
+//! angle in use, so `x_hat` does not jump. The zero is the pole position the mover
+//! aligns to when the drive is first enabled (electrical angle 0; later enables align to
+//! the last angle): a non-salient motor has no other absolute reference.
+
+use super::{Drive, DriveState};
+use crate::estimator::Estimate;
+use crate::motion::{MotionError, Move, Profile, Setpoint};
+use crate::num::{Angle, Scalar};
+use crate::transforms::{AlphaBeta, Dq};
+
+/// Capacity of the drive's move queue.
+pub const MOVE_QUEUE: usize = 8;
+
+/// Positioning state and constants (working units unless named in SI).
+#[derive(Clone, Debug)]
+pub(super) struct Positioning<T> {
+    pub(super) profile: Profile<MOVE_QUEUE>,
+    pub(super) setpoint: Setpoint,
+    /// Enter the low-speed mode below this reference speed, m/s.
+    pub(super) enter_m_per_s: f32,
+    /// Leave it above this reference speed, m/s.
+    pub(super) exit_m_per_s: f32,
+    pub(super) low_speed_current: T,
+    /// Vector amplitude at the band's edge (working units).
+    pub(super) exit_current: T,
+    pub(super) slew_step: T,
+    /// Position-loop gain, 1/s.
+    pub(super) position_gain: f32,
+    /// Thrust current per m/s^2 of reference acceleration (A s^2/m, working current).
+    pub(super) accel_current_per_m_s2: f32,
+    /// Electrical radians per metre, `pi / tau`.
+    pub(super) rad_per_m: f32,
+    /// Low-speed frame: `theta_ls = anchor_angle + rad_per_m (x_ref - anchor_x)`.
+    pub(super) anchor_angle: Angle,
+    pub(super) anchor_x_m: f32,
+    /// The estimator has been seeded for the exit from the low-speed mode.
+    pub(super) seeded: bool,
+    /// Phase resistance (working units) and `1 / psi_f` (working units), for the
+    /// mover-speed measurement in the low-speed mode.
+    pub(super) rs: T,
+    pub(super) inv_psi_f: T,
+    /// Damping of the low-speed mode: the vector angle is retarded by `k` seconds times
+    /// the mover's electrical speed error, `k = damping_s_sqrt_a / sqrt(I)` for the
+    /// present amplitude `I` (A) (s A^0.5).
+    pub(super) damping_s_sqrt_a: f32,
+    /// Rate of the speed-error filter per period (dimensionless, <= 1).
+    pub(super) speed_filter_rate: f32,
+    /// Filtered electrical speed error of the mover against the reference (rad/s, SI).
+    pub(super) speed_error_rad_s: f32,
+    /// Moving mass (kg) and thrust constant (N/A), for the expected load angle.
+    pub(super) mass_kg: f32,
+    pub(super) thrust_n_per_a: f32,
+    /// Thrust (N) the axis needed beyond acceleration while running sensorless (friction
+    /// and load, along the motion), filtered: the low-speed mode's load-angle estimate.
+    pub(super) load_force_n: f32,
+    /// Rate of that filter per period (dimensionless).
+    pub(super) load_filter_rate: f32,
+    /// Settling dither: time at rest (s), angular frequency (rad/s), decay rate (1/s).
+    pub(super) rest_time_s: f32,
+    pub(super) dither_rad_s: f32,
+    pub(super) dither_decay_per_s: f32,
+    /// The speed loop's last output and the acceleration feed-forward as applied
+    /// (slewed), thrust current (working units).
+    pub(super) speed_loop_out: T,
+    pub(super) accel_ff_applied: T,
+    /// Expected mover angle relative to the low-speed frame (rad), filtered, and the
+    /// filter's rate per period (the spring's natural frequency times the period).
+    pub(super) mover_offset_rad: f32,
+    pub(super) mover_filter_rate: f32,
+    /// The alignment on enable is complete (the profile may move).
+    pub(super) aligned: bool,
+}
+
+impl<T: Scalar> Drive<T> {
+    /// Queues a move (positioning drives only: `Err(Unreachable)` on a speed drive).
+    /// Targets are in the position estimate's frame (m, see [`Drive::position_m`]).
+    pub fn push_move(&mut self, m: Move) -> Result<(), MotionError> {
+        match &mut self.positioning {
+            Some(p) => p.profile.push(m),
+            None => Err(MotionError::Unreachable),
+        }
+    }
+
+    /// The present reference of the motion profile (SI), for a positioning drive.
+    pub fn setpoint(&self) -> Option<Setpoint> {
+        self.positioning.as_ref().map(|p| p.setpoint)
+    }
+
+    /// Estimated mover position, m: the unwrapped control angle times `tau / pi`, from
+    /// the pole position the mover aligned to on enable (see the module docs).
+    pub fn position_m(&self) -> f32 {
+        let counts = self.position_counts;
+        let turns = (counts >> 32) as f32;
+        let frac = (counts & 0xFFFF_FFFF) as f32 * (1.0 / 4_294_967_296.0);
+        (turns + frac) * self.k.metres_per_turn
+    }
+
+    /// Counts the control angle's change into the position estimate.
+    pub(super) fn track_position(&mut self, theta: Angle) {
+        self.position_counts =
+            self.position_counts.saturating_add(i64::from((theta - self.theta_previous).bits()));
+        self.theta_previous = theta;
+    }
+
+    /// Drops the queued and active moves; the reference holds at the estimated position.
+    pub(super) fn drop_moves(&mut self) {
+        let x = self.position_m();
+        if let Some(p) = &mut self.positioning {
+            p.profile.reset(x);
+            p.setpoint = p.profile.setpoint();
+        }
+    }
+
+    /// Enters the low-speed mode for the alignment on enable: vector at the last
+    /// control angle (0 on the first enable), ramping up from zero; the profile holds
+    /// until it is aligned, then runs the queued moves.
+    pub(super) fn start_positioning(&mut self) {
+        let x = self.position_m();
+        if let Some(p) = &mut self.positioning {
+            p.profile.hold_at(x);
+            p.speed_error_rad_s = 0.0;
+            p.mover_offset_rad = 0.0;
+            p.setpoint = p.profile.setpoint();
+            p.anchor_angle = self.theta_previous;
+            p.anchor_x_m = x;
+            p.seeded = false;
+            p.aligned = false;
+        }
+        self.i_dq_ref = Dq::default();
+        self.state = DriveState::LowSpeed;
+    }
+
+    /// Low-speed mode: the current vector on the reference position; seeds the
+    /// estimator and hands over once the reference is fast enough and the estimate
+    /// tracks.
+    pub(super) fn low_speed_references(&mut self, estimate: &Estimate<T>, i_ab: AlphaBeta<T>) -> (Angle, T) {
+        let dt_s = self.k.dt_s;
+        let Some(p) = &mut self.positioning else {
+            return (self.theta_previous, T::ZERO);
+        };
+        // Slew the current vector towards (I, 0) in the low-speed frame, I from I_ls at
+        // rest to I_exit at the band's edge (see the module docs).
+        let step = p.slew_step;
+        let d = self.i_dq_ref.d;
+        let speed_fraction = (p.setpoint.speed_m_per_s.abs() / p.enter_m_per_s).min(1.0);
+        let target = if p.aligned {
+            p.low_speed_current - T::from_f32(speed_fraction) * (p.low_speed_current - p.exit_current)
+        } else {
+            p.low_speed_current
+        };
+        self.i_dq_ref.d = if d < target { (d + step).min(target) } else { (d - step).max(target) };
+        let q = self.i_dq_ref.q;
+        self.i_dq_ref.q = if q > T::ZERO { (q - step).max(T::ZERO) } else { (q + step).min(T::ZERO) };
+        if !p.aligned {
+            p.aligned = self.i_dq_ref.d == target && self.i_dq_ref.q == T::ZERO;
+        }
+        let i_ref = self.i_dq_ref;
+        let amplitude_a =
+            Scalar::sqrt(i_ref.d * i_ref.d + i_ref.q * i_ref.q).to_f32() * self.k.base.current_a;
+        if p.aligned {
+            p.setpoint = p.profile.step(dt_s);
+        }
+        let sp = p.setpoint;
+        let omega_ref = T::from_f32(sp.speed_m_per_s * p.rad_per_m * self.k.inv_omega_base);
+        // The mover's speed from the q voltage of the last step: in the frame turning at
+        // the reference speed, u_q = Rs i_q + w_ref Ld i_d + w psi_f cos(delta); the
+        // inverter's error lies along the current vector (d), so u_q is clean.
+        let k = &self.k;
+        let i = self.i_dq_measured;
+        let omega_mover = (self.u_dq_last.q - p.rs * i.q - omega_ref * k.ld * i.d) * p.inv_psi_f;
+        let error_rad_s = (omega_mover - omega_ref).to_f32() * k.base.omega_rad_s;
+        if error_rad_s.is_finite() {
+            p.speed_error_rad_s += p.speed_filter_rate * (error_rad_s - p.speed_error_rad_s);
+        }
+        // The vector trails the reference position by damping_s times the speed error:
+        // a thrust against the mover's swing on the current vector's spring.
+        let damping_s = p.damping_s_sqrt_a / Scalar::sqrt(amplitude_a.max(1e-3));
+        let retard = (damping_s * p.speed_error_rad_s).clamp(-0.5, 0.5);
+        let theta =
+            p.anchor_angle + (p.rad_per_m * (sp.position_m - p.anchor_x_m) - retard).radians_to_angle();
+        // Where the mover is expected: the current vector's angle less the load angle
+        // asin(F / (K_f |I|)), F the profile's M a_ref plus the load learned while
+        // running, along the motion (friction pushes back whichever way it moves).
+        // At rest, where friction stopped the mover is not predictable (it may overshoot
+        // the vector and stick): no load angle.
+        let direction = if sp.speed_m_per_s == 0.0 { 0.0 } else { sp.speed_m_per_s.signum() };
+        let force_n = sp.accel_m_per_s2 * p.mass_kg + direction * p.load_force_n;
+        let load_angle = libm::asinf((force_n / (p.thrust_n_per_a * amplitude_a.max(1e-3))).clamp(-1.0, 1.0));
+        let vector = T::atan2(i_ref.q, i_ref.d);
+        // The mover answers a change of the vector or of the force with the spring's
+        // dynamics, not at once: the expected offset from the frame is filtered at the
+        // spring's natural frequency (and the estimate never jumps on entry, where the
+        // offset starts from zero).
+        let offset = (vector - load_angle.radians_to_angle()).to_radians::<f32>();
+        p.mover_offset_rad += p.mover_filter_rate * (offset - p.mover_offset_rad);
+        let mover = theta + p.mover_offset_rad.radians_to_angle();
+        self.low_speed_mover_angle = Some(mover);
+        let alpha =
+            T::from_f32(sp.accel_m_per_s2 * p.rad_per_m * self.k.inv_omega_base * self.k.inv_omega_base);
+        self.estimator.set_commanded_acceleration(alpha);
+        let fast = sp.speed_m_per_s.abs() > p.exit_m_per_s;
+        if !fast {
+            p.seeded = false;
+            // Settling dither at rest: a decaying wobble of the vector that breaks the
+            // mover away from where friction stopped it, so it comes to rest nearer
+            // the vector.
+            let at_rest = sp.speed_m_per_s == 0.0 && p.aligned;
+            p.rest_time_s = if at_rest { p.rest_time_s + dt_s } else { 0.0 };
+            // Amplitude: twice the load angle of the friction learned while running
+            // (where friction holds the mover), decaying over a few of the spring's
+            // periods; frequency 0.8 of the spring's natural frequency.
+            let t = p.rest_time_s;
+            let hold =
+                libm::asinf((p.load_force_n.abs() / (p.thrust_n_per_a * amplitude_a.max(1e-3))).min(1.0));
+            let amp = (2.0 * hold).min(0.2) * libm::expf(-t * p.dither_decay_per_s);
+            let dither = if at_rest && amp > 1e-3 { amp * libm::sinf(p.dither_rad_s * t) } else { 0.0 };
+            return (theta + dither.radians_to_angle(), omega_ref);
+        }
+        if !p.seeded {
+            self.estimator.seed(mover, omega_ref, i_ab);
+            p.seeded = true;
+            return (theta, omega_ref);
+        }
+        let close = (estimate.omega_e - omega_ref).abs() < omega_ref.abs() * self.k.handover_tolerance;
+        if estimate.tracking && close {
+            self.hand_over(theta, estimate);
+            // Take the thrust current over into the speed loop, which runs on the
+            // position loop's speed command from now on: its output continues from the
+            // q current the hand-over left (less the acceleration feed-forward).
+            let (omega_cmd, iq_ff) = self.position_command(estimate);
+            let iq = self.i_dq_ref.q;
+            self.pi_speed.preset(iq - iq_ff, omega_cmd - self.omega_filtered);
+            if let Some(p) = &mut self.positioning {
+                p.speed_loop_out = iq - iq_ff;
+                p.accel_ff_applied = iq_ff;
+            }
+            self.state = DriveState::Running;
+            return (estimate.theta_e, estimate.omega_e);
+        }
+        (theta, omega_ref)
+    }
+
+    /// The position loop's speed command (electrical, working units) and the
+    /// acceleration feed-forward (thrust current, working units) for the present setpoint.
+    fn position_command(&self, _estimate: &Estimate<T>) -> (T, T) {
+        let Some(p) = &self.positioning else {
+            return (T::ZERO, T::ZERO);
+        };
+        let sp = p.setpoint;
+        let v_cmd = sp.speed_m_per_s + p.position_gain * (sp.position_m - self.position_m());
+        let omega_cmd = T::from_f32(v_cmd * p.rad_per_m * self.k.inv_omega_base);
+        let iq_ff = T::from_f32(sp.accel_m_per_s2 * p.accel_current_per_m_s2);
+        (omega_cmd, iq_ff)
+    }
+
+    /// Into the low-speed mode on the estimated angle: the frame does not jump (the
+    /// current reference keeps its value and slews from there), the decoupling
+    /// feed-forward moves into the integrators, the position estimate continues.
+    pub(super) fn enter_low_speed(&mut self, estimate: &Estimate<T>) -> (Angle, T) {
+        let theta = estimate.theta_e;
+        let omega = estimate.omega_e;
+        if let Some(p) = &mut self.positioning {
+            p.anchor_angle = theta;
+            p.anchor_x_m = p.setpoint.position_m;
+            p.seeded = false;
+            p.aligned = true;
+            p.speed_error_rad_s = 0.0;
+            p.mover_offset_rad = 0.0;
+        }
+        let k = &self.k;
+        let i = self.i_dq_ref;
+        let ff_d = -omega * k.lq * i.q;
+        let ff_q = omega * (k.ld * i.d + k.psi_f);
+        let (int_d, int_q) = (self.pi_d.integral(), self.pi_q.integral());
+        self.pi_d.preset(int_d + ff_d, T::ZERO);
+        self.pi_q.preset(int_q + ff_q, T::ZERO);
+        self.estimator.set_commanded_acceleration(T::ZERO);
+        self.state = DriveState::LowSpeed;
+        (theta, omega)
+    }
+
+    /// Sensorless positioning: position loop on `x_hat` with the profile's speed and
+    /// acceleration fed forward; enters the low-speed mode when the reference slows.
+    pub(super) fn positioning_references(&mut self, estimate: &Estimate<T>) -> Option<(Angle, T)> {
+        let dt_s = self.k.dt_s;
+        let p = self.positioning.as_mut()?;
+        p.setpoint = p.profile.step(dt_s);
+        let sp = p.setpoint;
+        if sp.speed_m_per_s.abs() < p.enter_m_per_s {
+            return Some(self.enter_low_speed(estimate));
+        }
+        let alpha =
+            T::from_f32(sp.accel_m_per_s2 * p.rad_per_m * self.k.inv_omega_base * self.k.inv_omega_base);
+        self.estimator.set_commanded_acceleration(alpha);
+        let (omega_cmd, iq_ff) = self.position_command(estimate);
+        self.omega_ref = omega_cmd;
+        // Learn the thrust beyond acceleration (friction, load) along the motion.
+        if let Some(p) = &mut self.positioning {
+            let sp = p.setpoint;
+            if sp.speed_m_per_s != 0.0 {
+                let thrust = p.thrust_n_per_a * self.i_dq_measured.q.to_f32() * self.k.base.current_a;
+                let along = (thrust - p.mass_kg * sp.accel_m_per_s2) * sp.speed_m_per_s.signum();
+                if along.is_finite() {
+                    p.load_force_n += p.load_filter_rate * (along - p.load_force_n);
+                }
+            }
+        }
+        self.speed_divider_count += 1;
+        let speed_loop_due = self.speed_divider_count >= self.k.speed_loop_divider;
+        if speed_loop_due {
+            self.speed_divider_count = 0;
+        }
+        let error = self.omega_ref - self.omega_filtered;
+        if let Some(p) = &mut self.positioning {
+            if speed_loop_due {
+                p.speed_loop_out = self.pi_speed.update(error);
+            }
+            // The trapezoid's acceleration steps; its feed-forward is slewed like every
+            // other change of the current reference (bounded jerk of the thrust).
+            let step = p.slew_step;
+            p.accel_ff_applied = p.accel_ff_applied + (iq_ff - p.accel_ff_applied).clamp_to(-step, step);
+            self.i_dq_ref.q = p.speed_loop_out + p.accel_ff_applied;
+        }
+        None
+    }
+}
