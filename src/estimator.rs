@@ -35,7 +35,7 @@
 //! - [`Estimate::locked`]: `tracking`, and the FLL is [settled](crate::fll::FllOutput::settled):
 //!   the flux estimate is steady and has been for the DCFO's settling time. What a user
 //!   may trust the angle by: over the acquisition sweep (576 cold starts) and the paper
-//!   scenarios it is never set while the true error exceeds 15 deg, except for 78 ms
+//!   scenarios it is never set while the true error exceeds 15 deg, except for 66 ms
 //!   after the +2 V step of the paper's Fig. 14 (README, status).
 
 use crate::fll::{Fll, FllConfig, FllConfigError};
@@ -293,7 +293,10 @@ impl<T: Scalar> Estimator<T> {
             // takes the notch back until both agree again. An FLL that is not settled
             // (a DC step in the inputs modulates its reading) leaves the PLL in charge.
             let reference = f.omega_e.abs().max(self.agreement_floor);
-            let agree = (self.pll.omega_integral() - f.omega_e).abs() <= self.agreement_tolerance * reference;
+            // The PLL's frequency as the notch uses it: its integrator plus the lag on a
+            // commanded ramp (which the integrator alone shows as a disagreement).
+            let agree = (self.pll.omega_integral() + self.ramp_lag - f.omega_e).abs()
+                <= self.agreement_tolerance * reference;
             if !agree && f.settled {
                 self.pll.set_integral(T::ZERO);
                 self.fll_steers = true;

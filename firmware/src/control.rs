@@ -230,13 +230,16 @@ mod tests {
         assert_eq!(run_until(&mut c, &mut board, &sp, DriveState::Starting, 50), None);
         assert!(!board.bridge_on && board.enables == 0);
         assert_eq!(board.duties, Some([0.5; 3]));
-        // Enabled: calibration (bridge off), then start-up switches it on.
+        // Enabled: calibration (bridge off), then the catch on enable (zero current, to
+        // find a mover that may be moving) switches it on, then start-up.
         sp.set_enable(true);
         assert!(sp.set_speed_m_per_s(0.3));
-        assert!(run_until(&mut c, &mut board, &sp, DriveState::Starting, 10_000).is_some());
-        // The step that ends calibration enters start-up; the next one modulates.
+        assert!(run_until(&mut c, &mut board, &sp, DriveState::Reacquiring, 10_000).is_some());
+        // The step that ends calibration enters the catch; the next one modulates.
         assert!(!board.bridge_on);
-        assert_eq!(run_until(&mut c, &mut board, &sp, DriveState::Starting, 1), Some(1));
+        assert_eq!(run_until(&mut c, &mut board, &sp, DriveState::Reacquiring, 1), Some(1));
+        assert!(board.bridge_on);
+        assert!(run_until(&mut c, &mut board, &sp, DriveState::Starting, 10_000).is_some());
         assert!(board.bridge_on);
         // Each injected fault: bridge off at once, latched with its bit, and it stays off
         // after the cause goes away until the faults are cleared.

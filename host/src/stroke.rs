@@ -164,6 +164,7 @@ pub fn run(name: &str, motor: &MotorParams, log_every: usize) -> Result<(StrokeS
     let duration = 0.3 + MOVES as f64 * per_move + 1.0;
     let n = (duration / ts).round() as usize;
     let mut pending = [0.5f64; 3];
+    let mut pending_on = false;
     let mut rows = Vec::new();
     let (mut x_err_max, mut x_err_final) = (0.0f64, 0.0f64);
     let mut aligned = false;
@@ -205,12 +206,13 @@ pub fn run(name: &str, motor: &MotorParams, log_every: usize) -> Result<(StrokeS
             vdc: reading.vdc_v as f32,
         };
         let out = drive.step(&m);
-        plant.step(pending, 0.0);
-        pending = if out.bridge_enabled {
-            [f64::from(out.duties.a), f64::from(out.duties.b), f64::from(out.duties.c)]
+        if pending_on {
+            plant.step(pending, 0.0);
         } else {
-            [0.5; 3]
-        };
+            plant.step_open(0.0);
+        }
+        pending_on = out.bridge_enabled;
+        pending = [f64::from(out.duties.a), f64::from(out.duties.b), f64::from(out.duties.c)];
         if out.state != last_state {
             last_change = k;
             last_state = out.state;

@@ -7,7 +7,7 @@ use dcfo::observer::ObserverKind;
 use dcfo_host::sim::{self, Event, Scenario, Setup, theta_err_deg};
 
 /// (time to resume Running, peak current, lowest speed, max error over the last 0.1 s,
-/// max error over the 0.1 s before the reset).
+/// max error over the 0.5 s before the reset).
 fn run_reset_at(v: f64) -> (Option<f64>, f64, f64, f64, f64) {
     let setup = Setup::paper(ObserverKind::Dcfo);
     let accel = f64::from(setup.drive.accel_limit_m_per_s2);
@@ -33,10 +33,12 @@ fn run_reset_at(v: f64) -> (Option<f64>, f64, f64, f64, f64) {
     let i_peak = after.iter().map(|s| s.i_q.abs().max(s.i_d.abs())).fold(0.0, f64::max);
     let v_min = after.iter().map(|s| s.row.v.unwrap_or(0.0)).fold(f64::INFINITY, f64::min);
     let err_end = after.iter().rev().take(1000).map(|s| theta_err_deg(s).abs()).fold(0.0, f64::max);
+    // The steady error's maximum before the reset, over several periods of the
+    // electrical angle and of the end-effect ripple.
     let err_before = run
         .samples
         .iter()
-        .filter(|s| s.row.t >= t_reset - 0.1 && s.row.t < t_reset)
+        .filter(|s| s.row.t >= t_reset - 0.5 && s.row.t < t_reset)
         .map(|s| theta_err_deg(s).abs())
         .fold(0.0, f64::max);
     (resumed, i_peak, v_min, err_end, err_before)
@@ -58,5 +60,54 @@ fn drive_reacquires_a_moving_mover_instead_of_tripping() {
         assert!(i_peak <= limit, "{v} m/s: {i_peak} A over the {limit} A limit");
         // Back to the accuracy it had before the reset (the steady ripple at that speed).
         assert!(err_end < err_before + 1.0, "{v} m/s: {err_end} deg, {err_before} before");
+    }
+}
+
+/// Enabling the drive while the mover coasts at `v` (m/s; friction slows it at about
+/// 0.4 m/s^2): (states the drive went through, time from the end of calibration to
+/// `Running`, peak current, max angle error over the last 0.2 s).
+fn enable_while_moving(v: f64) -> (Vec<u8>, Option<f64>, f64, f64) {
+    let setup = Setup::paper(ObserverKind::Dcfo);
+    let scenario = Scenario {
+        name: "catch-on-enable",
+        description: "drive enabled with the mover already moving",
+        duration_s: 1.5,
+        events: vec![(0.0, Event::Speed(v)), (0.0, Event::MoverSpeed(v))],
+        plant_rs_factor: None,
+        event_s: 0.0,
+        window_s: 1.5,
+        paper: "",
+    };
+    let run = sim::run(&setup, &scenario, |_| {}).unwrap();
+    assert!(run.faults.is_empty(), "{v} m/s: tripped {:?}", run.faults);
+    let mut states: Vec<u8> = run.samples.iter().map(|s| s.state).collect();
+    states.dedup();
+    let calibrated = run.samples.iter().find(|s| s.state != DriveState::Calibrating.code()).map(|s| s.row.t);
+    let running = run.samples.iter().find(|s| s.state == DriveState::Running.code()).map(|s| s.row.t);
+    let caught = calibrated.zip(running).map(|(a, b)| b - a);
+    let i_peak = run.samples.iter().map(|s| s.i_q.abs().max(s.i_d.abs())).fold(0.0, f64::max);
+    let err_end =
+        run.samples.iter().filter(|s| s.row.t > 1.3).map(|s| theta_err_deg(s).abs()).fold(0.0, f64::max);
+    (states, caught, i_peak, err_end)
+}
+
+#[test]
+fn enabling_a_drive_on_a_moving_mover_catches_it_without_a_current_spike() {
+    let limit = f64::from(Setup::paper(ObserverKind::Dcfo).drive.current_limit_a);
+    for v in [0.3, -0.6, 1.0] {
+        let (states, caught, i_peak, err_end) = enable_while_moving(v);
+        println!(
+            "{v} m/s: states {states:?}, Running {caught:?} s after calibration, peak {i_peak:.2} A, end error {err_end:.2} deg"
+        );
+        // Straight from the catch (Reacquiring) to Running: no I/f start on a moving mover.
+        assert!(!states.contains(&DriveState::Starting.code()), "{v} m/s: {states:?}");
+        let caught = caught.expect("never reached Running");
+        // The issue sets no time for this case (the flying restart's 100 ms is for a lock
+        // loss); measured 131 ms at 0.3 m/s (the estimate tracks, drops once, tracks
+        // again), 42-45 ms at 0.6-1.0 m/s.
+        assert!(caught < 0.2, "{v} m/s: {caught} s");
+        assert!(i_peak <= limit, "{v} m/s: {i_peak} A over the {limit} A limit");
+        // Then as accurate as a drive started by I/f (the steady floor: 5 deg max).
+        assert!(err_end < 5.0, "{v} m/s: {err_end} deg");
     }
 }

@@ -27,6 +27,12 @@ pub struct StartupConfig {
     /// After hand-over, time over which the d-axis current of the start-up vector is
     /// ramped to zero, s (> 0).
     pub id_ramp_s: f32,
+    /// Catching a moving mover on enable: after calibration the drive first holds zero
+    /// current (`Reacquiring`) while the estimator acquires; if after this time (s, > 0)
+    /// the flux estimate is below half the magnet flux, nothing moves and the I/f start
+    /// begins; otherwise the drive enters `Running` once the estimate tracks, or trips
+    /// `LOCK_LOST` after `faults.reacquire_timeout_s`. `None`: always start by I/f.
+    pub catch_probe_s: Option<f32>,
 }
 
 /// Compensation of the inverter's dead time and device drops, added to the voltage
@@ -184,6 +190,8 @@ impl DriveConfig {
     /// 10.7 kg axis (10 rad/s stalled it); twice rated current;
     /// start-up at rated current to 0.25 m/s (8.3 Hz on the paper motor, where the
     /// DCFO + PLL converge in well under a second), lowered to 30 % during a 1 s dwell;
+    /// a 50 ms catch probe on enable (the FLL's acquisition sweep from its start
+    /// frequency down to the notch floor takes about `1 / (4 w_floor)` = 20 ms);
     /// acceleration limited to 0.5 m/s^2; protection at 3x rated current and
     /// 60-130 % of the nominal bus.
     pub fn for_motor(motor: &MotorParams, bus_v: f32, observer: ObserverKind) -> Self {
@@ -205,6 +213,7 @@ impl DriveConfig {
                 handover_speed_m_per_s: 0.25,
                 dwell_s: 1.0,
                 id_ramp_s: 0.05,
+                catch_probe_s: Some(0.05),
             },
             dead_time_compensation: None,
             faults: FaultConfig {
@@ -270,7 +279,7 @@ impl DriveConfig {
     pub fn validate(&self) -> Result<(), DriveConfigError> {
         let pos = |x: f32| x.is_finite() && x > 0.0;
         let non_neg = |x: f32| x.is_finite() && x >= 0.0;
-        let checks: [(bool, &'static str); 21] = [
+        let checks: [(bool, &'static str); 22] = [
             (pos(self.control_period_s), "control_period_s"),
             (self.speed_loop_divider >= 1, "speed_loop_divider"),
             (pos(self.current_bandwidth_rad_s), "current_bandwidth_rad_s"),
@@ -290,6 +299,7 @@ impl DriveConfig {
             (pos(self.startup.handover_speed_m_per_s), "startup.handover_speed_m_per_s"),
             (non_neg(self.startup.dwell_s), "startup.dwell_s"),
             (pos(self.startup.id_ramp_s), "startup.id_ramp_s"),
+            (self.startup.catch_probe_s.is_none_or(pos), "startup.catch_probe_s"),
             (pos(self.faults.overcurrent_a), "faults.overcurrent_a"),
             (pos(self.faults.bus_min_v) && self.faults.bus_max_v > self.faults.bus_min_v, "faults.bus_max_v"),
             (pos(self.faults.lock_loss_s), "faults.lock_loss_s"),

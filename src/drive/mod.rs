@@ -186,6 +186,10 @@ struct Constants<T> {
     dt_s: f32,
     /// `1 / dt` (working units).
     inv_dt: T,
+    /// Periods after enable at which a catch decides "at rest" (0: no catch), and the
+    /// squared flux amplitude below which it does (Wb^2, working units).
+    catch_probe_samples: u32,
+    catch_flux_sq: T,
     /// `1 / omega_base` (s/rad): SI rad/s to working units.
     inv_omega_base: f32,
     /// One electrical turn, m (two pole pitches).
@@ -233,6 +237,8 @@ pub struct Drive<T> {
     position_counts: i64,
     /// The control angle of the last step.
     theta_previous: Angle,
+    /// `Reacquiring` right after enable: catching a mover that may be moving.
+    catching: bool,
     /// The current controllers' voltage command of the last step (V, control frame).
     u_dq_last: Dq<T>,
     /// The measured currents of the last step in its control frame (A).
@@ -329,6 +335,11 @@ impl<T: Scalar> Drive<T> {
             omega_per_speed,
             base: *base,
             dt_s: ts,
+            catch_probe_samples: config.startup.catch_probe_s.map_or(0, |p| samples(p).max(1)),
+            catch_flux_sq: {
+                let half: T = base.flux(0.5 * motor.psi_f_wb);
+                half * half
+            },
             inv_dt: representable(1.0 / base.time::<f32>(ts), "control_period_s")?,
             inv_omega_base: 1.0 / base.omega_rad_s,
             metres_per_turn: 2.0 * motor.pole_pitch_m,
@@ -425,6 +436,7 @@ impl<T: Scalar> Drive<T> {
             positioning,
             position_counts: 0,
             theta_previous: Angle::ZERO,
+            catching: false,
             u_dq_last: Dq::default(),
             i_dq_measured: Dq::default(),
             low_speed_mover_angle: None,
@@ -603,13 +615,27 @@ impl<T: Scalar> Drive<T> {
         }
         self.offsets = o;
         self.start();
+        if self.positioning.is_none() && self.k.catch_probe_samples > 0 {
+            // Catch a mover that is already moving: hold zero current (the current loops
+            // regulate it, so the voltage they apply is the back-EMF) and let the
+            // estimator acquire, as in a flying restart.
+            self.state = DriveState::Reacquiring;
+            self.catching = true;
+            self.i_dq_ref = Dq::default();
+        }
     }
 
     /// Enters `Starting` with every controller and the estimator at rest.
     fn start(&mut self) {
+        self.estimator.reset();
+        self.start_open_loop();
+    }
+
+    /// Enters `Starting` (or, for a positioning drive, the alignment) with every
+    /// controller at rest; the estimator keeps its state.
+    fn start_open_loop(&mut self) {
         self.state = DriveState::Starting;
         self.counter = 0;
-        self.estimator.reset();
         self.pi_d.reset();
         self.pi_q.reset();
         self.pi_speed.reset();
@@ -849,7 +875,20 @@ impl<T: Scalar> Drive<T> {
             self.pi_speed.reset();
             self.omega_ref = estimate.omega_e;
             self.omega_filtered = estimate.omega_e;
+            self.catching = false;
+        } else if self.catching && self.counter == k.catch_probe_samples {
+            // Catching on enable: no flux after the acquisition sweep means no
+            // back-EMF, a mover at rest (or too slow to observe): start by I/f.
+            let psi = estimate.psi_ab;
+            if psi.alpha * psi.alpha + psi.beta * psi.beta < k.catch_flux_sq {
+                self.catching = false;
+                // The estimator keeps what it has seen (no reset: a replayed trace,
+                // which starts with the catch, must see the same estimator).
+                self.start_open_loop();
+                return (self.theta_ol, T::ZERO);
+            }
         } else if self.counter > k.reacquire_timeout_samples {
+            self.catching = false;
             self.trip(Faults::LOCK_LOST);
         }
         (estimate.theta_e, estimate.omega_e)

@@ -107,6 +107,8 @@ enum Mech {
 /// Everything held constant over one RK4 step.
 #[derive(Debug, Clone, Copy)]
 struct Frozen {
+    /// Every switch off (bridge disabled): see [`Plant::step_open`].
+    open: bool,
     modes: [LegMode; 3],
     signs: [i8; 3],
     upper_last: [bool; 3],
@@ -201,6 +203,19 @@ impl Model {
         };
 
         let mut d = [0.0; NY];
+        if fr.open {
+            // No current flows; the terminals show the back-EMF.
+            let (e_alpha, e_beta) = (-s * w * self.psi_f, c * w * self.psi_f);
+            d[V] = dv;
+            d[X] = dx;
+            d[E_FRIC] = f_fric * v;
+            d[E_LOAD] = f_load * v;
+            d[E_END] = f_end * v;
+            d[INT_UA] = e_alpha;
+            d[INT_UB] = e_beta;
+            d[INT_VA..INT_VA + 3].copy_from_slice(&inv_clarke(e_alpha, e_beta));
+            return d;
+        }
         d[ID] = (u_d - self.rs * i_d + w * self.lq * i_q) / self.ld;
         d[IQ] = (u_q - self.rs * i_q - w * (self.ld * i_d + self.psi_f)) / self.lq;
         d[V] = dv;
@@ -483,6 +498,23 @@ impl Plant {
     /// is taken as 0) over the period `[t, t + Ts)`, and advances to `t + Ts`.
     /// Never panics.
     pub fn step(&mut self, duties: [f64; 3], load_force_n: f64) {
+        self.step_impl(duties, load_force_n, false);
+    }
+
+    /// Advances one period with every switch of the bridge off (a disabled drive): no
+    /// current flows and the mover coasts under friction, end effect and `load_force_n`
+    /// (as in [`Plant::step`]). Exact while the line-to-line back-EMF stays below the bus
+    /// (`sqrt(3) w psi_f < V_dc`: 2.8 m/s on the paper motor at 311 V); above it the
+    /// diodes would rectify into the bus, which this model does not represent (the
+    /// currents are held at zero). The winding currents are set to zero on entry (the
+    /// switching-off transient through the diodes is not modelled).
+    pub fn step_open(&mut self, load_force_n: f64) {
+        self.y[ID] = 0.0;
+        self.y[IQ] = 0.0;
+        self.step_impl([0.5; 3], load_force_n, true);
+    }
+
+    fn step_impl(&mut self, duties: [f64; 3], load_force_n: f64, open: bool) {
         let duties = duties.map(|d| if d.is_finite() { d.clamp(0.0, 1.0) } else { 0.5 });
         let load = if load_force_n.is_finite() { load_force_n } else { 0.0 };
         let ts = self.params.inverter.pwm_period_s;
@@ -527,7 +559,7 @@ impl Plant {
                 });
                 let mech = self.mech_mode(&self.y, load);
                 self.stuck = mech == Mech::Stuck;
-                let fr = Frozen { modes, signs, upper_last: self.upper_last, vdc, mech, load };
+                let fr = Frozen { open, modes, signs, upper_last: self.upper_last, vdc, mech, load };
                 model.rk4(&mut self.y, h, &fr);
                 // Coulomb friction cannot push the mover back through zero speed:
                 // stop it there and book the (tiny) overshoot energy as friction.

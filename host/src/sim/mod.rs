@@ -226,6 +226,7 @@ pub fn run_with(
     let ts = plant.pwm_period_s();
     let n = (scenario.duration_s / ts).round() as usize;
     let mut pending = [0.5f64; 3];
+    let mut pending_on = false;
     let mut load_n = 0.0;
     let mut samples = Vec::with_capacity(n);
     let mut handover_s = None;
@@ -242,6 +243,7 @@ pub fn run_with(
                 Event::Load(f) => load_n = f,
                 Event::ObserverOffsets { u_v, i_a } => controller.set_observer_offsets(u_v, i_a)?,
                 Event::ResetEstimator => controller.reset_estimator()?,
+                Event::MoverSpeed(v) => plant.set_speed(v)?,
             }
             next_event += 1;
         }
@@ -259,14 +261,15 @@ pub fn run_with(
         };
         let step = controller.step(&sensor)?;
         let f = step.frame;
-        plant.step(pending, load_n);
-        let applied = plant.state().last_period;
-        pending = if f.bridge_enabled {
-            [f.duty_a as f64, f.duty_b as f64, f.duty_c as f64]
+        if pending_on {
+            plant.step(pending, load_n);
         } else {
-            // The plant has no open-bridge mode: centred duties apply zero line voltage.
-            [0.5; 3]
-        };
+            plant.step_open(load_n);
+        }
+        let applied = plant.state().last_period;
+        pending_on = f.bridge_enabled;
+        pending =
+            if f.bridge_enabled { [f.duty_a as f64, f.duty_b as f64, f.duty_c as f64] } else { [0.5; 3] };
         faults = f.faults;
         if f.state == DriveState::Running && handover_s.is_none() {
             handover_s = Some(t);

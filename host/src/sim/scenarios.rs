@@ -19,6 +19,8 @@ pub enum Event {
     },
     /// The drive's estimator is reset to its zero state (a lock loss at speed).
     ResetEstimator,
+    /// The mover is set moving at this speed, m/s, at that instant (an external push).
+    MoverSpeed(f64),
 }
 
 /// A named experiment.
