@@ -335,6 +335,15 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
 /// `dcfo stroke`: the positioning drive over the stroke (see `crate::stroke`).
 pub fn run_stroke(args: &StrokeArgs) -> anyhow::Result<()> {
     let motor = load_motor(&args.motor)?;
+    // The positioning drive's speed loop, feed-forward and low-speed damping are tuned
+    // on the mover's mass: a placeholder would tune them silently wrong.
+    if motor.defaulted.contains(&"mass_kg") {
+        anyhow::bail!(
+            "motor file {}: key `mass_kg` is required by the positioning drive (its speed loop, \
+             acceleration feed-forward and low-speed damping are tuned on the moving mass)",
+            args.motor
+        );
+    }
     let started = Instant::now();
     let (summary, rows) = crate::stroke::run(&args.motor, &motor.params, 10)
         .map_err(|e| anyhow::anyhow!("{}: {e}", args.motor))?;

@@ -161,3 +161,25 @@ fn motor_image_command_writes_what_the_firmware_reads_and_refuses_bad_input() {
         assert!(!bad.exists(), "no file on an error");
     }
 }
+
+#[test]
+fn stroke_refuses_a_motor_file_without_the_mass_it_tunes_on() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let path = dir.path().join("no_mass.toml");
+    let text = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/../motors/salient.toml"))
+        .expect("example motor");
+    let text: String = text.lines().filter(|l| !l.starts_with("mass_kg")).map(|l| format!("{l}\n")).collect();
+    std::fs::write(&path, text).expect("write");
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_dcfo"))
+        .args(["stroke", "--out"])
+        .arg(dir.path().join("out"))
+        .arg("--motor")
+        .arg(&path)
+        .output()
+        .expect("dcfo runs");
+    assert!(!out.status.success());
+    let msg = String::from_utf8_lossy(&out.stderr);
+    assert_has(&msg, &["no_mass.toml", "`mass_kg`", "positioning"]);
+    // Nothing written as if complete.
+    assert!(!dir.path().join("out").join("stroke.json").exists());
+}

@@ -51,3 +51,29 @@ fn low_resistance_motor_stroke_meets_the_floors() {
     let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../motors/low_r.toml");
     check("low-r", &load_motor(path).expect("motor file").params);
 }
+
+#[test]
+fn a_profile_the_motor_cannot_follow_is_refused_by_name() {
+    use dcfo::drive::Drive;
+    use dcfo::units::Base;
+    let m = MotorParams::paper();
+    let ok = dcfo_host::stroke::drive_for(&m);
+    assert!(Drive::<f32>::new(&m, &ok, &Base::SI).is_ok());
+    // 300 m/s^2 of a 10.7 kg axis needs 64 A of a 5.9 A limit.
+    let mut too_fast = ok;
+    let mut motion = ok.motion.expect("positioning");
+    motion.limits.max_accel_m_per_s2 = 300.0;
+    too_fast.motion = Some(motion);
+    let err = Drive::<f32>::new(&m, &too_fast, &Base::SI).expect_err("refused");
+    assert_eq!(err.field, "motion.limits.max_accel_m_per_s2");
+    // 10 m/s makes 335 V of back-EMF, above the 100 V the bridge applies at 187 V of bus.
+    let mut motion = ok.motion.expect("positioning");
+    motion.limits.max_speed_m_per_s = 10.0;
+    too_fast.motion = Some(motion);
+    let err = Drive::<f32>::new(&m, &too_fast, &Base::SI).expect_err("refused");
+    assert_eq!(err.field, "motion.limits.max_speed_m_per_s");
+    // A target outside the stroke is refused, and the queue is unchanged.
+    let mut d = Drive::<f32>::new(&m, &ok, &Base::SI).unwrap();
+    let bad = dcfo::motion::Move { target_m: 1.0, dwell_s: 0.0 };
+    assert_eq!(d.push_move(bad), Err(dcfo::motion::MotionError::Unreachable));
+}
