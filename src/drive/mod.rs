@@ -359,6 +359,11 @@ impl<T: Scalar> Drive<T> {
             if emf_v >= max_phase_v {
                 return Err(DriveConfigError { field: "motion.limits.max_speed_m_per_s" });
             }
+            // The low-speed vector at rest is a spring of stiffness K_f I pi / tau (N/m)
+            // on the moving mass: its natural frequency w_n (rad/s) sets the damping,
+            // the filters and the dither of the low-speed mode (`positioning` docs).
+            let stiffness = motor.thrust_constant_n_per_a() * m.low_speed_current_a * omega_per_speed;
+            let wn = libm::sqrtf(stiffness / config.moving_mass_kg);
             let profile = crate::motion::Profile::new(m.limits, 0.0)
                 .map_err(|_| DriveConfigError { field: "motion.limits" })?;
             Ok(Positioning {
@@ -385,11 +390,7 @@ impl<T: Scalar> Drive<T> {
                         config.moving_mass_kg / (motor.thrust_constant_n_per_a() * omega_per_speed),
                     )
                 },
-                speed_filter_rate: {
-                    let stiffness = motor.thrust_constant_n_per_a() * m.low_speed_current_a * omega_per_speed;
-                    let wn = libm::sqrtf(stiffness / config.moving_mass_kg);
-                    (5.0 * wn * ts).min(1.0)
-                },
+                speed_filter_rate: (5.0 * wn * ts).min(1.0),
                 speed_error_rad_s: 0.0,
                 mass_kg: config.moving_mass_kg,
                 thrust_n_per_a: motor.thrust_constant_n_per_a(),
@@ -399,20 +400,11 @@ impl<T: Scalar> Drive<T> {
                 mover_offset_rad: 0.0,
                 rest_time_s: 0.0,
                 // 0.8 w_n at rest (full current); decaying over three of its periods.
-                dither_rad_s: {
-                    let stiffness = motor.thrust_constant_n_per_a() * m.low_speed_current_a * omega_per_speed;
-                    0.8 * libm::sqrtf(stiffness / config.moving_mass_kg)
-                },
-                dither_decay_per_s: {
-                    let stiffness = motor.thrust_constant_n_per_a() * m.low_speed_current_a * omega_per_speed;
-                    0.8 * libm::sqrtf(stiffness / config.moving_mass_kg) / (3.0 * 2.0 * core::f32::consts::PI)
-                },
+                dither_rad_s: 0.8 * wn,
+                dither_decay_per_s: 0.8 * wn / (3.0 * 2.0 * core::f32::consts::PI),
                 speed_loop_out: T::ZERO,
                 accel_ff_applied: T::ZERO,
-                mover_filter_rate: {
-                    let stiffness = motor.thrust_constant_n_per_a() * m.low_speed_current_a * omega_per_speed;
-                    (libm::sqrtf(stiffness / config.moving_mass_kg) * ts).min(1.0)
-                },
+                mover_filter_rate: (wn * ts).min(1.0),
                 anchor_angle: Angle::ZERO,
                 anchor_x_m: 0.0,
                 seeded: false,
