@@ -367,7 +367,6 @@ impl<T: Scalar> Drive<T> {
             let profile = crate::motion::Profile::new(m.limits, 0.0)
                 .map_err(|_| DriveConfigError { field: "motion.limits" })?;
             Ok(Positioning {
-                setpoint: profile.setpoint(),
                 profile,
                 enter_m_per_s: m.low_speed_m_per_s,
                 exit_m_per_s: m.low_speed_m_per_s * m.low_speed_exit_ratio,

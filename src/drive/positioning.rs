@@ -67,7 +67,6 @@ pub const MOVE_QUEUE: usize = 8;
 #[derive(Clone, Debug)]
 pub(super) struct Positioning<T> {
     pub(super) profile: Profile<MOVE_QUEUE>,
-    pub(super) setpoint: Setpoint,
     /// Enter the low-speed mode below this reference speed, m/s.
     pub(super) enter_m_per_s: f32,
     /// Leave it above this reference speed, m/s.
@@ -135,7 +134,7 @@ impl<T: Scalar> Drive<T> {
 
     /// The present reference of the motion profile (SI), for a positioning drive.
     pub fn setpoint(&self) -> Option<Setpoint> {
-        self.positioning.as_ref().map(|p| p.setpoint)
+        self.positioning.as_ref().map(|p| p.profile.setpoint())
     }
 
     /// Estimated mover position, m: the unwrapped control angle times `tau / pi`, from
@@ -159,7 +158,6 @@ impl<T: Scalar> Drive<T> {
         let x = self.position_m();
         if let Some(p) = &mut self.positioning {
             p.profile.reset(x);
-            p.setpoint = p.profile.setpoint();
         }
     }
 
@@ -172,7 +170,6 @@ impl<T: Scalar> Drive<T> {
             p.profile.hold_at(x);
             p.speed_error_rad_s = 0.0;
             p.mover_offset_rad = 0.0;
-            p.setpoint = p.profile.setpoint();
             p.anchor_angle = self.theta_previous;
             p.anchor_x_m = x;
             p.seeded = false;
@@ -194,7 +191,7 @@ impl<T: Scalar> Drive<T> {
         // rest to I_exit at the band's edge (see the module docs).
         let step = p.slew_step;
         let d = self.i_dq_ref.d;
-        let speed_fraction = (p.setpoint.speed_m_per_s.abs() / p.enter_m_per_s).min(1.0);
+        let speed_fraction = (p.profile.setpoint().speed_m_per_s.abs() / p.enter_m_per_s).min(1.0);
         let target = if p.aligned {
             p.low_speed_current - T::from_f32(speed_fraction) * (p.low_speed_current - p.exit_current)
         } else {
@@ -209,10 +206,7 @@ impl<T: Scalar> Drive<T> {
         let i_ref = self.i_dq_ref;
         let amplitude_a =
             Scalar::sqrt(i_ref.d * i_ref.d + i_ref.q * i_ref.q).to_f32() * self.k.base.current_a;
-        if p.aligned {
-            p.setpoint = p.profile.step(dt_s);
-        }
-        let sp = p.setpoint;
+        let sp = if p.aligned { p.profile.step(dt_s) } else { p.profile.setpoint() };
         let omega_ref = T::from_f32(sp.speed_m_per_s * p.rad_per_m * self.k.inv_omega_base);
         // The mover's speed from the q voltage of the last step: in the frame turning at
         // the reference speed, u_q = Rs i_q + w_ref Ld i_d + w psi_f cos(delta); the
@@ -279,7 +273,7 @@ impl<T: Scalar> Drive<T> {
             // Take the thrust current over into the speed loop, which runs on the
             // position loop's speed command from now on: its output continues from the
             // q current the hand-over left (less the acceleration feed-forward).
-            let (omega_cmd, iq_ff) = self.position_command(estimate);
+            let (omega_cmd, iq_ff) = self.position_command();
             let iq = self.i_dq_ref.q;
             self.pi_speed.preset(iq - iq_ff, omega_cmd - self.omega_filtered);
             if let Some(p) = &mut self.positioning {
@@ -294,11 +288,11 @@ impl<T: Scalar> Drive<T> {
 
     /// The position loop's speed command (electrical, working units) and the
     /// acceleration feed-forward (thrust current, working units) for the present setpoint.
-    fn position_command(&self, _estimate: &Estimate<T>) -> (T, T) {
+    fn position_command(&self) -> (T, T) {
         let Some(p) = &self.positioning else {
             return (T::ZERO, T::ZERO);
         };
-        let sp = p.setpoint;
+        let sp = p.profile.setpoint();
         let v_cmd = sp.speed_m_per_s + p.position_gain * (sp.position_m - self.position_m());
         let omega_cmd = T::from_f32(v_cmd * p.rad_per_m * self.k.inv_omega_base);
         let iq_ff = T::from_f32(sp.accel_m_per_s2 * p.accel_current_per_m_s2);
@@ -313,7 +307,7 @@ impl<T: Scalar> Drive<T> {
         let omega = estimate.omega_e;
         if let Some(p) = &mut self.positioning {
             p.anchor_angle = theta;
-            p.anchor_x_m = p.setpoint.position_m;
+            p.anchor_x_m = p.profile.setpoint().position_m;
             p.seeded = false;
             p.aligned = true;
             p.speed_error_rad_s = 0.0;
@@ -336,19 +330,18 @@ impl<T: Scalar> Drive<T> {
     pub(super) fn positioning_references(&mut self, estimate: &Estimate<T>) -> Option<(Angle, T)> {
         let dt_s = self.k.dt_s;
         let p = self.positioning.as_mut()?;
-        p.setpoint = p.profile.step(dt_s);
-        let sp = p.setpoint;
+        let sp = p.profile.step(dt_s);
         if sp.speed_m_per_s.abs() < p.enter_m_per_s {
             return Some(self.enter_low_speed(estimate));
         }
         let alpha =
             T::from_f32(sp.accel_m_per_s2 * p.rad_per_m * self.k.inv_omega_base * self.k.inv_omega_base);
         self.estimator.set_commanded_acceleration(alpha);
-        let (omega_cmd, iq_ff) = self.position_command(estimate);
+        let (omega_cmd, iq_ff) = self.position_command();
         self.omega_ref = omega_cmd;
         // Learn the thrust beyond acceleration (friction, load) along the motion.
         if let Some(p) = &mut self.positioning {
-            let sp = p.setpoint;
+            let sp = p.profile.setpoint();
             if sp.speed_m_per_s != 0.0 {
                 let thrust = p.thrust_n_per_a * self.i_dq_measured.q.to_f32() * self.k.base.current_a;
                 let along = (thrust - p.mass_kg * sp.accel_m_per_s2) * sp.speed_m_per_s.signum();
