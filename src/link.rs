@@ -910,11 +910,21 @@ impl LinkWatchdog {
 /// of the drive per in-order frame and encodes the answer. The firmware calls it from
 /// its UART receive path; host tests call it from a fake firmware, so both run one code
 /// path.
-#[derive(Clone, Debug, Default)]
+#[derive(Clone, Debug)]
 pub struct LinkServer {
     rx: Receiver<SensorFrame>,
     sequence: SequenceTracker,
     watchdog: LinkWatchdog,
+    /// The last answer sent (wire bytes) and its length: sent again for a duplicate of
+    /// the frame it answered, whose answer the host may have lost.
+    last_reply: [u8; ActuationFrame::WIRE_LEN],
+    last_reply_len: usize,
+}
+
+impl Default for LinkServer {
+    fn default() -> Self {
+        Self::new()
+    }
 }
 
 impl LinkServer {
@@ -925,13 +935,18 @@ impl LinkServer {
             rx: Receiver::new(),
             sequence: SequenceTracker::new(),
             watchdog: LinkWatchdog::default(),
+            last_reply: [0; ActuationFrame::WIRE_LEN],
+            last_reply_len: 0,
         }
     }
 
     /// Feeds one received byte. When it completes an in-order sensor frame, applies its
     /// commands, runs `drive.step`, encodes the actuation frame into `out` and returns
-    /// its length in bytes; otherwise `None` (partial, rejected or out-of-order frames are
-    /// counted, never acted on). `base` is the drive's working-unit base.
+    /// its length in bytes. A duplicate of the last accepted frame is not acted on but
+    /// answered again with the same bytes (its answer may have been lost: a host that
+    /// resends an unanswered frame then gets it, and the drive still steps once). Otherwise
+    /// `None` (partial, rejected or out-of-order frames are counted, never acted on).
+    /// `base` is the drive's working-unit base.
     pub fn on_byte<T: Scalar>(
         &mut self,
         byte: u8,
@@ -943,15 +958,26 @@ impl LinkServer {
             Ok(frame) => frame,
             Err(_) => return None,
         };
-        if !matches!(self.sequence.check(frame.sequence), SequenceOrder::InOrder { .. }) {
-            self.rx.stats_mut().record_out_of_order();
-            return None;
+        match self.sequence.check(frame.sequence) {
+            SequenceOrder::InOrder { .. } => {}
+            SequenceOrder::Duplicate if self.last_reply_len > 0 => {
+                self.rx.stats_mut().record_out_of_order();
+                *out = self.last_reply;
+                return Some(self.last_reply_len);
+            }
+            _ => {
+                self.rx.stats_mut().record_out_of_order();
+                return None;
+            }
         }
         self.watchdog.period(true);
         frame.apply_commands(drive);
         let step = drive.step(&frame.measurements(base));
         let reply = ActuationFrame::from_step(frame.sequence, &step, base, self.rx.stats());
-        encode(&reply, out).ok()
+        let n = encode(&reply, out).ok()?;
+        self.last_reply = *out;
+        self.last_reply_len = n;
+        Some(n)
     }
 
     /// One watchdog period (call from a periodic interrupt; frames accepted in between
@@ -968,6 +994,7 @@ impl LinkServer {
                 drive.trip(Faults::EXTERNAL);
             }
             self.sequence.reset();
+            self.last_reply_len = 0;
         }
         tripped
     }

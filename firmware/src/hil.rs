@@ -142,6 +142,40 @@ mod tests {
     }
 
     #[test]
+    fn a_duplicate_of_the_last_frame_is_answered_again_without_a_second_step() {
+        let mut s = server();
+        let mut q: Queue<u8, 256> = Queue::new();
+        let (mut tx, mut rx) = q.split();
+        // Frame 0, then the same frame again (a host whose answer got lost resends it).
+        for _ in 0..2 {
+            for b in frame(0) {
+                s.on_byte(b, &mut tx);
+            }
+        }
+        let bytes: heapless::Vec<u8, 256> = core::iter::from_fn(|| rx.dequeue()).collect();
+        assert_eq!(bytes.len(), 2 * ActuationFrame::WIRE_LEN);
+        let (first, second) = bytes.split_at(ActuationFrame::WIRE_LEN);
+        assert_eq!(first, second, "the same answer, byte for byte");
+        assert_eq!(s.link_stats().out_of_order, 1);
+        // The drive stepped once: the next frame is answered as frame 1 of its run.
+        for b in frame(1) {
+            s.on_byte(b, &mut tx);
+        }
+        let mut answers = Receiver::<ActuationFrame>::new();
+        let got: heapless::Vec<ActuationFrame, 2> = core::iter::from_fn(|| rx.dequeue())
+            .filter_map(|b| answers.push(b))
+            .map(|r| r.unwrap())
+            .collect();
+        assert_eq!(got.len(), 1);
+        assert_eq!(got[0].sequence, 1);
+        // A frame behind the last one is still dropped, unanswered.
+        for b in frame(0) {
+            s.on_byte(b, &mut tx);
+        }
+        assert!(rx.dequeue().is_none());
+    }
+
+    #[test]
     fn the_watchdog_trips_an_active_drive() {
         let mut s = server();
         let mut q: Queue<u8, 128> = Queue::new();

@@ -86,8 +86,9 @@ impl<W: Write> SerialController<W> {
 
     /// Waits for the answer to `sequence`. Until the first answer has arrived, the frame
     /// is sent again every [`START_RESEND`]: a target that is still booting (QEMU takes
-    /// about a second) can lose or garble the first bytes, and the drive drops a
-    /// duplicate of a frame it did take, so a resend never steps it twice.
+    /// about a second) can lose or garble the first bytes, of the frame or of its answer;
+    /// the drive answers a duplicate of the frame it took last with the same bytes
+    /// without stepping (`LinkServer::on_byte`), so a resend never steps it twice.
     fn await_answer(&mut self, sequence: u16) -> Result<ActuationFrame, SimError> {
         let deadline = Instant::now() + ANSWER_TIMEOUT;
         let mut resend_at = Instant::now() + START_RESEND;
