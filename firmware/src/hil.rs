@@ -112,6 +112,12 @@ mod tests {
         heapless::Vec::from_slice(&wire[..n]).unwrap()
     }
 
+    /// Every answer waiting in the transmit queue, decoded.
+    fn answers(rx: &mut heapless::spsc::Consumer<'_, u8>) -> heapless::Vec<ActuationFrame, 4> {
+        let mut receiver = Receiver::<ActuationFrame>::new();
+        core::iter::from_fn(|| rx.dequeue()).filter_map(|b| receiver.push(b)).map(|r| r.unwrap()).collect()
+    }
+
     #[test]
     fn answers_are_queued_whole_or_dropped_and_counted() {
         let mut s = server();
@@ -126,11 +132,7 @@ mod tests {
         }
         assert_eq!(s.answers_dropped(), 1);
         // What is queued is exactly one valid answer, to frame 0.
-        let mut answers = Receiver::<ActuationFrame>::new();
-        let got: heapless::Vec<ActuationFrame, 4> = core::iter::from_fn(|| rx.dequeue())
-            .filter_map(|b| answers.push(b))
-            .map(|r| r.unwrap())
-            .collect();
+        let got = answers(&mut rx);
         assert_eq!(got.len(), 1);
         assert_eq!((got[0].sequence, got[0].state), (0, DriveState::Calibrating));
         // With room again the next frame is answered.
@@ -161,11 +163,7 @@ mod tests {
         for b in frame(1) {
             s.on_byte(b, &mut tx);
         }
-        let mut answers = Receiver::<ActuationFrame>::new();
-        let got: heapless::Vec<ActuationFrame, 2> = core::iter::from_fn(|| rx.dequeue())
-            .filter_map(|b| answers.push(b))
-            .map(|r| r.unwrap())
-            .collect();
+        let got = answers(&mut rx);
         assert_eq!(got.len(), 1);
         assert_eq!(got[0].sequence, 1);
         // A frame behind the last one is still dropped, unanswered.

@@ -254,12 +254,17 @@ impl<T: Scalar> Drive<T> {
             p.rest_time_s = if at_rest { p.rest_time_s + dt_s } else { 0.0 };
             // Amplitude: twice the load angle of the friction learned while running
             // (where friction holds the mover), decaying over a few of the spring's
-            // periods; frequency 0.8 of the spring's natural frequency.
+            // periods; frequency 0.8 of the spring's natural frequency. Computed only
+            // while it lasts (seven decay times, e^-7 of the start).
             let t = p.rest_time_s;
-            let hold =
-                libm::asinf((p.load_force_n.abs() / (p.thrust_n_per_a * amplitude_a.max(1e-3))).min(1.0));
-            let amp = (2.0 * hold).min(0.2) * libm::expf(-t * p.dither_decay_per_s);
-            let dither = if at_rest && amp > 1e-3 { amp * libm::sinf(p.dither_rad_s * t) } else { 0.0 };
+            let dither = if at_rest && t * p.dither_decay_per_s < 7.0 {
+                let ratio = p.load_force_n.abs() / (p.thrust_n_per_a * amplitude_a.max(1e-3));
+                let amp =
+                    (2.0 * libm::asinf(ratio.min(1.0))).min(0.2) * libm::expf(-t * p.dither_decay_per_s);
+                amp * libm::sinf(p.dither_rad_s * t)
+            } else {
+                0.0
+            };
             return (theta + dither.radians_to_angle(), omega_ref);
         }
         if !p.seeded {
