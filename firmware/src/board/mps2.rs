@@ -243,11 +243,20 @@ impl embedded_io::Write for CmsdkUart {
 }
 
 /// Unmasks the UART0 RX interrupt in the NVIC (after
-/// [`CmsdkUart::into_interrupt_driven`], once its handler can run).
+/// [`CmsdkUart::into_interrupt_driven`], once its handler can run), and pends it once.
+///
+/// The pend is not optional: a byte that arrived after [`CmsdkUart::init`] enabled the
+/// receiver but before the RX interrupt was enabled sits in the RX buffer without having
+/// raised the interrupt (the CMSDK UART raises it on arrival only, as QEMU models it),
+/// and the UART takes no further byte while its buffer is full. Nobody would ever read
+/// it and the link would stall for good: a host that sends while the image boots hits
+/// exactly this (it was a CI failure, "no answer to frame 0"). The handler drains the
+/// buffer until it is empty, so a pend with nothing waiting costs one empty handler run.
 pub fn unmask_uart0_rx() {
     // SAFETY: the critical sections of these images use PRIMASK
     // (`cortex_m::interrupt::free`), never the NVIC mask, so unmasking cannot break one.
     unsafe { NVIC::unmask(Uart0RxIrq) };
+    NVIC::pend(Uart0RxIrq);
 }
 
 /// Masks an interrupt that has no handler (`irqn` from `DefaultHandler`), so that it
