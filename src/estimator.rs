@@ -35,8 +35,21 @@
 //! - [`Estimate::locked`]: `tracking`, and the FLL is [settled](crate::fll::FllOutput::settled):
 //!   the flux estimate is steady and has been for the DCFO's settling time. What a user
 //!   may trust the angle by: over the acquisition sweep (576 cold starts) and the paper
-//!   scenarios it is never set while the true error exceeds 15 deg, except for 66 ms
-//!   after the +2 V step of the paper's Fig. 14 (README, status).
+//!   scenarios (eight event phases each) it is never set while the true error exceeds
+//!   15 deg. It also needs the FLL [undisturbed](crate::fll::FllOutput::undisturbed)
+//!   and the observer's DC estimate quiet: the increment of the DCFO's disturbance
+//!   estimate `d`, low-passed at the notch frequency, below [`MAX_DISTURBANCE_DRIFT`]
+//!   of the back-EMF `w |psi| dt`. After a DC step the observer moves its DC state for
+//!   a few `1 / (0.26 w)` while both loops agree on a wrong angle (the +2 V step of the
+//!   paper's Fig. 14: -20 deg at 200 ms with every frequency detector calm); the drift
+//!   of `d` is that uncancelled DC voltage itself. A rotating component in `d` (the
+//!   fundamental a mistuned notch leaks, harmonics) passes the filter at most at
+//!   `0.7` and `1 / 6`: a notch off by a tenth leaks about that much, and costs about
+//!   6 deg of phase, so the check is not blind to it either (`tests/lock_flag.rs`).
+//!   A failed check clears the flag at once; it is set again only after a quarter
+//!   period without one ([`CALM_ANGLE_RAD`]): without that hold a detector dipping under
+//!   its limit mid-disturbance let 2 and 78 samples above 15 deg through (the +2 V and
+//!   the doubled-Rs scenarios, one event phase each of eight).
 
 use crate::fll::{Fll, FllConfig, FllConfigError};
 use crate::motor::MotorParams;
@@ -48,6 +61,22 @@ use crate::observer::{
 use crate::pll::{Pll, PllConfig, PllConfigError, PllFault, PllOutput};
 use crate::transforms::{AlphaBeta, CosSin};
 use crate::units::Base;
+
+/// Largest drift of the observer's disturbance estimate, relative to the back-EMF
+/// `w |psi|` (dimensionless), for [`Estimate::locked`]: an uncancelled DC voltage of a
+/// twentieth of the back-EMF (module docs). 0.1 left 147 samples of the paper's +2 V
+/// step locked above 15 deg (one event phase of eight), 0.05 none.
+pub const MAX_DISTURBANCE_DRIFT: f32 = 0.05;
+
+/// `|v|` within 12 % (`max + min / 2`, no square root): for thresholds.
+fn approx_norm<T: Scalar>(v: AlphaBeta<T>) -> T {
+    let (a, b) = (v.alpha.abs(), v.beta.abs());
+    a.max(b) + a.min(b) * T::HALF
+}
+
+/// How long no disturbance check may have failed before [`Estimate::locked`] is set
+/// again, electrical angle (rad): a quarter period.
+pub const CALM_ANGLE_RAD: f32 = core::f32::consts::FRAC_PI_2;
 
 /// Estimator settings, SI.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -207,6 +236,17 @@ pub struct Estimator<T> {
     /// lag (rad/s, added to the notch).
     ramp_phase: T,
     ramp_lag: T,
+    /// Electrical angle (rad) travelled since a disturbance check last failed, up to
+    /// [`CALM_ANGLE_RAD`].
+    calm_angle: T,
+    /// [`CALM_ANGLE_RAD`] in working units.
+    calm_needed: T,
+    /// The observer's disturbance estimate at the last sample (Wb).
+    disturbance_prev: AlphaBeta<T>,
+    /// Its increment per sample, low-passed at the notch frequency (Wb).
+    disturbance_drift: AlphaBeta<T>,
+    /// [`MAX_DISTURBANCE_DRIFT`] (dimensionless).
+    max_drift: T,
 }
 
 impl<T: Scalar> Estimator<T> {
@@ -247,6 +287,11 @@ impl<T: Scalar> Estimator<T> {
             commanded_accel: T::ZERO,
             ramp_phase: T::ZERO,
             ramp_lag: T::ZERO,
+            calm_angle: T::ZERO,
+            calm_needed: T::from_f32(CALM_ANGLE_RAD),
+            disturbance_prev: AlphaBeta::default(),
+            disturbance_drift: AlphaBeta::default(),
+            max_drift: T::from_f32(MAX_DISTURBANCE_DRIFT),
         })
     }
 
@@ -271,6 +316,35 @@ impl<T: Scalar> Estimator<T> {
             return Ok(Estimate::from_parts(&out, &flux, out.locked, out.locked, false));
         };
         let f = fll.update(flux.psi_ab, increment, dt);
+        // Drift of the disturbance estimate: while the observer is still moving its DC
+        // state (after a DC step in its inputs) its angle is off although the loops agree.
+        let quiet = match flux.disturbance_ab {
+            Some(d) => {
+                let inc = AlphaBeta::new(
+                    d.alpha - self.disturbance_prev.alpha,
+                    d.beta - self.disturbance_prev.beta,
+                );
+                self.disturbance_prev = d;
+                // The notch frequency is signed while the PLL tunes it.
+                let w_dt = notch.abs() * dt;
+                let rate = w_dt.min(T::ONE);
+                self.disturbance_drift = AlphaBeta::new(
+                    self.disturbance_drift.alpha + rate * (inc.alpha - self.disturbance_drift.alpha),
+                    self.disturbance_drift.beta + rate * (inc.beta - self.disturbance_drift.beta),
+                );
+                approx_norm(self.disturbance_drift) <= self.max_drift * w_dt * approx_norm(flux.psi_ab)
+            }
+            None => true,
+        };
+        // A disturbance clears `locked` at once; it is restored only after a quarter period
+        // without one (a detector that dips below its limit mid-disturbance does not re-arm
+        // the flag).
+        self.calm_angle = if quiet && f.undisturbed {
+            (self.calm_angle + notch.abs() * dt).min(self.calm_needed)
+        } else {
+            T::ZERO
+        };
+        let calm = self.calm_angle >= self.calm_needed;
         let acquiring = self.fll_steers;
         let (out, locked, tracking) = if self.fll_steers {
             let out = self
@@ -284,7 +358,7 @@ impl<T: Scalar> Estimator<T> {
                 self.pll.set_integral(f.omega_e);
                 self.fll_steers = false;
             }
-            (out, out.locked && f.settled, tracking)
+            (out, out.locked && f.settled && calm, tracking)
         } else {
             let out = self.pll.update(flux.psi_ab, dt).map_err(EstimatorFault::Pll)?;
             // The FLL reads the frequency whatever the notch's tuning. When the PLL's
@@ -301,7 +375,7 @@ impl<T: Scalar> Estimator<T> {
                 self.pll.set_integral(T::ZERO);
                 self.fll_steers = true;
             }
-            (out, out.locked && agree && f.settled, out.locked && agree)
+            (out, out.locked && agree && f.settled && calm, out.locked && agree)
         };
         Ok(Estimate::from_parts(&out, &flux, locked, tracking, acquiring))
     }
@@ -329,6 +403,8 @@ impl<T: Scalar> Estimator<T> {
         let cs = CosSin::<T>::new(theta_e);
         let psi = AlphaBeta::new(self.psi_f * cs.cos, self.psi_f * cs.sin);
         self.observer.seed(psi, i_ab, omega_e);
+        self.disturbance_prev = AlphaBeta::default();
+        self.disturbance_drift = AlphaBeta::default();
         if let Some(fll) = &mut self.fll {
             fll.preset(omega_e);
             self.fll_steers = true;
@@ -359,6 +435,8 @@ impl<T: Scalar> Estimator<T> {
         self.clear_ramp_model();
         self.commanded_accel = T::ZERO;
         self.observer.reset();
+        self.disturbance_prev = AlphaBeta::default();
+        self.disturbance_drift = AlphaBeta::default();
         self.pll.reset();
         if let Some(fll) = &mut self.fll {
             fll.reset();

@@ -40,6 +40,8 @@ fn every_run_is_healthy_and_runs_faster_than_real_time() {
 fn steady_0_3_m_per_s() {
     let r = scenario("steady");
     // Issue floors: DCFO max <= 5 deg, rms <= 2.5 deg (paper: < 10 deg on hardware).
+    // Issue 8 also asks for no worse than 1.1 / 0.5 deg: measured 1.5 / 0.56, not met
+    // (README, status).
     assert!(r.dcfo.theta_err_max_deg <= 5.0 && r.dcfo.theta_err_rms_deg <= 2.5);
     // The CFO's phase lead at 10 Hz is atan(wc / w) = 14.04 deg (digest §2); the closed
     // loop adds ripple around it.
@@ -120,16 +122,13 @@ fn load_step_40_newtons_at_0_42_m_per_s() {
 }
 
 #[test]
-fn dcfo_lock_flag_is_honest_except_through_the_2_volt_step() {
+fn dcfo_lock_flag_is_honest_in_every_scenario() {
+    // Issue floor: never locked while the true error exceeds 15 deg. The +2 V step used
+    // to leave it set for 66 ms while the flux estimate's offset transient turned the
+    // PLL and the FLL together; the FLL's disturbance detectors and the drift of the
+    // observer's DC estimate now clear it (`fll`, `estimator` module docs).
     for s in &report().scenarios {
         println!("{}: DCFO false-lock samples {}", s.scenario, s.dcfo.false_lock_samples);
-        if s.scenario == "dc-u" {
-            // Known: for 66 ms (662 samples) after the +2 V step the flux estimate's offset transient turns
-            // the PLL and the FLL together (both read 50 rad/s at 63), and the flux
-            // amplitude changes too briefly for the steadiness check (README, status).
-            assert!(s.dcfo.false_lock_samples <= 800, "{}", s.dcfo.false_lock_samples);
-        } else {
-            assert_eq!(s.dcfo.false_lock_samples, 0, "{}", s.scenario);
-        }
+        assert_eq!(s.dcfo.false_lock_samples, 0, "{}", s.scenario);
     }
 }

@@ -505,6 +505,12 @@ impl<T: Scalar> Drive<T> {
         self.k.base.omega(speed_m_per_s * self.k.omega_per_speed)
     }
 
+    /// The drive's estimator, for inspection (its notch and FLL frequencies, e.g. in
+    /// diagnostics and tests).
+    pub fn estimator(&self) -> &Estimator<T> {
+        &self.estimator
+    }
+
     /// The drive's state.
     pub fn state(&self) -> DriveState {
         self.state
