@@ -7,6 +7,8 @@
 //!   and telemetry.
 //! - [`hil`]: the lock-step HIL link's firmware side on any board (the library's
 //!   [`dcfo::link::LinkServer`], a transmit queue and the watchdog).
+//! - [`queue`]: the fixed-capacity queue between an interrupt and the thread, with no
+//!   path to a panic.
 //!
 //! The firmware images are `examples/` (one per board); on the host they build to an
 //! empty `main` so that `cargo test --workspace --all-targets` and clippy work.
@@ -17,3 +19,4 @@
 pub mod board;
 pub mod control;
 pub mod hil;
+pub mod queue;
