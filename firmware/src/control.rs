@@ -183,11 +183,11 @@ mod tests {
     use super::*;
     use crate::board::PhaseSample;
     use crate::board::fake::{FakeBoard, InjectedFault};
+    use crate::queue::Queue;
     use dcfo::drive::DriveConfig;
     use dcfo::motor::MotorParams;
     use dcfo::num::Q24;
     use dcfo::observer::ObserverKind;
-    use crate::queue::Queue;
 
     const BUS_V: f32 = 311.0;
 

@@ -7,11 +7,11 @@
 //! full queue drops it and counts it): half an answer on the wire would cost the next
 //! one too.
 
+use crate::queue::Producer;
 use dcfo::drive::Drive;
 use dcfo::link::{ActuationFrame, LinkServer, LinkStats};
 use dcfo::num::Scalar;
 use dcfo::units::Base;
-use crate::queue::Producer;
 
 /// The drive behind the HIL link, owned by the receive interrupt.
 #[derive(Clone, Debug)]
@@ -78,11 +78,11 @@ impl<T: Scalar> HilServer<T> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::queue::{Consumer, Queue};
     use dcfo::drive::{DriveConfig, DriveState};
     use dcfo::link::{Receiver, SensorFrame, encode};
     use dcfo::motor::MotorParams;
     use dcfo::observer::ObserverKind;
-    use crate::queue::{Consumer, Queue};
 
     fn server() -> HilServer<f32> {
         let m = MotorParams::paper();

@@ -9,6 +9,7 @@
 //!   [`dcfo::link::LinkServer`], a transmit queue and the watchdog).
 //! - [`queue`]: the fixed-capacity queue between an interrupt and the thread, with no
 //!   path to a panic.
+//! - `rtt_log` (ESC1 only): the defmt logger over RTT, without a path to a panic.
 //!
 //! The firmware images are `examples/` (one per board); on the host they build to an
 //! empty `main` so that `cargo test --workspace --all-targets` and clippy work.
@@ -20,3 +21,6 @@ pub mod board;
 pub mod control;
 pub mod hil;
 pub mod queue;
+#[cfg(all(target_arch = "arm", feature = "esc1"))]
+#[allow(unsafe_code)]
+pub mod rtt_log;

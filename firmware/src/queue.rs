@@ -162,7 +162,7 @@ impl<T: Copy, const N: usize> Consumer<'_, T, N> {
 
     /// `true` when an item is waiting.
     pub fn ready(&self) -> bool {
-        self.len() > 0
+        !self.is_empty()
     }
 
     /// Items in the queue.
