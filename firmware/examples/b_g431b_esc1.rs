@@ -41,7 +41,7 @@ mod firmware {
 
     use cortex_m::interrupt::{Mutex, free};
     use cortex_m::peripheral::NVIC;
-    use cortex_m_rt::{ExceptionFrame, entry, exception};
+    use cortex_m_rt::entry;
     use dcfo::drive::{Drive, DriveConfig, DriveState};
     use dcfo::link::{ActuationFrame, Receiver, SensorFrame, encode};
     use dcfo::observer::ObserverKind;
@@ -53,6 +53,7 @@ mod firmware {
     use dcfo_firmware::board::{PhaseSample, PhaseSensors, PowerStage};
     use dcfo_firmware::control::{ControlLoop, Setpoints};
     use dcfo_firmware::queue::{Producer, Queue};
+    use dcfo_firmware::stack;
     use embedded_hal::digital::OutputPin;
     use embedded_io::Write as _;
     use stm32g4::stm32g431::{self as pac, interrupt};
@@ -105,10 +106,16 @@ mod firmware {
     fn main() -> ! {
         let Some(dp) = pac::Peripherals::take() else { stop("device peripherals taken twice") };
         let Some(mut cp) = cortex_m::Peripherals::take() else { stop("core peripherals taken twice") };
+        // The stack (below the statics, flip-link): painted, so that a probe can read its
+        // high-water mark, and its lowest bytes made a fault through the MPU, in case
+        // the bus does not fault just below RAM.
+        stack::paint();
+        let guarded = stack::guard(&mut cp.MPU);
         let config = Esc1Config { baud: BAUD, ..Esc1Config::default() };
         let board = esc1::init(dp, &config);
         let (mut uart, mut led) = (board.uart, board.led);
         defmt::info!("B-G431B-ESC1 up, clock {}", defmt::Debug2Format(&board.clock_source));
+        defmt::info!("stack: {} bytes, MPU guard {}", stack::bounds().1 - stack::bounds().0, guarded);
 
         let image = match esc1::motor_image() {
             Ok(image) => image,
@@ -217,15 +224,16 @@ mod firmware {
         }
     }
 
-    // SAFETY: cortex-m-rt requires the HardFault handler to be declared `unsafe`. It
-    // reads nothing of the faulting context: bridge off first, then stop.
-    #[exception]
-    unsafe fn HardFault(_frame: &ExceptionFrame) -> ! {
+    /// HardFault (a stack overflow among others), on a fresh stack: bridge off first,
+    /// then stop.
+    extern "C" fn on_hard_fault() -> ! {
         esc1::safe_state_and_stop();
         loop {
             cortex_m::asm::wfi();
         }
     }
+
+    dcfo_firmware::hard_fault_entry!(on_hard_fault);
 
     /// Cannot run before the board is up: bridge off, the reason over defmt, stop.
     fn stop(why: &str) -> ! {

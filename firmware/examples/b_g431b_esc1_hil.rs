@@ -31,7 +31,7 @@ mod firmware {
     use cortex_m::interrupt::{self, Mutex};
     use cortex_m::peripheral::scb::SystemHandler;
     use cortex_m::peripheral::syst::SystClkSource;
-    use cortex_m_rt::{ExceptionFrame, entry, exception};
+    use cortex_m_rt::{entry, exception};
     use dcfo::drive::{Drive, DriveConfig};
     use dcfo::link::ActuationFrame;
     use dcfo::motor::MotorParams;
@@ -40,6 +40,7 @@ mod firmware {
     use dcfo_firmware::board::b_g431b_esc1::{self as esc1, Esc1Config, SYSCLK_HZ};
     use dcfo_firmware::hil::HilServer;
     use dcfo_firmware::queue::{Producer, Queue};
+    use dcfo_firmware::stack;
     use embedded_io::Write as _;
     use stm32g4::stm32g431 as pac;
 
@@ -59,6 +60,11 @@ mod firmware {
     fn main() -> ! {
         let Some(dp) = pac::Peripherals::take() else { stop("device peripherals taken twice") };
         let Some(mut cp) = cortex_m::Peripherals::take() else { stop("core peripherals taken twice") };
+        // The stack (below the statics, flip-link): painted, so that a probe can read its
+        // high-water mark, and its lowest bytes made a fault through the MPU, in case
+        // the bus does not fault just below RAM.
+        stack::paint();
+        let guarded = stack::guard(&mut cp.MPU);
         // The bridge stays off: init leaves MOE clear and nothing here enables it.
         let board = esc1::init(dp, &Esc1Config { baud: BAUD, ..Esc1Config::default() });
         let mut uart = board.uart;
@@ -90,6 +96,7 @@ mod firmware {
         cp.SYST.enable_interrupt();
         cp.SYST.enable_counter();
         defmt::info!("B-G431B-ESC1 HIL target ready at {} bit/s", BAUD);
+        defmt::info!("stack: {} bytes, MPU guard {}", stack::bounds().1 - stack::bounds().0, guarded);
 
         loop {
             match uart.try_read_byte() {
@@ -128,15 +135,16 @@ mod firmware {
         });
     }
 
-    // SAFETY: cortex-m-rt requires the HardFault handler to be declared `unsafe`. It
-    // reads nothing of the faulting context: bridge off first, then stop.
-    #[exception]
-    unsafe fn HardFault(_frame: &ExceptionFrame) -> ! {
+    /// HardFault (a stack overflow among others), on a fresh stack: bridge off first,
+    /// then stop.
+    extern "C" fn on_hard_fault() -> ! {
         esc1::safe_state_and_stop();
         loop {
             cortex_m::asm::wfi();
         }
     }
+
+    dcfo_firmware::hard_fault_entry!(on_hard_fault);
 
     /// Cannot run: bridge off (it was never switched on here), the reason over defmt,
     /// stop.

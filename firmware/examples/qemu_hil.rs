@@ -52,7 +52,7 @@ mod firmware {
     use cortex_m::interrupt::{self, Mutex};
     use cortex_m::peripheral::scb::SystemHandler;
     use cortex_m::peripheral::syst::SystClkSource;
-    use cortex_m_rt::{ExceptionFrame, entry, exception};
+    use cortex_m_rt::{entry, exception};
     use dcfo::drive::{Drive, DriveConfig};
     use dcfo::link::ActuationFrame;
     use dcfo::motor::MotorParams;
@@ -61,6 +61,7 @@ mod firmware {
     use dcfo_firmware::board::mps2::{self, CmsdkUart, SYSCLK_HZ, UART0_RX_IRQN, Uart0RxIrq, UartRx};
     use dcfo_firmware::hil::HilServer;
     use dcfo_firmware::queue::{Producer, Queue};
+    use dcfo_firmware::stack;
     use embedded_io::Write as _;
 
     /// The numeric type of the control code: f32 with an FPU, Q8.24 without.
@@ -97,6 +98,13 @@ mod firmware {
         let Some(mut uart) = CmsdkUart::take_uart0() else { halt("UART0 already taken") };
         uart.init(115_200);
         let Some(mut cp) = cortex_m::Peripherals::take() else { halt("core peripherals taken twice") };
+        // The stack: paint it for the high-water mark (the host reads it through QEMU's
+        // monitor), then the MPU guard at its bottom (QEMU ignores writes below RAM,
+        // where flip-link's guard relies on a bus error).
+        stack::paint();
+        if !stack::guard(&mut cp.MPU) {
+            halt("no MPU guard for the stack");
+        }
 
         let motor = MotorParams::paper();
         let config = DriveConfig::paper_axis(ObserverKind::Dcfo);
@@ -232,12 +240,12 @@ mod firmware {
         }
     }
 
-    // SAFETY: cortex-m-rt requires the HardFault handler to be declared `unsafe`. It
-    // reads nothing of the faulting context and only stops the core.
-    #[exception]
-    unsafe fn HardFault(_frame: &ExceptionFrame) -> ! {
+    /// HardFault (a stack overflow among others), on a fresh stack: stops the core.
+    extern "C" fn on_hard_fault() -> ! {
         stop(format_args!("HARDFAULT"))
     }
+
+    dcfo_firmware::hard_fault_entry!(on_hard_fault);
 
     /// Not linked while nothing can panic (`.ci/no-panic`); kept so that a panic that
     /// creeps in still stops the control step first.
