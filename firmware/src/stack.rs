@@ -56,7 +56,7 @@ pub fn bounds() -> (usize, usize) {
 pub fn guard(mpu: &mut cortex_m::peripheral::MPU) -> bool {
     let end = core::ptr::addr_of!(_stack_end) as usize;
     let regions = (mpu._type.read() >> 8) & 0xFF;
-    if regions == 0 || end % GUARD_BYTES != 0 {
+    if regions == 0 || !end.is_multiple_of(GUARD_BYTES) {
         return false;
     }
     // RASR: XN (bit 28), AP = 0b000 no access (bits 24..26), SIZE = log2(bytes) - 1
