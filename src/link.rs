@@ -117,6 +117,8 @@
 //! }
 //! ```
 
+pub mod cobs;
+
 use core::marker::PhantomData;
 
 use crc::{CRC_16_IBM_3740, Crc};
@@ -669,7 +671,7 @@ pub fn encode<F: Frame>(frame: &F, out: &mut [u8]) -> Result<usize, EncodeError>
         return Err(too_small);
     }
     crc.copy_from_slice(&sum);
-    let n = cobs::try_encode(raw, out).map_err(|_| too_small)?;
+    let n = cobs::encode(raw, out).ok_or(too_small)?;
     *out.get_mut(n).ok_or(too_small)? = 0;
     Ok(n + 1)
 }
@@ -697,7 +699,7 @@ pub fn decode_raw<F: Frame>(raw: &[u8]) -> Result<F, LinkError> {
 /// # Errors
 /// [`LinkError::Cobs`] for an invalid encoding, then as [`decode_raw`].
 pub fn decode_in_place<F: Frame>(encoded: &mut [u8]) -> Result<F, LinkError> {
-    let n = cobs::decode_in_place(encoded).map_err(|_| LinkError::Cobs)?;
+    let n = cobs::decode_in_place(encoded).ok_or(LinkError::Cobs)?;
     decode_raw(encoded.get(..n).ok_or(LinkError::Cobs)?)
 }
 

@@ -444,6 +444,51 @@ fn q24_inv_sqrt_positive(x: i32) -> Option<i32> {
     i32::try_from(r).ok().filter(|&r| r < i32::MAX)
 }
 
+/// The Q24 bits of `x`: rounded to nearest, ties to even, saturated to the Q8.24 range,
+/// NaN to 0. The same result as `I8F24::saturating_from_num` for every non-NaN `f32`
+/// (tested), read from the float's bits: `fixed` panics on NaN inside that conversion,
+/// and that path stayed in the firmware images although NaN never reaches it.
+fn q24_bits_from_f32(x: f32) -> i32 {
+    let bits = x.to_bits();
+    let negative = bits >> 31 != 0;
+    let exponent = ((bits >> 23) & 0xFF) as i32;
+    let fraction = bits & 0x7F_FFFF;
+    let saturated = if negative { i32::MIN } else { i32::MAX };
+    if exponent == 0xFF {
+        // Infinity saturates; NaN has no sign worth keeping.
+        return if fraction == 0 { saturated } else { 0 };
+    }
+    // |x| = m 2^(e - 150) (subnormals: e = 1 without the implicit one), so
+    // |x| 2^24 = m 2^(e - 126).
+    let (m, e) = if exponent == 0 { (fraction, 1) } else { (fraction | 0x80_0000, exponent) };
+    let shift = e - 126;
+    let magnitude: u64 = if shift >= 0 {
+        // A normal m >= 2^23: from a shift of 8 on, |x| 2^24 >= 2^31.
+        if shift >= 8 {
+            return saturated;
+        } else {
+            u64::from(m) << shift
+        }
+    } else {
+        let r = -shift;
+        if r > 25 {
+            // Below half an LSB (m < 2^24 <= 2^(r - 1) / 2): rounds to 0.
+            0
+        } else {
+            let m = u64::from(m);
+            let kept = m >> r;
+            let rest = m & ((1 << r) - 1);
+            let half = 1u64 << (r - 1);
+            if rest > half || (rest == half && kept & 1 == 1) { kept + 1 } else { kept }
+        }
+    };
+    if negative {
+        i32::try_from(-(magnitude as i64)).unwrap_or(i32::MIN)
+    } else {
+        i32::try_from(magnitude).unwrap_or(i32::MAX)
+    }
+}
+
 impl Scalar for Q24 {
     const ZERO: Q24 = Q24(I8F24::ZERO);
     const ONE: Q24 = Q24(I8F24::ONE);
@@ -454,7 +499,7 @@ impl Scalar for Q24 {
     const SQRT3_HALF: Q24 = Q24(I8F24::lit("0.866025403784438647"));
 
     fn from_f32(x: f32) -> Q24 {
-        if x.is_nan() { Q24::ZERO } else { Q24(I8F24::saturating_from_num(x)) }
+        Q24(I8F24::from_bits(q24_bits_from_f32(x)))
     }
     fn to_f32(self) -> f32 {
         self.0.to_num::<f32>()

@@ -736,6 +736,43 @@ proptest! {
     }
 }
 
+// ---------------------------------------------------------------- COBS against the `cobs` crate
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 1024, ..ProptestConfig::default() })]
+
+    /// `link::cobs` encodes byte for byte as the `cobs` crate does (zeros are made
+    /// likely, and lengths cross the 254-byte block), and decodes what either encoded.
+    #[test]
+    fn cobs_matches_the_cobs_crate(
+        data in proptest::collection::vec(prop_oneof![Just(0u8), any::<u8>()], 0..600)
+    ) {
+        let mut ours = vec![0u8; data.len() + data.len() / 254 + 1];
+        let mut theirs = ours.clone();
+        let n = dcfo::link::cobs::encode(&data, &mut ours).expect("fits");
+        let m = cobs::try_encode(&data, &mut theirs).expect("fits");
+        prop_assert_eq!(&ours[..n], &theirs[..m]);
+        let k = dcfo::link::cobs::decode_in_place(&mut ours[..n]).expect("valid");
+        prop_assert_eq!(&ours[..k], &data[..]);
+        // Too short by one byte: an error, not a panic.
+        prop_assert_eq!(dcfo::link::cobs::encode(&data, &mut vec![0u8; n - 1]), None);
+    }
+
+    /// On any zero-free input the decoder accepts exactly what the `cobs` crate accepts,
+    /// with the same result (the link's receiver never passes it a `0x00`).
+    #[test]
+    fn cobs_decodes_as_the_cobs_crate(encoded in proptest::collection::vec(1u8..=255, 1..300)) {
+        let mut ours = encoded.clone();
+        let mut theirs = vec![0u8; encoded.len()];
+        let got = dcfo::link::cobs::decode_in_place(&mut ours);
+        let want = cobs::decode(&encoded, &mut theirs).ok().map(|r| r.frame_size());
+        prop_assert_eq!(got, want);
+        if let Some(n) = got {
+            prop_assert_eq!(&ours[..n], &theirs[..n]);
+        }
+    }
+}
+
 // ---------------------------------------------------------------- with the drive
 
 #[test]

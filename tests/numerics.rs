@@ -220,3 +220,43 @@ fn inv_sqrt_accuracy_f32_4e_7_q24_2e_21_relative_plus_4_lsb() {
     assert_eq!(Scalar::inv_sqrt(Q24::ZERO), None);
     assert_eq!(Scalar::inv_sqrt(Q24::from_f32(-1.0)), None);
 }
+
+/// `Q24::from_f32` reads the float's bits itself (no panicking path in the images): it
+/// must round and saturate exactly as `fixed`'s `saturating_from_num` (to nearest, ties
+/// to even), with NaN as 0. Every exponent, with the fractions that decide a rounding
+/// (the rounding bit and its neighbours, ties, all ones) and a stride through the rest.
+#[test]
+fn q24_from_f32_is_fixed_saturating_from_num_bit_for_bit() {
+    use fixed::types::I8F24;
+    let mut checked = 0u64;
+    let mut check = |bits: u32| {
+        let x = f32::from_bits(bits);
+        let got = Q24::from_f32(x).to_bits();
+        if x.is_nan() {
+            assert_eq!(got, 0, "{bits:#x}");
+        } else {
+            assert_eq!(got, I8F24::saturating_from_num(x).to_bits(), "{x:e} ({bits:#x})");
+        }
+        checked += 1;
+    };
+    for sign in [0u32, 1 << 31] {
+        for exponent in 0u32..=0xFF {
+            let head = sign | exponent << 23;
+            for k in 0..23 {
+                for fraction in [1u32 << k, (1 << k) - 1, (1 << k) + 1, (1 << k) | 1 << 22, 3 << k >> 1] {
+                    check(head | (fraction & 0x7F_FFFF));
+                }
+            }
+            for fraction in (0..0x80_0000u32).step_by(997) {
+                check(head | fraction);
+            }
+            check(head | 0x7F_FFFF);
+        }
+    }
+    for x in
+        [0.5f32 / 16_777_216.0, 1.5 / 16_777_216.0, 2.5 / 16_777_216.0, 127.99999, -128.0, 128.0, -128.00002]
+    {
+        check(x.to_bits());
+    }
+    assert!(checked > 4_000_000);
+}

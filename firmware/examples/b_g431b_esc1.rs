@@ -12,6 +12,9 @@
 //!   clear-faults and the speed reference (its measurement fields are ignored: the board
 //!   measures itself); an `ActuationFrame` goes out every 100 periods (100 Hz).
 //! - defmt over RTT logs state changes and faults (`probe-rs run` shows them).
+//! - Nothing in the image can panic (`.ci/no-panic`). An initialisation that cannot
+//!   complete, a HardFault (e.g. a stack overflow, which flip-link turns into one) and the
+//!   panic handler that remains all switch the bridge off first (TIM1 MOE clear) and stop.
 //!
 //! | context | priority | work | budget |
 //! |---|---|---|---|
@@ -38,7 +41,7 @@ mod firmware {
 
     use cortex_m::interrupt::{Mutex, free};
     use cortex_m::peripheral::NVIC;
-    use cortex_m_rt::entry;
+    use cortex_m_rt::{entry, exception};
     use dcfo::drive::{Drive, DriveConfig, DriveState};
     use dcfo::link::{ActuationFrame, Receiver, SensorFrame, encode};
     use dcfo::observer::ObserverKind;
@@ -49,11 +52,10 @@ mod firmware {
     };
     use dcfo_firmware::board::{PhaseSample, PhaseSensors, PowerStage};
     use dcfo_firmware::control::{ControlLoop, Setpoints};
-    use defmt_rtt as _;
+    use dcfo_firmware::queue::{Producer, Queue};
+    use dcfo_firmware::stack;
     use embedded_hal::digital::OutputPin;
     use embedded_io::Write as _;
-    use heapless::spsc::{Producer, Queue};
-    use panic_probe as _;
     use stm32g4::stm32g431::{self as pac, interrupt};
 
     /// USART2 rate, bit/s (the host's `--baud` default).
@@ -62,7 +64,7 @@ mod firmware {
     const TELEMETRY_EVERY: u16 = 100;
     /// Control periods without a command frame after which a running drive is disabled.
     const COMMAND_TIMEOUT_PERIODS: u32 = DEFAULT_PWM_HZ / 2;
-    /// Telemetry records buffered between the interrupt and the thread (one less fits).
+    /// Telemetry records buffered between the interrupt and the thread.
     const TELEMETRY_QUEUE: usize = 8;
 
     /// The board's sensors and power stage, as the control loop sees them.
@@ -92,7 +94,7 @@ mod firmware {
     struct Control {
         control: ControlLoop<f32>,
         bridge: Bridge,
-        telemetry: Producer<'static, ActuationFrame>,
+        telemetry: Producer<'static, ActuationFrame, TELEMETRY_QUEUE>,
     }
 
     static CONTROL: Mutex<RefCell<Option<Control>>> = Mutex::new(RefCell::new(None));
@@ -102,12 +104,18 @@ mod firmware {
 
     #[entry]
     fn main() -> ! {
-        let Some(dp) = pac::Peripherals::take() else { panic!("device peripherals taken twice") };
-        let Some(mut cp) = cortex_m::Peripherals::take() else { panic!("core peripherals taken twice") };
+        let Some(dp) = pac::Peripherals::take() else { stop("device peripherals taken twice") };
+        let Some(mut cp) = cortex_m::Peripherals::take() else { stop("core peripherals taken twice") };
+        // The stack (below the statics, flip-link): painted, so that a probe can read its
+        // high-water mark, and its lowest bytes made a fault through the MPU, in case
+        // the bus does not fault just below RAM.
+        stack::paint();
+        let guarded = stack::guard(&mut cp.MPU);
         let config = Esc1Config { baud: BAUD, ..Esc1Config::default() };
         let board = esc1::init(dp, &config);
         let (mut uart, mut led) = (board.uart, board.led);
         defmt::info!("B-G431B-ESC1 up, clock {}", defmt::Debug2Format(&board.clock_source));
+        defmt::info!("stack: {} bytes, MPU guard {}", stack::bounds().1 - stack::bounds().0, guarded);
 
         let image = match esc1::motor_image() {
             Ok(image) => image,
@@ -135,16 +143,23 @@ mod firmware {
 
         let Some(queue) = cortex_m::singleton!(: Queue<ActuationFrame, TELEMETRY_QUEUE> = Queue::new())
         else {
-            panic!("telemetry queue taken twice")
+            halt(&mut led, "telemetry queue taken twice")
         };
         let (producer, mut consumer) = queue.split();
-        free(|cs| {
-            CONTROL.borrow(cs).replace(Some(Control {
-                control: ControlLoop::new(drive, TELEMETRY_EVERY),
-                bridge: Bridge { sensors, power: board.power },
-                telemetry: producer,
-            }))
+        let installed = free(|cs| match CONTROL.borrow(cs).try_borrow_mut() {
+            Ok(mut slot) => {
+                *slot = Some(Control {
+                    control: ControlLoop::new(drive, TELEMETRY_EVERY),
+                    bridge: Bridge { sensors, power: board.power },
+                    telemetry: producer,
+                });
+                true
+            }
+            Err(_) => false,
         });
+        if !installed {
+            halt(&mut led, "control state busy at start-up");
+        }
         // SAFETY: set before the interrupt is unmasked; no critical section here relies on
         // priorities (they use PRIMASK).
         unsafe { cp.NVIC.set_priority(CONTROL_IRQ, 0x00) };
@@ -179,8 +194,8 @@ mod firmware {
                     defmt::info!("state {} -> {}, faults {}", last_state, record.state, record.faults);
                     last_state = record.state;
                 }
-                if let Ok(n) = encode(&record, &mut wire) {
-                    let _ = uart.write_all(&wire[..n]);
+                if let Some(bytes) = encode(&record, &mut wire).ok().and_then(|n| wire.get(..n)) {
+                    let _ = uart.write_all(bytes);
                 }
             }
             let _ = led.set_state((last_state == DriveState::Running).into());
@@ -188,19 +203,63 @@ mod firmware {
     }
 
     /// The control interrupt: end of the injected conversions at the carrier valley.
+    /// The state is borrowed only in critical sections that never nest, so the borrow
+    /// cannot fail; if it did, the drive could not step: bridge off and this interrupt
+    /// masked for good (no panic).
     #[interrupt]
     fn ADC1_2() {
-        free(|cs| {
-            if let Some(c) = CONTROL.borrow(cs).borrow_mut().as_mut() {
-                c.control.step(&mut c.bridge, &SETPOINTS, &mut c.telemetry);
-                PERIODS.fetch_add(1, Ordering::Relaxed);
+        let stepped = free(|cs| match CONTROL.borrow(cs).try_borrow_mut() {
+            Ok(mut guard) => {
+                if let Some(c) = guard.as_mut() {
+                    c.control.step(&mut c.bridge, &SETPOINTS, &mut c.telemetry);
+                    PERIODS.fetch_add(1, Ordering::Relaxed);
+                }
+                true
             }
+            Err(_) => false,
         });
+        if !stepped {
+            esc1::force_bridge_off();
+            NVIC::mask(CONTROL_IRQ);
+        }
     }
 
-    /// Cannot run: says why over defmt and blinks the LED fast, bridge off (init left
-    /// MOE clear and the ADC interrupt masked).
+    /// HardFault (a stack overflow among others), on a fresh stack: bridge off first,
+    /// then stop.
+    extern "C" fn on_hard_fault() -> ! {
+        esc1::safe_state_and_stop();
+        loop {
+            cortex_m::asm::wfi();
+        }
+    }
+
+    dcfo_firmware::hard_fault_entry!(on_hard_fault);
+
+    // SAFETY: cortex-m-rt requires the default handler to be declared `unsafe`. It runs
+    // for an interrupt enabled without a handler (and the NMI); cortex-m-rt's own would
+    // spin at that interrupt's priority, possibly the control interrupt's, with the
+    // bridge on. Bridge off first, then stop.
+    #[exception]
+    unsafe fn DefaultHandler(_irqn: i16) {
+        esc1::safe_state_and_stop();
+        loop {
+            cortex_m::asm::wfi();
+        }
+    }
+
+    /// Cannot run before the board is up: bridge off, the reason over defmt, stop.
+    fn stop(why: &str) -> ! {
+        esc1::safe_state_and_stop();
+        defmt::error!("cannot run: {}", why);
+        loop {
+            cortex_m::asm::wfi();
+        }
+    }
+
+    /// Cannot run: bridge off (init left MOE clear and the ADC interrupt masked; cleared
+    /// again here), says why over defmt and blinks the LED fast.
     fn halt(led: &mut StatusLed, why: impl defmt::Format) -> ! {
+        esc1::force_bridge_off();
         defmt::error!("cannot run: {}", why);
         loop {
             led.toggle();

@@ -10,6 +10,8 @@
 //! | thread | — | polls USART2; each byte to `HilServer::on_byte` (an in-order frame runs one `Drive::step`) in a critical section; the answer out | the link sets the pace: a round trip is 73 bytes, about 0.8 ms at 921600 bit/s |
 //!
 //! A silent link (10 watchdog periods, 0.5 s) switches an active drive off, as on QEMU.
+//! Nothing in the image can panic (`.ci/no-panic`); an initialisation that cannot
+//! complete and a HardFault switch the bridge off (TIM1 MOE clear) and stop.
 //! ```sh
 //! cargo run -p dcfo-firmware --release --features esc1 --example b_g431b_esc1_hil --target thumbv7em-none-eabihf
 //! cargo run --release -p dcfo-host -- hil --port /dev/ttyACM0 --baud 921600 --check
@@ -37,43 +39,54 @@ mod firmware {
     use dcfo::units::Base;
     use dcfo_firmware::board::b_g431b_esc1::{self as esc1, Esc1Config, SYSCLK_HZ};
     use dcfo_firmware::hil::HilServer;
-    use defmt_rtt as _;
+    use dcfo_firmware::queue::{Producer, Queue};
+    use dcfo_firmware::stack;
     use embedded_io::Write as _;
-    use heapless::spsc::{Producer, Queue};
-    use panic_probe as _;
     use stm32g4::stm32g431 as pac;
 
     const BAUD: u32 = 921_600;
     /// Watchdog ticks per second (50 ms); SysTick's reload (24 bits) fits at 170 MHz / 8.
     const WATCHDOG_TICK_HZ: u32 = 20;
-    const TX_QUEUE_BYTES: usize = 2 * ActuationFrame::WIRE_LEN + 1;
+    const TX_QUEUE_BYTES: usize = 2 * ActuationFrame::WIRE_LEN;
 
     struct Hil {
         server: HilServer<f32>,
-        tx: Producer<'static, u8>,
+        tx: Producer<'static, u8, TX_QUEUE_BYTES>,
     }
 
     static HIL: Mutex<RefCell<Option<Hil>>> = Mutex::new(RefCell::new(None));
 
     #[entry]
     fn main() -> ! {
-        let Some(dp) = pac::Peripherals::take() else { panic!("device peripherals taken twice") };
-        let Some(mut cp) = cortex_m::Peripherals::take() else { panic!("core peripherals taken twice") };
+        let Some(dp) = pac::Peripherals::take() else { stop("device peripherals taken twice") };
+        let Some(mut cp) = cortex_m::Peripherals::take() else { stop("core peripherals taken twice") };
+        // The stack (below the statics, flip-link): painted, so that a probe can read its
+        // high-water mark, and its lowest bytes made a fault through the MPU, in case
+        // the bus does not fault just below RAM.
+        stack::paint();
+        let guarded = stack::guard(&mut cp.MPU);
         // The bridge stays off: init leaves MOE clear and nothing here enables it.
         let board = esc1::init(dp, &Esc1Config { baud: BAUD, ..Esc1Config::default() });
         let mut uart = board.uart;
         let motor = MotorParams::paper();
         let drive = match Drive::<f32>::new(&motor, &DriveConfig::paper_axis(ObserverKind::Dcfo), &Base::SI) {
             Ok(d) => d,
-            Err(e) => panic!("drive configuration: {}", e.field),
+            Err(e) => stop(e.field),
         };
         let Some(queue) = cortex_m::singleton!(: Queue<u8, TX_QUEUE_BYTES> = Queue::new()) else {
-            panic!("transmit queue taken twice")
+            stop("transmit queue taken twice")
         };
         let (producer, mut consumer) = queue.split();
-        interrupt::free(|cs| {
-            HIL.borrow(cs).replace(Some(Hil { server: HilServer::new(drive), tx: producer }))
+        let installed = interrupt::free(|cs| match HIL.borrow(cs).try_borrow_mut() {
+            Ok(mut slot) => {
+                *slot = Some(Hil { server: HilServer::new(drive), tx: producer });
+                true
+            }
+            Err(_) => false,
         });
+        if !installed {
+            stop("HIL state busy at start-up");
+        }
 
         // SAFETY: set before SysTick is enabled; critical sections use PRIMASK.
         unsafe { cp.SCB.set_priority(SystemHandler::SysTick, 0x80) };
@@ -83,14 +96,15 @@ mod firmware {
         cp.SYST.enable_interrupt();
         cp.SYST.enable_counter();
         defmt::info!("B-G431B-ESC1 HIL target ready at {} bit/s", BAUD);
+        defmt::info!("stack: {} bytes, MPU guard {}", stack::bounds().1 - stack::bounds().0, guarded);
 
         loop {
             match uart.try_read_byte() {
-                Ok(Some(byte)) => interrupt::free(|cs| {
-                    if let Some(h) = HIL.borrow(cs).borrow_mut().as_mut() {
-                        h.server.on_byte(byte, &mut h.tx);
-                    }
-                }),
+                // (A byte that cannot reach the state is dropped: the frame's CRC
+                // rejects it and the link counts it.)
+                Ok(Some(byte)) => {
+                    with_hil(|h| h.server.on_byte(byte, &mut h.tx));
+                }
                 Ok(None) => {}
                 // A lost or garbled byte: the frame's CRC rejects it, the link counts it.
                 Err(e) => defmt::warn!("USART2: {}", defmt::Debug2Format(&e)),
@@ -101,12 +115,56 @@ mod firmware {
         }
     }
 
-    #[exception]
-    fn SysTick() {
+    /// Runs `f` on the HIL state in a critical section. Its users borrow it only in such
+    /// sections and never from within another, so the borrow cannot fail; if it did,
+    /// `f` is skipped (no panic).
+    fn with_hil(f: impl FnOnce(&mut Hil)) {
         interrupt::free(|cs| {
-            if let Some(h) = HIL.borrow(cs).borrow_mut().as_mut() {
-                h.server.watchdog_period();
+            if let Ok(mut guard) = HIL.borrow(cs).try_borrow_mut()
+                && let Some(h) = guard.as_mut()
+            {
+                f(h);
             }
         });
+    }
+
+    #[exception]
+    fn SysTick() {
+        with_hil(|h| {
+            h.server.watchdog_period();
+        });
+    }
+
+    /// HardFault (a stack overflow among others), on a fresh stack: bridge off first,
+    /// then stop.
+    extern "C" fn on_hard_fault() -> ! {
+        esc1::safe_state_and_stop();
+        loop {
+            cortex_m::asm::wfi();
+        }
+    }
+
+    dcfo_firmware::hard_fault_entry!(on_hard_fault);
+
+    // SAFETY: cortex-m-rt requires the default handler to be declared `unsafe`. It runs
+    // for an interrupt enabled without a handler (and the NMI); cortex-m-rt's own would
+    // spin at that interrupt's priority, possibly the control interrupt's, with the
+    // bridge on. Bridge off first, then stop.
+    #[exception]
+    unsafe fn DefaultHandler(_irqn: i16) {
+        esc1::safe_state_and_stop();
+        loop {
+            cortex_m::asm::wfi();
+        }
+    }
+
+    /// Cannot run: bridge off (it was never switched on here), the reason over defmt,
+    /// stop.
+    fn stop(why: &str) -> ! {
+        esc1::safe_state_and_stop();
+        defmt::error!("cannot run: {}", why);
+        loop {
+            cortex_m::asm::wfi();
+        }
     }
 }

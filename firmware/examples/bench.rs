@@ -59,7 +59,7 @@ mod firmware {
     use dcfo::units::Base;
     use dcfo_firmware::board::mps2::CmsdkUart;
     use dcfo_firmware::hil::HilServer;
-    use heapless::spsc::Queue;
+    use dcfo_firmware::queue::Queue;
 
     /// Control period of the drive and the plant (s).
     const TS: f32 = 1e-4;
@@ -134,18 +134,20 @@ mod firmware {
             // SAFETY: single core, no interrupt handlers: the only UART0 handles are the
             // short-lived ones made here and in `main`, never used at the same time.
             let mut uart = unsafe { CmsdkUart::steal_uart0() };
-            for &b in self.buf[..self.len].iter().chain(b"\r\n") {
+            let text = self.buf.get(..self.len).unwrap_or_default();
+            for &b in text.iter().chain(b"\r\n") {
                 uart.write_byte(b);
             }
         }
     }
 
     impl core::fmt::Write for Line {
+        /// Appends what fits; the rest of a too long line is cut off.
         fn write_str(&mut self, s: &str) -> core::fmt::Result {
-            let room = self.buf.len() - self.len;
-            let n = s.len().min(room);
-            self.buf[self.len..self.len + n].copy_from_slice(&s.as_bytes()[..n]);
-            self.len += n;
+            for (slot, &b) in self.buf.iter_mut().skip(self.len).zip(s.as_bytes()) {
+                *slot = b;
+                self.len += 1;
+            }
             Ok(())
         }
     }
@@ -321,7 +323,7 @@ mod firmware {
         };
         let mut wire = [0u8; SensorFrame::WIRE_LEN];
         let Ok(n) = encode(&frame, &mut wire) else { return 0 };
-        let Some((&last, head)) = wire[..n].split_last() else { return 0 };
+        let Some((&last, head)) = wire.get(..n).and_then(|w| w.split_last()) else { return 0 };
         for &b in head {
             server.on_byte(b, &mut tx);
         }

@@ -20,7 +20,12 @@
 //! exchange itself takes about 1.6 ms. Every other interrupt vector lands in
 //! `DefaultHandler`, which masks that interrupt and trips the drive.
 //!
-//! A panic prints `PANIC: <message>` on UART0 and stops the core.
+//! Nothing in the image can panic (`.ci/no-panic` checks that the panic machinery is not
+//! linked). Should that ever change, the panic handler stops the control interrupt
+//! first, then prints `PANIC: <message>` on UART0 and stops the core; a HardFault (e.g.
+//! a stack overflow, which flip-link turns into one) prints `HARDFAULT` and stops. A
+//! stopped core answers no frame: the host's plant sees a silent link. An initialisation
+//! that cannot complete prints `HALT: <why>` and stops the same way.
 //!
 //! ```sh
 //! cargo build -p dcfo-firmware --release --features mps2 --example qemu_hil --target thumbv7em-none-eabihf
@@ -55,8 +60,9 @@ mod firmware {
     use dcfo::units::Base;
     use dcfo_firmware::board::mps2::{self, CmsdkUart, SYSCLK_HZ, UART0_RX_IRQN, Uart0RxIrq, UartRx};
     use dcfo_firmware::hil::HilServer;
+    use dcfo_firmware::queue::{Producer, Queue};
+    use dcfo_firmware::stack;
     use embedded_io::Write as _;
-    use heapless::spsc::{Producer, Queue};
 
     /// The numeric type of the control code: f32 with an FPU, Q8.24 without.
     #[cfg(target_abi = "eabihf")]
@@ -75,30 +81,37 @@ mod firmware {
     const PRIORITY_WATCHDOG: u8 = 0x80;
     /// Watchdog ticks per second (a 50 ms period).
     const WATCHDOG_TICK_HZ: u32 = 20;
-    /// Bytes of transmit queue: four answers (a heapless queue holds one less than N).
-    const TX_QUEUE_BYTES: usize = 4 * ActuationFrame::WIRE_LEN + 1;
+    /// Bytes of transmit queue: four answers.
+    const TX_QUEUE_BYTES: usize = 4 * ActuationFrame::WIRE_LEN;
 
     /// What the control interrupt owns; the watchdog borrows it between steps.
     struct Control {
         server: HilServer<Work>,
         rx: UartRx,
-        tx: Producer<'static, u8>,
+        tx: Producer<'static, u8, TX_QUEUE_BYTES>,
     }
 
     static CONTROL: Mutex<RefCell<Option<Control>>> = Mutex::new(RefCell::new(None));
 
     #[entry]
     fn main() -> ! {
-        let Some(mut cp) = cortex_m::Peripherals::take() else { panic!("core peripherals taken twice") };
-        let Some(mut uart) = CmsdkUart::take_uart0() else { panic!("UART0 already taken") };
+        let Some(mut uart) = CmsdkUart::take_uart0() else { halt("UART0 already taken") };
         uart.init(115_200);
+        let Some(mut cp) = cortex_m::Peripherals::take() else { halt("core peripherals taken twice") };
+        // The stack: paint it for the high-water mark (the host reads it through QEMU's
+        // monitor), then the MPU guard at its bottom (QEMU ignores writes below RAM,
+        // where flip-link's guard relies on a bus error).
+        stack::paint();
+        if !stack::guard(&mut cp.MPU) {
+            halt("no MPU guard for the stack");
+        }
 
         let motor = MotorParams::paper();
         let config = DriveConfig::paper_axis(ObserverKind::Dcfo);
         let base = working_base(&motor);
         let drive = match Drive::<Work>::new(&motor, &config, &base) {
             Ok(d) => d,
-            Err(e) => panic!("{e}"),
+            Err(e) => halt(e.field),
         };
 
         // The banner states the numeric type and, with an FPU, the access mode
@@ -114,13 +127,20 @@ mod firmware {
         let _ = write!(uart, "dcfo-firmware qemu_hil: Q8.24 fixed point, no fpu\r\n\0");
 
         let Some(queue) = cortex_m::singleton!(: Queue<u8, TX_QUEUE_BYTES> = Queue::new()) else {
-            panic!("transmit queue taken twice")
+            halt("transmit queue taken twice")
         };
         let (producer, mut consumer) = queue.split();
         let (rx, mut tx) = uart.into_interrupt_driven();
-        interrupt::free(|cs| {
-            CONTROL.borrow(cs).replace(Some(Control { server: HilServer::new(drive), rx, tx: producer }))
+        let installed = interrupt::free(|cs| match CONTROL.borrow(cs).try_borrow_mut() {
+            Ok(mut slot) => {
+                *slot = Some(Control { server: HilServer::new(drive), rx, tx: producer });
+                true
+            }
+            Err(_) => false,
         });
+        if !installed {
+            halt("control state busy at start-up");
+        }
 
         // SAFETY: priorities are set before either interrupt is enabled; no critical
         // section here relies on priorities (they mask with PRIMASK).
@@ -149,24 +169,40 @@ mod firmware {
         }
     }
 
+    /// Runs `f` on the control state in a critical section. Every user borrows it only
+    /// inside such a section and never from within another, so the borrow cannot be
+    /// taken; if it were, `f` is skipped (no panic) and `false` returned.
+    fn with_control(f: impl FnOnce(&mut Control)) -> bool {
+        interrupt::free(|cs| match CONTROL.borrow(cs).try_borrow_mut() {
+            Ok(mut guard) => {
+                if let Some(c) = guard.as_mut() {
+                    f(c);
+                }
+                true
+            }
+            Err(_) => false,
+        })
+    }
+
     /// UART0 RX: drain the receiver through the HIL server; an in-order frame runs one
-    /// control step, whose answer goes to the transmit queue.
+    /// control step, whose answer goes to the transmit queue. Should the state be
+    /// unreachable, the bytes are left in the UART and this interrupt is masked: a drive
+    /// that cannot step answers nothing, and the host's watchdog sees a silent link.
     fn on_uart0_rx() {
-        interrupt::free(|cs| {
-            let mut guard = CONTROL.borrow(cs).borrow_mut();
-            let Some(c) = guard.as_mut() else { return };
+        let ok = with_control(|c| {
             while let Some(byte) = c.rx.try_read_byte() {
                 c.server.on_byte(byte, &mut c.tx);
             }
         });
+        if !ok {
+            mps2::mask_irq(UART0_RX_IRQN as i16);
+        }
     }
 
     #[exception]
     fn SysTick() {
-        interrupt::free(|cs| {
-            if let Some(c) = CONTROL.borrow(cs).borrow_mut().as_mut() {
-                c.server.watchdog_period();
-            }
+        with_control(|c| {
+            c.server.watchdog_period();
         });
     }
 
@@ -181,22 +217,40 @@ mod firmware {
         }
         // No handler for this interrupt: silence it and switch the bridge off.
         mps2::mask_irq(irqn);
-        interrupt::free(|cs| {
-            if let Some(c) = CONTROL.borrow(cs).borrow_mut().as_mut() {
-                c.server.trip();
-            }
-        });
+        with_control(|c| c.server.trip());
     }
 
-    #[panic_handler]
-    fn panic(info: &core::panic::PanicInfo) -> ! {
+    /// Cannot run: interrupts off (no control step can run again), the reason on UART0,
+    /// then sleep for good. Nothing was switched on yet when `main` calls it.
+    fn halt(why: &str) -> ! {
+        stop(format_args!("HALT: {why}"))
+    }
+
+    /// Masks every interrupt (the control step lives in one: it never runs again, so no
+    /// answer goes out and the drive's bridge flag is never set again), prints `what` on
+    /// UART0 and sleeps for good.
+    fn stop(what: core::fmt::Arguments<'_>) -> ! {
         cortex_m::interrupt::disable();
-        // SAFETY: interrupts are off and the panic handler never returns, so no other
-        // user of UART0 runs again.
+        // SAFETY: interrupts are off and this never returns, so no other user of UART0
+        // runs again; a byte the thread was writing is at worst cut short.
         let mut uart = unsafe { CmsdkUart::steal_uart0() };
-        let _ = write!(uart, "\r\nPANIC: {info}\r\n");
+        let _ = write!(uart, "\r\n{what}\r\n");
         loop {
             cortex_m::asm::wfi();
         }
+    }
+
+    /// HardFault (a stack overflow among others), on a fresh stack: stops the core.
+    extern "C" fn on_hard_fault() -> ! {
+        stop(format_args!("HARDFAULT"))
+    }
+
+    dcfo_firmware::hard_fault_entry!(on_hard_fault);
+
+    /// Not linked while nothing can panic (`.ci/no-panic`); kept so that a panic that
+    /// creeps in still stops the control step first.
+    #[panic_handler]
+    fn panic(info: &core::panic::PanicInfo) -> ! {
+        stop(format_args!("PANIC: {info}"))
     }
 }

@@ -10,8 +10,8 @@
 //! ```
 //!
 //! Nothing here blocks or waits: setpoints are atomics the interrupt reads once per
-//! step, telemetry goes through a `heapless` single-producer single-consumer queue whose
-//! full state the interrupt counts and moves on from. The step's time is bounded by the
+//! step, telemetry goes through a fixed-capacity [`crate::queue::Queue`] whose full
+//! state the interrupt counts and moves on from. The step's time is bounded by the
 //! drive's (no loops over data, no allocation, no panics).
 
 use core::sync::atomic::{AtomicBool, AtomicU32, Ordering};
@@ -21,9 +21,9 @@ use dcfo::link::{ActuationFrame, LinkStats};
 use dcfo::num::Scalar;
 use dcfo::transforms::Abc;
 use dcfo::units::Base;
-use heapless::spsc::Producer;
 
 use crate::board::{PhaseSensors, PowerStage};
+use crate::queue::Producer;
 
 /// Commands from a lower-priority context to the control interrupt, lock-free.
 /// Power-on state: disabled, speed reference 0 m/s.
@@ -111,11 +111,11 @@ impl<T: Scalar> ControlLoop<T> {
     /// setpoints, sensors, [`Drive::step`], then the bridge — duties before enable, or
     /// disable before centring the duties, every period (idempotent, so a missed
     /// transition cannot leave the bridge on). Returns the drive's state after the step.
-    pub fn step<B: PhaseSensors + PowerStage>(
+    pub fn step<B: PhaseSensors + PowerStage, const N: usize>(
         &mut self,
         board: &mut B,
         setpoints: &Setpoints,
-        telemetry: &mut Producer<'_, ActuationFrame>,
+        telemetry: &mut Producer<'_, ActuationFrame, N>,
     ) -> DriveState {
         self.apply(setpoints);
         let s = board.sample();
@@ -136,7 +136,7 @@ impl<T: Scalar> ControlLoop<T> {
             board.disable_bridge();
             board.set_duties([0.5; 3]);
         }
-        self.countdown -= 1;
+        self.countdown = self.countdown.saturating_sub(1);
         if self.countdown == 0 {
             self.countdown = self.telemetry_every;
             let record = ActuationFrame::from_step(self.sequence, &out, &self.base, LinkStats::default());
@@ -183,11 +183,11 @@ mod tests {
     use super::*;
     use crate::board::PhaseSample;
     use crate::board::fake::{FakeBoard, InjectedFault};
+    use crate::queue::Queue;
     use dcfo::drive::DriveConfig;
     use dcfo::motor::MotorParams;
     use dcfo::num::Q24;
     use dcfo::observer::ObserverKind;
-    use heapless::spsc::Queue;
 
     const BUS_V: f32 = 311.0;
 

@@ -7,11 +7,11 @@
 //! full queue drops it and counts it): half an answer on the wire would cost the next
 //! one too.
 
+use crate::queue::Producer;
 use dcfo::drive::Drive;
 use dcfo::link::{ActuationFrame, LinkServer, LinkStats};
 use dcfo::num::Scalar;
 use dcfo::units::Base;
-use heapless::spsc::Producer;
 
 /// The drive behind the HIL link, owned by the receive interrupt.
 #[derive(Clone, Debug)]
@@ -37,18 +37,13 @@ impl<T: Scalar> HilServer<T> {
 
     /// One received byte. When it completes an in-order sensor frame, the drive steps
     /// once and its answer is queued for transmission.
-    pub fn on_byte(&mut self, byte: u8, tx: &mut Producer<'_, u8>) {
+    pub fn on_byte<const N: usize>(&mut self, byte: u8, tx: &mut Producer<'_, u8, N>) {
         let Some(n) = self.link.on_byte(byte, &mut self.drive, &self.base, &mut self.reply) else {
             return;
         };
         let Some(answer) = self.reply.get(..n) else { return };
-        if tx.capacity() - tx.len() < answer.len() {
+        if !tx.enqueue_all(answer) {
             self.answers_dropped = self.answers_dropped.saturating_add(1);
-            return;
-        }
-        for &b in answer {
-            // Cannot fail: the free space was checked above and only this side enqueues.
-            let _ = tx.enqueue(b);
         }
     }
 
@@ -83,11 +78,11 @@ impl<T: Scalar> HilServer<T> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::queue::{Consumer, Queue};
     use dcfo::drive::{DriveConfig, DriveState};
     use dcfo::link::{Receiver, SensorFrame, encode};
     use dcfo::motor::MotorParams;
     use dcfo::observer::ObserverKind;
-    use heapless::spsc::Queue;
 
     fn server() -> HilServer<f32> {
         let m = MotorParams::paper();
@@ -113,7 +108,7 @@ mod tests {
     }
 
     /// Every answer waiting in the transmit queue, decoded.
-    fn answers(rx: &mut heapless::spsc::Consumer<'_, u8>) -> heapless::Vec<ActuationFrame, 4> {
+    fn answers<const N: usize>(rx: &mut Consumer<'_, u8, N>) -> heapless::Vec<ActuationFrame, 4> {
         let mut receiver = Receiver::<ActuationFrame>::new();
         core::iter::from_fn(|| rx.dequeue()).filter_map(|b| receiver.push(b)).map(|r| r.unwrap()).collect()
     }

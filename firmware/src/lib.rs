@@ -7,6 +7,11 @@
 //!   and telemetry.
 //! - [`hil`]: the lock-step HIL link's firmware side on any board (the library's
 //!   [`dcfo::link::LinkServer`], a transmit queue and the watchdog).
+//! - [`queue`]: the fixed-capacity queue between an interrupt and the thread, with no
+//!   path to a panic.
+//! - `rtt_log` (ESC1 only): the defmt logger over RTT, without a path to a panic.
+//! - `stack` (Arm only): the HardFault entry that survives a stack overflow, and stack
+//!   painting for the high-water mark.
 //!
 //! The firmware images are `examples/` (one per board); on the host they build to an
 //! empty `main` so that `cargo test --workspace --all-targets` and clippy work.
@@ -17,3 +22,10 @@
 pub mod board;
 pub mod control;
 pub mod hil;
+pub mod queue;
+#[cfg(all(target_arch = "arm", feature = "esc1"))]
+#[allow(unsafe_code)]
+pub mod rtt_log;
+#[cfg(target_arch = "arm")]
+#[allow(unsafe_code)]
+pub mod stack;

@@ -211,18 +211,37 @@ pub fn build_qemu_firmware(workspace: &Path, cpu: QemuCpu) -> Result<PathBuf, Si
     Ok(default_qemu_elf(workspace, cpu))
 }
 
-/// QEMU running the firmware, its UART0 on QEMU's standard input and output.
+/// QEMU running the firmware, its UART0 on QEMU's standard input and output, its
+/// monitor (QMP) on a socket for reading the target's memory.
 pub struct QemuSession {
     child: Child,
+    qmp_socket: PathBuf,
+    /// Holds the socket's directory until QEMU is gone.
+    _dir: tempfile::TempDir,
 }
+
+/// The pattern `dcfo_firmware::stack::paint` fills the free stack with at boot.
+pub const STACK_PAINT: u32 = 0xA5C3_5A3C;
+/// Start of RAM on the MPS2 boards: with flip-link, the stack's lowest address.
+pub const MPS2_RAM_ORIGIN: u32 = 0x2000_0000;
+/// `dcfo_firmware::stack::GUARD_BYTES`: the MPU guard at the bottom of the stack, never
+/// painted and never readable by the firmware.
+pub const STACK_GUARD_BYTES: u32 = 256;
+/// How far below the top of the stack [`QemuSession::stack_high_water`] looks (bytes).
+pub const STACK_SCAN_BYTES: u32 = 64 * 1024;
 
 impl QemuSession {
     /// Starts `qemu-system-arm` on `cpu`'s board with `elf`; returns the session and a
     /// controller talking to its UART0.
     pub fn start(elf: &Path, cpu: QemuCpu) -> Result<(QemuSession, SerialController<ChildStdin>), SimError> {
         let (machine, core) = cpu.machine_and_cpu();
+        let dir =
+            tempfile::tempdir().map_err(|e| SimError::Controller(format!("temporary directory: {e}")))?;
+        let qmp_socket = dir.path().join("qmp.sock");
         let mut child = Command::new("qemu-system-arm")
             .args(["-M", machine, "-cpu", core, "-display", "none", "-monitor", "none"])
+            .arg("-qmp")
+            .arg(format!("unix:{},server=on,wait=off", qmp_socket.display()))
             .args(["-semihosting-config", "enable=on,target=native", "-serial", "stdio", "-kernel"])
             .arg(elf)
             .stdin(Stdio::piped())
@@ -238,7 +257,69 @@ impl QemuSession {
             let _ = child.kill();
             return Err(SimError::Controller("qemu's standard I/O is not available".into()));
         };
-        Ok((QemuSession { child }, SerialController::new(stdin, stdout)))
+        Ok((QemuSession { child, qmp_socket, _dir: dir }, SerialController::new(stdin, stdout)))
+    }
+
+    /// Reads `count` 32-bit words of the target's memory from `addr`, through QEMU's
+    /// monitor (QMP `human-monitor-command` with `xp`). The target keeps running.
+    pub fn read_words(&self, addr: u32, count: u32) -> Result<Vec<u32>, SimError> {
+        use std::io::BufRead;
+        let err = |what: &str| SimError::Controller(format!("QEMU monitor: {what}"));
+        let socket = std::os::unix::net::UnixStream::connect(&self.qmp_socket)
+            .map_err(|e| err(&format!("connecting to {}: {e}", self.qmp_socket.display())))?;
+        socket.set_read_timeout(Some(ANSWER_TIMEOUT)).map_err(|e| err(&e.to_string()))?;
+        let mut writer = socket.try_clone().map_err(|e| err(&e.to_string()))?;
+        let mut lines = std::io::BufReader::new(socket).lines();
+        // The greeting, then one answer per command (events in between are skipped).
+        let mut answer = |command: serde_json::Value| -> Result<serde_json::Value, SimError> {
+            writeln!(writer, "{command}").map_err(|e| err(&e.to_string()))?;
+            loop {
+                let line = lines.next().ok_or_else(|| err("closed"))?.map_err(|e| err(&e.to_string()))?;
+                let v: serde_json::Value = serde_json::from_str(&line).map_err(|e| err(&e.to_string()))?;
+                if let Some(r) = v.get("return") {
+                    return Ok(r.clone());
+                }
+                if let Some(e) = v.get("error") {
+                    return Err(err(&e.to_string()));
+                }
+            }
+        };
+        answer(serde_json::json!({ "execute": "qmp_capabilities" }))?;
+        let text = answer(serde_json::json!({
+            "execute": "human-monitor-command",
+            "arguments": { "command-line": format!("xp /{count}wx {addr:#x}") },
+        }))?;
+        let text = text.as_str().ok_or_else(|| err("xp answered no text"))?;
+        // Lines `<address>: 0x<word> 0x<word> ...`.
+        let words: Vec<u32> = text
+            .lines()
+            .filter_map(|l| l.split_once(':'))
+            .flat_map(|(_, w)| w.split_whitespace())
+            .filter_map(|w| u32::from_str_radix(w.trim_start_matches("0x"), 16).ok())
+            .collect();
+        if words.len() != count as usize {
+            return Err(err(&format!("xp gave {} words, not {count}", words.len())));
+        }
+        Ok(words)
+    }
+
+    /// The firmware's deepest stack use since boot, in bytes below the top of the stack:
+    /// the image paints its free stack with [`STACK_PAINT`] at boot
+    /// (`dcfo_firmware::stack::paint`), and the lowest word that no longer holds it is
+    /// the high-water mark. The top is the initial stack pointer (word 0 of the vector
+    /// table at address 0). `Err` when the stack was used deeper than
+    /// [`STACK_SCAN_BYTES`] (or not painted).
+    pub fn stack_high_water(&self) -> Result<u32, SimError> {
+        let top = *self.read_words(0, 1)?.first().unwrap_or(&0);
+        let lowest = (MPS2_RAM_ORIGIN + STACK_GUARD_BYTES).max(top.saturating_sub(STACK_SCAN_BYTES));
+        let words = self.read_words(lowest, (top - lowest) / 4)?;
+        match words.iter().position(|&w| w != STACK_PAINT) {
+            Some(0) => Err(SimError::Controller(format!(
+                "the stack below {lowest:#x} is not painted, or used deeper than {STACK_SCAN_BYTES} bytes"
+            ))),
+            Some(i) => Ok(top - (lowest + 4 * i as u32)),
+            None => Ok(0),
+        }
     }
 }
 
@@ -265,6 +346,9 @@ pub struct HilReport {
     pub qemu_cpu: Option<QemuCpu>,
     /// With `--check`: samples compared, and whether every angle estimate was identical.
     pub equivalence: Option<Equivalence>,
+    /// On QEMU: the firmware's deepest stack use since boot, bytes
+    /// ([`QemuSession::stack_high_water`]).
+    pub stack_high_water_bytes: Option<u32>,
 }
 
 /// Bit-for-bit comparison of the angle estimates of a HIL run and an in-process run.
@@ -311,14 +395,23 @@ pub fn run_hil(args: &crate::cli::HilArgs) -> anyhow::Result<HilReport> {
     std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
     let bar = indicatif::ProgressBar::new(1000);
     let progress = |f: f64| bar.set_position((f * 1000.0) as u64);
+    let mut stack = None;
     let (hil_run, rate) = if args.qemu {
         let workspace = Path::new(env!("CARGO_MANIFEST_DIR")).parent().unwrap_or(Path::new("."));
         let elf = match &args.elf {
             Some(e) => e.clone(),
             None => build_qemu_firmware(workspace, args.cpu)?,
         };
-        let (_session, mut link) = QemuSession::start(&elf, args.cpu)?;
+        let (session, mut link) = QemuSession::start(&elf, args.cpu)?;
         let run = run_with(&setup, &scenario, &mut link, progress)?;
+        // A monitor that does not answer costs the figure, not the run.
+        stack = match session.stack_high_water() {
+            Ok(bytes) => Some(bytes),
+            Err(e) => {
+                eprintln!("no stack figure: {e}");
+                None
+            }
+        };
         (run, link.round_trips_per_s())
     } else {
         let Some(port) = &args.port else { anyhow::bail!("give --qemu or --port DEVICE") };
@@ -349,6 +442,7 @@ pub fn run_hil(args: &crate::cli::HilArgs) -> anyhow::Result<HilReport> {
         qemu_cpu: args.qemu.then_some(args.cpu),
         simulated_s: hil_run.simulated_s,
         equivalence,
+        stack_high_water_bytes: stack,
     };
     crate::sim::report::write_run_outputs(&hil_run, &scenario, &args.out, "hil")?;
     std::fs::write(args.out.join("summary.json"), serde_json::to_string_pretty(&report)?)
@@ -363,6 +457,9 @@ pub fn run_hil(args: &crate::cli::HilArgs) -> anyhow::Result<HilReport> {
         "{} over the HIL link: {figures_text}; {rate:.0} round trips/s; {:.2} s simulated",
         report.scenario, hil_run.simulated_s
     );
+    if let Some(bytes) = stack {
+        println!("deepest stack of the firmware since boot: {bytes} bytes");
+    }
     if let Some(e) = &report.equivalence {
         println!(
             "equivalence with the in-process drive: {} of {} angle estimates differ (max {:.2e} deg)",

@@ -2,8 +2,10 @@
 //! `mps2-an386` with f32, Cortex-M3 on `mps2-an385` with Q8.24) runs the drive in its
 //! UART interrupt, the host runs the plant, lock-step over the emulated UART0. The paper's
 //! steady scenario must reach its position-error figure, and every angle estimate must
-//! equal the in-process run of the same numeric type bit for bit. A silent link must
-//! switch the bridge off.
+//! equal the in-process run of the same numeric type bit for bit, and the firmware's
+//! deepest stack (painted at boot, read through QEMU's monitor) must stay within its
+//! budget. A silent link must switch the bridge off. A stack overflow must fault before
+//! it reaches the statics (flip-link, `examples/stack_guard`).
 //!
 //! Skips with a message when `qemu-system-arm` or a thumb target is missing, unless
 //! `DCFO_REQUIRE_QEMU=1` (CI sets it), which turns a skip into a failure.
@@ -50,8 +52,15 @@ fn steady_scenario_meets_its_figure_and_equals_the_host_bit_for_bit(cpu: QemuCpu
     let (session, mut link) = QemuSession::start(&elf, cpu).expect("qemu starts");
     let over_uart = run_with(&setup, &sc, &mut link, |_| {}).expect("HIL run");
     let rate = link.round_trips_per_s();
+    let stack = session.stack_high_water().expect("stack high-water mark");
     drop(link);
     drop(session);
+    println!("QEMU HIL {cpu:?}: deepest stack since boot {stack} bytes");
+    assert!(stack > 0, "the stack was painted and used");
+    // The budget catches a stack that grows by half; the ESC1 images, which run the
+    // same receive path with f32, have 30,144 bytes (flip-link: all RAM below their
+    // statics, less the 256-byte guard).
+    assert!(stack <= STACK_BUDGET_BYTES, "{stack} bytes of stack, budget {STACK_BUDGET_BYTES}");
     let f = scenarios::figures(&over_uart, &sc);
     println!(
         "QEMU HIL {cpu:?}, {:.1} s simulated at {rate:.0} round trips/s: theta_err max {:.2} deg, rms {:.2} deg",
@@ -67,6 +76,9 @@ fn steady_scenario_meets_its_figure_and_equals_the_host_bit_for_bit(cpu: QemuCpu
     assert!(e.samples > 30_000);
     assert_eq!(e.differing, 0, "the target's angle estimates differ from the host's");
 }
+
+/// The deepest stack the HIL image may use (bytes): see the steady-scenario test.
+const STACK_BUDGET_BYTES: u32 = 4096;
 
 #[test]
 fn m4f_f32_steady_scenario_through_qemu() {
@@ -131,4 +143,61 @@ fn a_silent_link_switches_the_bridge_off() {
         let reply = send(&mut link, &mut frame);
         assert_ne!(reply.state, DriveState::Fault, "{:?}", reply.faults);
     }
+}
+
+/// flip-link: unbounded recursion (`examples/stack_guard`) faults at the bottom of the
+/// stack, and the HardFault handler (on a fresh stack) finds `.data` and `.bss` intact.
+fn a_stack_overflow_faults_before_it_reaches_the_statics(cpu: QemuCpu) {
+    if let Some(why) = missing_tools(cpu) {
+        assert!(std::env::var("DCFO_REQUIRE_QEMU").as_deref() != Ok("1"), "QEMU required: {why}");
+        println!("skipped: {why}");
+        return;
+    }
+    let workspace = Path::new(env!("CARGO_MANIFEST_DIR")).parent().expect("workspace root");
+    let status = Command::new(std::env::var("CARGO").unwrap_or_else(|_| "cargo".into()))
+        .current_dir(workspace)
+        .args(["build", "--release", "-p", "dcfo-firmware", "--features", "mps2", "--example", "stack_guard"])
+        .args(["--target", cpu.target()])
+        .status()
+        .expect("cargo runs");
+    assert!(status.success(), "stack_guard builds");
+    let elf = workspace.join("target").join(cpu.target()).join("release/examples/stack_guard");
+    let (machine, core) = match cpu {
+        QemuCpu::M4f => ("mps2-an386", "cortex-m4"),
+        QemuCpu::M3 => ("mps2-an385", "cortex-m3"),
+    };
+    let mut child = Command::new("qemu-system-arm")
+        .args(["-M", machine, "-cpu", core, "-display", "none", "-monitor", "none"])
+        .args(["-semihosting-config", "enable=on,target=native", "-serial", "stdio", "-kernel"])
+        .arg(&elf)
+        .stdout(std::process::Stdio::piped())
+        .spawn()
+        .expect("qemu starts");
+    let start = Instant::now();
+    let status = loop {
+        if let Some(status) = child.try_wait().expect("qemu runs") {
+            break status;
+        }
+        if start.elapsed() > Duration::from_secs(30) {
+            let _ = child.kill();
+            panic!("stack_guard did not finish in 30 s");
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    let mut out = String::new();
+    std::io::Read::read_to_string(&mut child.stdout.take().expect("stdout"), &mut out).expect("output");
+    println!("{cpu:?}: {}", out.trim());
+    assert!(out.contains("mpu guard true"), "{out}");
+    assert!(out.contains("STACK_GUARD fault after") && out.contains("statics intact"), "{out}");
+    assert!(status.success(), "semihosting exit status {status}");
+}
+
+#[test]
+fn a_stack_overflow_faults_before_it_reaches_the_statics_m4f() {
+    a_stack_overflow_faults_before_it_reaches_the_statics(QemuCpu::M4f);
+}
+
+#[test]
+fn a_stack_overflow_faults_before_it_reaches_the_statics_m3() {
+    a_stack_overflow_faults_before_it_reaches_the_statics(QemuCpu::M3);
 }

@@ -1041,6 +1041,49 @@ const _: () = {
 };
 
 // =================================================================================================
+// Safe state from anywhere: panic, faults, an interrupt that cannot reach its state.
+// =================================================================================================
+
+/// Switches the bridge off without the [`Esc1PowerStage`] handle: clears TIM1 `BDTR.MOE`,
+/// which with `OSSI = 1` drives all six gate inputs to their idle level (low, every
+/// switch off) at once (RM0440 §28.3.16). For the panic handler, the fault handlers and
+/// an interrupt that cannot reach its state; no allocation, a single register
+/// read-modify-write. Before [`init`] has enabled TIM1's clock the write is ignored and
+/// the gate pins are not yet connected to the timer, so the bridge is off anyway.
+///
+/// The owner of the bridge may set MOE again from an interrupt: call this with
+/// interrupts masked, or again after masking them (as [`safe_state_and_stop`] does).
+pub fn force_bridge_off() {
+    // SAFETY: one read-modify-write of TIM1_BDTR, which only clears MOE (the safe
+    // state). Taking the register block without its owner is sound for this: a
+    // concurrent read-modify-write by the owner can at worst set MOE again, which the
+    // callers cover by masking interrupts and clearing it once more.
+    let tim1 = unsafe { &*pac::TIM1::ptr() };
+    tim1.bdtr().modify(|_, w| w.moe().clear_bit());
+}
+
+/// Bridge off, interrupts masked, bridge off again (an interrupt between the first
+/// write and the mask may have set MOE). After this nothing switches the bridge on.
+pub fn safe_state_and_stop() {
+    force_bridge_off();
+    cortex_m::interrupt::disable();
+    force_bridge_off();
+}
+
+/// Not linked while nothing in the images can panic (`.ci/no-panic` checks it); kept so
+/// that a panic that creeps in switches the bridge off before anything else. Then it
+/// logs the message over defmt (the logger drops it rather than wait or panic) and
+/// raises a HardFault with `udf`, as panic-probe did: `probe-rs run` stops there and
+/// shows the backtrace; without a probe the images' HardFault handler keeps the bridge
+/// off and stops. (Replaces panic-probe, which logs first and never touches the bridge.)
+#[panic_handler]
+fn panic(info: &core::panic::PanicInfo) -> ! {
+    safe_state_and_stop();
+    defmt::error!("panic: {}", defmt::Display2Format(info));
+    cortex_m::asm::udf()
+}
+
+// =================================================================================================
 // Motor image — the last flash page (RM0440 §3.3.1: 64 pages of 2 KiB on category 2 devices),
 // reserved by `firmware/memory/stm32g431cb.x`, written with `dcfo motor-image` + probe-rs.
 // =================================================================================================
