@@ -135,28 +135,7 @@ mod firmware {
         });
     }
 
-    /// HardFault (a stack overflow among others), on a fresh stack: bridge off first,
-    /// then stop.
-    extern "C" fn on_hard_fault() -> ! {
-        esc1::safe_state_and_stop();
-        loop {
-            cortex_m::asm::wfi();
-        }
-    }
-
-    dcfo_firmware::hard_fault_entry!(on_hard_fault);
-
-    // SAFETY: cortex-m-rt requires the default handler to be declared `unsafe`. It runs
-    // for an interrupt enabled without a handler (and the NMI); cortex-m-rt's own would
-    // spin at that interrupt's priority, possibly the control interrupt's, with the
-    // bridge on. Bridge off first, then stop.
-    #[exception]
-    unsafe fn DefaultHandler(_irqn: i16) {
-        esc1::safe_state_and_stop();
-        loop {
-            cortex_m::asm::wfi();
-        }
-    }
+    dcfo_firmware::esc1_fault_handlers!();
 
     /// Cannot run: bridge off (it was never switched on here), the reason over defmt,
     /// stop.

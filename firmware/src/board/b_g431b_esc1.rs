@@ -1070,6 +1070,37 @@ pub fn safe_state_and_stop() {
     force_bridge_off();
 }
 
+/// Defines an ESC1 image's fault vectors, the same in every image: `HardFault` (a stack
+/// overflow among others) on a fresh stack ([`crate::hard_fault_entry`]) and
+/// `DefaultHandler` (an interrupt enabled without a handler, the NMI), each switching
+/// the bridge off first ([`safe_state_and_stop`]) and then stopping. cortex-m-rt's own
+/// default handler would spin at the interrupt's priority, possibly the control
+/// interrupt's, with the bridge on. Expand once, at the image's top level.
+#[macro_export]
+macro_rules! esc1_fault_handlers {
+    () => {
+        /// HardFault, on a fresh stack: bridge off first, then stop.
+        extern "C" fn on_hard_fault() -> ! {
+            $crate::board::b_g431b_esc1::safe_state_and_stop();
+            loop {
+                cortex_m::asm::wfi();
+            }
+        }
+
+        $crate::hard_fault_entry!(on_hard_fault);
+
+        // SAFETY: cortex-m-rt requires the default handler to be declared `unsafe`; it
+        // only switches the bridge off and stops.
+        #[cortex_m_rt::exception]
+        unsafe fn DefaultHandler(_irqn: i16) {
+            $crate::board::b_g431b_esc1::safe_state_and_stop();
+            loop {
+                cortex_m::asm::wfi();
+            }
+        }
+    };
+}
+
 /// Not linked while nothing in the images can panic (`.ci/no-panic` checks it); kept so
 /// that a panic that creeps in switches the bridge off before anything else. Then it
 /// logs the message over defmt (the logger drops it rather than wait or panic) and
