@@ -95,10 +95,12 @@ pub enum MotorFileError {
         source: toml::de::Error,
     },
     /// A key that is not part of the format (often a typo).
-    #[error("motor file {file}: unknown key `{key}` (known keys: {})", KEYS.join(", "))]
+    #[error("motor file {file}{}: unknown key `{key}` (known keys: {})", at_line(*line), KEYS.join(", "))]
     UnknownKey {
         /// The file concerned.
         file: String,
+        /// Its line (1-based), where found.
+        line: Option<usize>,
         /// The unknown key.
         key: String,
     },
@@ -111,10 +113,12 @@ pub enum MotorFileError {
         key: &'static str,
     },
     /// A key's value has the wrong TOML type.
-    #[error("motor file {file}: `{key}` must be {expected}, found {found}")]
+    #[error("motor file {file}{}: `{key}` must be {expected}, found {found}", at_line(*line))]
     WrongType {
         /// The file concerned.
         file: String,
+        /// Its line (1-based), where found.
+        line: Option<usize>,
         /// The key.
         key: &'static str,
         /// The type wanted (`a number`, `a string`).
@@ -123,10 +127,12 @@ pub enum MotorFileError {
         found: &'static str,
     },
     /// A value was refused by [`MotorParams::new`].
-    #[error("motor file {file}: {error} (value {value})")]
+    #[error("motor file {file}{}: {error} (value {value})", at_line(*line))]
     Invalid {
         /// The file concerned.
         file: String,
+        /// The line (1-based) of the refused key, where the file has it.
+        line: Option<usize>,
         /// The refused value (as f32, the library's type).
         value: f32,
         /// The validation error; its `field` is the key. (Shown in the message, not
@@ -145,16 +151,43 @@ pub enum MotorFileError {
     },
 }
 
+/// `", line N"` for a known line, else nothing: the place in an error message.
+fn at_line(line: Option<usize>) -> String {
+    line.map(|n| format!(", line {n}")).unwrap_or_default()
+}
+
+/// The line (1-based) of `text` that sets the top-level key `key` (`key = ...`, bare or
+/// quoted, or a table header `[key]`), if any: motor files are flat, so the first such
+/// line is the key's.
+pub fn key_line(text: &str, key: &str) -> Option<usize> {
+    text.lines()
+        .position(|l| {
+            let l = l.trim_start();
+            // A table header `[key]` (refused as an unknown key) counts too.
+            let header = l.strip_prefix('[').and_then(|r| r.trim().strip_suffix(']')).map(str::trim);
+            let rest = l.strip_prefix(key).or_else(|| {
+                l.strip_prefix('"').and_then(|r| r.strip_prefix(key)).and_then(|r| r.strip_prefix('"'))
+            });
+            header == Some(key) || rest.is_some_and(|r| r.trim_start().starts_with('='))
+        })
+        .map(|i| i + 1)
+}
+
 /// Parses the text of a motor file; `file` names it in messages and gives the
 /// default `name` (its file stem).
 pub fn parse_motor_toml(text: &str, file: &str) -> Result<MotorFile, MotorFileError> {
     let table: toml::Table =
         text.parse().map_err(|source| MotorFileError::Toml { file: file.to_string(), source })?;
     if let Some(key) = table.keys().find(|k| !KEYS.contains(&k.as_str())) {
-        return Err(MotorFileError::UnknownKey { file: file.to_string(), key: key.clone() });
+        return Err(MotorFileError::UnknownKey {
+            file: file.to_string(),
+            line: key_line(text, key),
+            key: key.clone(),
+        });
     }
     let wrong_type = |key: &'static str, expected: &'static str, v: &toml::Value| MotorFileError::WrongType {
         file: file.to_string(),
+        line: key_line(text, key),
         key,
         expected,
         found: v.type_str(),
@@ -198,6 +231,7 @@ pub fn parse_motor_toml(text: &str, file: &str) -> Result<MotorFile, MotorFileEr
     };
     let params = MotorParams::new(raw).map_err(|error| MotorFileError::Invalid {
         file: file.to_string(),
+        line: key_line(text, error.field),
         value: field_value(&raw, error.field),
         error,
     })?;
@@ -311,9 +345,20 @@ rated_voltage_v = 220.0
     #[test]
     fn unknown_keys_are_refused_by_name() {
         let m = err(&without("mass_kg").replace("rated_current_a", "mass = 0.66\nrated_current_a"));
-        assert_has(&m, &["motor file m.toml:", "unknown key `mass`", "mass_kg"]);
+        assert_has(&m, &["motor file m.toml, line 9:", "unknown key `mass`", "mass_kg"]);
         let m = err(&format!("{PAPER}\n[motor]\nrs_ohm = 1.0\n"));
-        assert_has(&m, &["motor file m.toml:", "unknown key `motor`"]);
+        let line = PAPER.lines().count() + 2;
+        assert_has(&m, &[&format!("motor file m.toml, line {line}:"), "unknown key `motor`"]);
+    }
+
+    #[test]
+    fn key_lines_are_found_for_bare_and_quoted_keys_only() {
+        let text = "# rs_ohm = 1\nname = \"x\"\n  rs_ohm=5\n\"ld_h\" = 1\nrs_ohm_extra = 2\n";
+        assert_eq!(key_line(text, "name"), Some(2));
+        assert_eq!(key_line(text, "rs_ohm"), Some(3));
+        assert_eq!(key_line(text, "ld_h"), Some(4));
+        assert_eq!(key_line(text, "lq_h"), None);
+        assert_eq!(key_line("a = 1\n[ motor ]\n", "motor"), Some(2));
     }
 
     #[test]
@@ -328,21 +373,21 @@ rated_voltage_v = 220.0
     #[test]
     fn wrong_types_are_named() {
         let m = err(&PAPER.replace("ld_h = 0.0085", "ld_h = \"8.5 mH\""));
-        assert_has(&m, &["motor file m.toml:", "`ld_h` must be a number, found string"]);
+        assert_has(&m, &["motor file m.toml, line 4:", "`ld_h` must be a number, found string"]);
         let m = err(&PAPER.replace("name = \"paper\"", "name = 3"));
-        assert_has(&m, &["motor file m.toml:", "`name` must be a string, found integer"]);
+        assert_has(&m, &["motor file m.toml, line 2:", "`name` must be a string, found integer"]);
     }
 
     #[test]
     fn invalid_values_carry_the_validation_error() {
         let m = err(&PAPER.replace("ld_h = 0.0085", "ld_h = 0"));
-        assert_has(&m, &["motor file m.toml:", "`ld_h` must be greater than zero", "value 0"]);
+        assert_has(&m, &["motor file m.toml, line 4:", "`ld_h` must be greater than zero", "value 0"]);
         let m = err(&PAPER.replace("psi_f_wb = 0.16", "psi_f_wb = nan"));
-        assert_has(&m, &["motor file m.toml:", "`psi_f_wb` must be a finite number"]);
+        assert_has(&m, &["motor file m.toml, line 6:", "`psi_f_wb` must be a finite number"]);
         let m = err(&PAPER.replace("rs_ohm = 5.0", "rs_ohm = 1e300"));
-        assert_has(&m, &["`rs_ohm` must be a finite number"]);
+        assert_has(&m, &["m.toml, line 3:", "`rs_ohm` must be a finite number"]);
         let m = err(&PAPER.replace("viscous_n_s_per_m = 0.5", "viscous_n_s_per_m = -0.5"));
-        assert_has(&m, &["`viscous_n_s_per_m` must not be negative", "value -0.5"]);
+        assert_has(&m, &["m.toml, line 9:", "`viscous_n_s_per_m` must not be negative", "value -0.5"]);
         match parse_motor_toml(&PAPER.replace("mass_kg = 0.66", "mass_kg = -1"), "m.toml") {
             Err(MotorFileError::Invalid { error, value, .. }) => {
                 assert_eq!((error.field, value), ("mass_kg", -1.0));
@@ -376,6 +421,6 @@ rated_voltage_v = 220.0
         assert_eq!((m.name.as_str(), m.params), ("bench", MotorParams::paper()));
         std::fs::write(&path, PAPER.replace("lq_h = 0.0085", "lq_h = -1")).unwrap();
         let m = load_motor(&path.display().to_string()).unwrap_err().to_string();
-        assert_has(&m, &["bench.toml:", "`lq_h` must be greater than zero"]);
+        assert_has(&m, &["bench.toml, line 5:", "`lq_h` must be greater than zero"]);
     }
 }
