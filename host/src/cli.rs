@@ -279,11 +279,17 @@ pub struct PaperArgs {
 /// Arguments of `dcfo sim`.
 #[derive(Debug, Clone, Args)]
 pub struct SimArgs {
-    /// Scenario to simulate, by name: one of the paper's experiments (steady speed in m/s,
-    /// speed step, DC offset on a voltage [V] or current [A], resistance error, load step
-    /// [N]).
-    #[arg(long, value_name = "NAME")]
+    /// Scenario to simulate: one of the paper's experiments by name (steady, speed-step,
+    /// dc-u, dc-i, resistance, load-step), or a scenario file (TOML: speed references,
+    /// loads, disturbances, plant deviations; docs/scenario-format.md).
+    #[arg(long, value_name = "NAME|FILE")]
     pub scenario: String,
+
+    /// The motor: a preset (`paper`) or a motor file (TOML, shared trace-format.md). The
+    /// drive tunes itself from it. Without it, the paper motor on the paper's simulated
+    /// test axis (10 kg carriage, the settings the HIL firmware runs).
+    #[arg(long, value_name = "PRESET|FILE")]
+    pub motor: Option<String>,
 
     /// Flux observer of the sensorless drive.
     #[arg(long, value_enum, value_name = "OBSERVER")]
@@ -454,7 +460,27 @@ pub fn run_paper(args: &PaperArgs) -> ExitCode {
 
 /// `dcfo sim`: one scenario with one observer.
 pub fn run_sim(args: &SimArgs) -> ExitCode {
-    match crate::sim::report::run_sim(&args.scenario, args.observer.kind(), &args.out) {
+    let run = || -> anyhow::Result<()> {
+        let scenario = crate::sim::report::load_scenario(&args.scenario)?;
+        let setup = match &args.motor {
+            None => crate::sim::Setup::paper(args.observer.kind()),
+            Some(m) => {
+                let motor = load_motor(m)?;
+                // The speed loop is tuned on the moving mass: a placeholder would tune it
+                // silently wrong.
+                if motor.defaulted.contains(&"mass_kg") {
+                    anyhow::bail!(
+                        "motor file {m}: key `mass_kg` is required to simulate the drive (its speed loop \
+                         is tuned on the moving mass)"
+                    );
+                }
+                crate::sim::Setup::for_axis(&motor.params, &scenario, args.observer.kind())
+            }
+        };
+        crate::sim::report::run_sim(&setup, &scenario, &args.out)?;
+        Ok(())
+    };
+    match run() {
         Ok(_) => ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("dcfo sim: {e:#}");

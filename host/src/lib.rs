@@ -9,6 +9,7 @@ pub mod motor_file;
 pub mod plant;
 pub mod plot;
 pub mod replay;
+pub mod scenario_file;
 pub mod sim;
 pub mod stroke;
 pub mod summary;

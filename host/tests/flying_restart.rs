@@ -13,14 +13,14 @@ fn run_reset_at(v: f64) -> (Option<f64>, f64, f64, f64, f64) {
     let accel = f64::from(setup.drive.accel_limit_m_per_s2);
     let t_reset = 1.0 + v / accel + 1.0;
     let scenario = Scenario {
-        name: "flying-restart",
-        description: "estimator reset at speed",
+        name: "flying-restart".into(),
+        description: "estimator reset at speed".into(),
         duration_s: t_reset + 1.0,
         events: vec![(0.0, Event::Speed(v)), (t_reset, Event::ResetEstimator)],
-        plant_rs_factor: None,
+        plant: sim::PlantChanges::default(),
         event_s: t_reset,
         window_s: 1.0,
-        paper: "",
+        paper: String::new(),
     };
     let run = sim::run(&setup, &scenario, |_| {}).unwrap();
     assert!(run.faults.is_empty(), "{v} m/s: tripped {:?}", run.faults);
@@ -69,14 +69,14 @@ fn drive_reacquires_a_moving_mover_instead_of_tripping() {
 fn enable_while_moving(v: f64) -> (Vec<u8>, Option<f64>, f64, f64) {
     let setup = Setup::paper(ObserverKind::Dcfo);
     let scenario = Scenario {
-        name: "catch-on-enable",
-        description: "drive enabled with the mover already moving",
+        name: "catch-on-enable".into(),
+        description: "drive enabled with the mover already moving".into(),
         duration_s: 1.5,
         events: vec![(0.0, Event::Speed(v)), (0.0, Event::MoverSpeed(v))],
-        plant_rs_factor: None,
+        plant: sim::PlantChanges::default(),
         event_s: 0.0,
         window_s: 1.5,
-        paper: "",
+        paper: String::new(),
     };
     let run = sim::run(&setup, &scenario, |_| {}).unwrap();
     assert!(run.faults.is_empty(), "{v} m/s: tripped {:?}", run.faults);

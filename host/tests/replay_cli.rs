@@ -313,5 +313,8 @@ fn usage_errors_and_help() {
     // An unknown scenario is refused with the list of known ones, and nothing runs.
     let o = dcfo(&["sim", "--scenario", "nope", "--observer", "dcfo", "--out", "/nonexistent/dir"]);
     assert!(!o.status.success());
-    assert_has(&text(&o.stderr), &["unknown scenario `nope`", "steady", "load-step"]);
+    assert_has(
+        &text(&o.stderr),
+        &["scenario `nope` is neither a paper experiment", "steady", "load-step", "nor a readable file"],
+    );
 }

@@ -20,7 +20,7 @@ use dcfo::observer::ObserverKind;
 use dcfo::transforms::{Abc, AlphaBeta, clarke};
 use dcfo::units::Base;
 
-pub use scenarios::{Event, Scenario};
+pub use scenarios::{Event, PlantChanges, Scenario};
 
 /// One logged sample: the trace row (observer inputs and ground truth) and what the
 /// drive estimated.
@@ -79,6 +79,8 @@ pub struct Run {
     pub period_s: f64,
     /// Simulated time, s.
     pub simulated_s: f64,
+    /// The motor's pole pitch, m (one electrical period is two).
+    pub pole_pitch_m: f64,
 }
 
 /// Why a simulation could not run.
@@ -116,6 +118,41 @@ impl Setup {
         let mut plant = SimParams::from_motor(&motor);
         plant.plant.mass_kg += f64::from(PAPER_AXIS_PAYLOAD_KG);
         Setup { motor, plant, drive: DriveConfig::paper_axis(observer) }
+    }
+
+    /// Any motor on the realistic simulated inverter and sensors of
+    /// [`SimParams::from_motor`], with the drive tuned from the motor file alone
+    /// ([`DriveConfig::for_motor`] on the inverter's bus) and compensating the
+    /// inverter's dead time and mean device drop ([`compensation_for`]).
+    pub fn for_motor(motor: &MotorParams, observer: ObserverKind) -> Self {
+        let plant = SimParams::from_motor(motor);
+        let mut drive = DriveConfig::for_motor(motor, plant.inverter.dc_bus_v as f32, observer);
+        drive.dead_time_compensation = Some(compensation_for(&plant));
+        Setup { motor: *motor, plant, drive }
+    }
+}
+
+impl Setup {
+    /// `motor` on the axis `scenario` describes: [`Setup::for_motor`], the plant carrying
+    /// the scenario's payload (which the drive is told, as a user configures a drive with
+    /// the mass of its axis); the scenario's other plant deviations stay unknown to the
+    /// drive.
+    pub fn for_axis(motor: &MotorParams, scenario: &Scenario, observer: ObserverKind) -> Self {
+        let mut setup = Setup::for_motor(motor, observer);
+        setup.drive.moving_mass_kg += scenario.plant.payload_kg as f32;
+        setup
+    }
+}
+
+/// The drive's inverter compensation for the simulated inverter and sensors of `sim`:
+/// its dead time, the mean of its IGBT and diode threshold drops, and a sign band of
+/// one current-sensor noise sigma (at least 1 mA).
+pub fn compensation_for(sim: &SimParams) -> dcfo::drive::DeadTimeCompensation {
+    let inv = &sim.inverter;
+    dcfo::drive::DeadTimeCompensation {
+        dead_time_s: inv.dead_time_s as f32,
+        device_drop_v: (0.5 * (inv.igbt_threshold_v + inv.diode_threshold_v)) as f32,
+        current_band_a: sim.sensors.current_noise_rms_a.max(1e-3) as f32,
     }
 }
 
@@ -219,9 +256,7 @@ pub fn run_with(
     mut progress: impl FnMut(f64),
 ) -> Result<Run, SimError> {
     let mut plant_params = setup.plant;
-    if let Some(k) = scenario.plant_rs_factor {
-        plant_params.plant.rs_ohm *= k;
-    }
+    scenario.plant.apply(&mut plant_params.plant);
     let mut plant = Plant::new(&plant_params)?;
     let ts = plant.pwm_period_s();
     let n = (scenario.duration_s / ts).round() as usize;
@@ -343,6 +378,7 @@ pub fn run_with(
         faults,
         period_s: ts,
         simulated_s: n as f64 * ts,
+        pole_pitch_m: f64::from(setup.motor.pole_pitch_m),
     })
 }
 

@@ -170,8 +170,10 @@ pub fn table(report: &PaperReport) -> String {
 
 /// Every fifth sample in the display window of `sc` as (t, value).
 fn series(run: &Run, sc: &Scenario, value: impl Fn(&super::Sample) -> f64) -> Vec<(f64, f64)> {
-    // From half a second before the event; a run shortened before it shows everything.
-    let t0 = if sc.event_s < run.simulated_s { sc.event_s - 0.5 } else { 0.0 };
+    // From half a second before the event; a run shortened before it, or whose drive
+    // stopped reporting before it (a trip), shows everything.
+    let last_t = run.samples.last().map_or(0.0, |s| s.row.t);
+    let t0 = if sc.event_s < run.simulated_s && sc.event_s <= last_t { sc.event_s - 0.5 } else { 0.0 };
     run.samples.iter().filter(|s| s.row.t >= t0).step_by(5).map(|s| (s.row.t, value(s))).collect()
 }
 
@@ -218,7 +220,7 @@ fn scenario_figure(dir: &Path, sc: &Scenario, cfo: &Run, dcfo: &Run) -> Result<(
         ),
     ];
     let fig = time_series_figure(format!("{}: {}", sc.name, sc.description), panels);
-    write_figure(&fig, &dir.join(sc.name)).with_context(|| format!("figure for {}", sc.name))?;
+    write_figure(&fig, &dir.join(&sc.name)).with_context(|| format!("figure for {}", sc.name))?;
     Ok(())
 }
 
@@ -263,14 +265,54 @@ pub fn trace_of(run: &Run) -> Result<(InputTrace, Vec<Estimate>)> {
     Ok((trace, estimates))
 }
 
+/// The names of the fault bits set in `faults` (`OVER_CURRENT | LOCK_LOST`), `none`
+/// for none; unknown bits as hex.
+pub fn fault_names(faults: dcfo::drive::Faults) -> String {
+    use dcfo::drive::Faults;
+    const NAMES: [(Faults, &str); 9] = [
+        (Faults::OVER_CURRENT, "OVER_CURRENT"),
+        (Faults::BUS_UNDER_VOLTAGE, "BUS_UNDER_VOLTAGE"),
+        (Faults::BUS_OVER_VOLTAGE, "BUS_OVER_VOLTAGE"),
+        (Faults::NON_FINITE, "NON_FINITE"),
+        (Faults::ESTIMATOR, "ESTIMATOR"),
+        (Faults::LOCK_LOST, "LOCK_LOST"),
+        (Faults::CALIBRATION, "CALIBRATION"),
+        (Faults::MODULATION, "MODULATION"),
+        (Faults::EXTERNAL, "EXTERNAL"),
+    ];
+    let mut known = 0u16;
+    let mut names: Vec<String> = Vec::new();
+    for (bit, name) in NAMES {
+        known |= bit.bits();
+        if faults.contains(bit) {
+            names.push(name.to_string());
+        }
+    }
+    let unknown = faults.bits() & !known;
+    if unknown != 0 {
+        names.push(format!("{unknown:#06x}"));
+    }
+    if names.is_empty() { "none".to_string() } else { names.join(" | ") }
+}
+
+/// A scenario argument: a paper experiment by name, else a scenario file
+/// ([`crate::scenario_file`]); an error naming both possibilities otherwise.
+pub fn load_scenario(arg: &str) -> Result<Scenario> {
+    if let Some(sc) = scenario(arg) {
+        return Ok(sc);
+    }
+    if Path::new(arg).is_file() {
+        return Ok(crate::scenario_file::read_scenario_file(arg)?);
+    }
+    let names: Vec<_> = paper_scenarios().iter().map(|s| s.name.clone()).collect();
+    bail!("scenario `{arg}` is neither a paper experiment ({}) nor a readable file", names.join(", "))
+}
+
 /// `dcfo sim`: one scenario with one observer; writes `trace.csv` (input format with
 /// ground truth, replayable), `estimates.csv` (output format), `summary.json` and a
 /// figure into `out`.
-pub fn run_sim(name: &str, observer: ObserverKind, out: &Path) -> Result<Figures> {
-    let Some(sc) = scenario(name) else {
-        let names: Vec<_> = paper_scenarios().iter().map(|s| s.name).collect();
-        bail!("unknown scenario `{name}`; known: {}", names.join(", "));
-    };
+pub fn run_sim(setup: &Setup, sc: &Scenario, out: &Path) -> Result<Figures> {
+    let observer = setup.drive.estimator.observer;
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     let bar = ProgressBar::new(1000);
     bar.set_style(
@@ -278,13 +320,16 @@ pub fn run_sim(name: &str, observer: ObserverKind, out: &Path) -> Result<Figures
             .map_err(|e| anyhow::anyhow!("progress bar template: {e}"))?,
     );
     let start = Instant::now();
-    let run = run(&Setup::paper(observer), &sc, |f| bar.set_position((f * 1000.0) as u64))?;
+    let run = run(setup, sc, |f| bar.set_position((f * 1000.0) as u64))?;
     bar.finish_and_clear();
     let wall = start.elapsed().as_secs_f64();
-    let f = figures(&run, &sc);
-    write_run_outputs(&run, &sc, out, observer_name(observer))?;
+    let f = figures(&run, sc);
+    write_run_outputs(&run, sc, out, observer_name(observer))?;
     let summary = serde_json::json!({
         "scenario": sc.name,
+        "motor_pole_pitch_m": setup.motor.pole_pitch_m,
+        "handover_s": run.handover_s,
+        "faults": fault_names(run.faults),
         "observer": observer_name(observer),
         "figures": f,
         "real_time_factor": run.simulated_s / wall.max(1e-9),
@@ -301,6 +346,15 @@ pub fn run_sim(name: &str, observer: ObserverKind, out: &Path) -> Result<Figures
         f.flux_drift_wb,
         run.simulated_s / wall.max(1e-9)
     );
+    if !run.faults.is_empty() {
+        let last_t = run.samples.last().map_or(0.0, |s| s.row.t);
+        println!(
+            "the drive tripped ({}); its last estimate was at t = {last_t:.3} s, the figures cover what it reported",
+            fault_names(run.faults)
+        );
+    } else if run.handover_s.is_none() {
+        println!("the drive never reached sensorless operation (Running)");
+    }
     eprintln!("trace.csv, estimates.csv, summary.json and figures in {}", out.display());
     Ok(f)
 }
@@ -346,6 +400,6 @@ pub fn write_run_outputs(run: &Run, sc: &Scenario, out: &Path, label: &str) -> R
         Panel::new("position error [deg el]", vec![Series::line("error", series(run, sc, theta_err_deg))]),
     ];
     let title = format!("{} ({label}): {}", sc.name, sc.description);
-    write_figure(&time_series_figure(title, panels), &out.join(sc.name))?;
+    write_figure(&time_series_figure(title, panels), &out.join(&sc.name))?;
     Ok(())
 }

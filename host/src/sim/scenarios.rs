@@ -27,22 +27,81 @@ pub enum Event {
 #[derive(Clone, Debug)]
 pub struct Scenario {
     /// Short name used on the command line.
-    pub name: &'static str,
+    pub name: String,
     /// What it reproduces.
-    pub description: &'static str,
+    pub description: String,
     /// Simulated duration, s.
     pub duration_s: f64,
     /// Timed events (time s, event).
     pub events: Vec<(f64, Event)>,
-    /// The plant's resistance is this multiple of the motor file's (the observer keeps
-    /// the nominal value); `None` for nominal.
-    pub plant_rs_factor: Option<f64>,
+    /// How the simulated plant differs from the motor file the drive was tuned on.
+    pub plant: PlantChanges,
     /// Time of the disturbance the scenario is about, s; figures are measured from it.
     pub event_s: f64,
     /// Length of the window after `event_s` over which figures are measured, s.
     pub window_s: f64,
-    /// What the paper reports, for the table.
-    pub paper: &'static str,
+    /// What the paper reports, for the table (empty for other scenarios).
+    pub paper: String,
+}
+
+/// How a scenario's plant differs from the motor file (the drive keeps the file's
+/// values): multiples of the file's electrical parameters, and mechanics.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PlantChanges {
+    /// Plant resistance over the file's, dimensionless (> 0).
+    pub rs_factor: f64,
+    /// Plant d-axis inductance over the file's, dimensionless (> 0).
+    pub ld_factor: f64,
+    /// Plant q-axis inductance over the file's, dimensionless (> 0).
+    pub lq_factor: f64,
+    /// Plant magnet flux over the file's, dimensionless (> 0).
+    pub psi_f_factor: f64,
+    /// Mass carried besides the mover, kg (>= 0).
+    pub payload_kg: f64,
+    /// Coulomb (sliding) friction, N (>= 0), with a break-away 1.3 times it; `None`: the
+    /// plant's default.
+    pub coulomb_friction_n: Option<f64>,
+    /// Viscous friction, N s/m (>= 0); `None`: the motor file's.
+    pub viscous_n_s_per_m: Option<f64>,
+}
+
+impl Default for PlantChanges {
+    /// The motor file as it is.
+    fn default() -> Self {
+        PlantChanges {
+            rs_factor: 1.0,
+            ld_factor: 1.0,
+            lq_factor: 1.0,
+            psi_f_factor: 1.0,
+            payload_kg: 0.0,
+            coulomb_friction_n: None,
+            viscous_n_s_per_m: None,
+        }
+    }
+}
+
+impl PlantChanges {
+    /// A plant whose resistance is `k` times the file's.
+    pub fn resistance(k: f64) -> Self {
+        PlantChanges { rs_factor: k, ..PlantChanges::default() }
+    }
+
+    /// Applies the changes to `plant` (built from the motor file).
+    pub fn apply(&self, plant: &mut crate::plant::PlantParams) {
+        plant.rs_ohm *= self.rs_factor;
+        plant.ld_h *= self.ld_factor;
+        plant.lq_h *= self.lq_factor;
+        plant.psi_f_wb *= self.psi_f_factor;
+        plant.mass_kg += self.payload_kg;
+        if let Some(f) = self.coulomb_friction_n {
+            // Break-away 30 % above sliding, as the plant's default friction has it.
+            plant.coulomb_friction_n = f;
+            plant.static_friction_n = 1.3 * f;
+        }
+        if let Some(b) = self.viscous_n_s_per_m {
+            plant.viscous_n_s_per_m = b;
+        }
+    }
 }
 
 /// Hand-over happens about 0.95 s after enable (0.1 s calibration, 0.3 s I/f ramp to
@@ -55,84 +114,85 @@ pub fn paper_scenarios() -> Vec<Scenario> {
     let base = |v: f64| vec![(0.0, Event::Speed(v))];
     vec![
         Scenario {
-            name: "steady",
-            description: "steady 0.3 m/s (10 Hz)",
+            name: "steady".into(),
+            description: "steady 0.3 m/s (10 Hz)".into(),
             duration_s: SETTLED_S + 1.0,
             events: base(0.3),
-            plant_rs_factor: None,
+            plant: PlantChanges::default(),
             event_s: SETTLED_S,
             window_s: 1.0,
-            paper: "Fig 11-12, 17: CFO max ~14 deg with lag; DCFO max < 10 deg",
+            paper: "Fig 11-12, 17: CFO max ~14 deg with lag; DCFO max < 10 deg".into(),
         },
         Scenario {
-            name: "speed-step",
-            description: "speed step 0.24 -> 0.45 m/s (8 -> 15 Hz)",
+            name: "speed-step".into(),
+            description: "speed step 0.24 -> 0.45 m/s (8 -> 15 Hz)".into(),
             duration_s: SETTLED_S + 1.0,
             events: {
                 let mut e = base(0.24);
                 e.push((SETTLED_S, Event::Speed(0.45)));
                 e
             },
-            plant_rs_factor: None,
+            plant: PlantChanges::default(),
             event_s: SETTLED_S,
             window_s: 1.0,
-            paper: "Fig 13: speed estimate tracks",
+            paper: "Fig 13: speed estimate tracks".into(),
         },
         Scenario {
-            name: "dc-u",
-            description: "+2 V DC on the observer's u_alpha at 0.3 m/s",
+            name: "dc-u".into(),
+            description: "+2 V DC on the observer's u_alpha at 0.3 m/s".into(),
             duration_s: SETTLED_S + 1.0,
             events: {
                 let mut e = base(0.3);
                 e.push((SETTLED_S, Event::ObserverOffsets { u_v: [2.0, 0.0], i_a: [0.0, 0.0] }));
                 e
             },
-            plant_rs_factor: None,
+            plant: PlantChanges::default(),
             event_s: SETTLED_S,
             window_s: 1.0,
-            paper: "Fig 14: CFO flux drifts ~0.03 Wb; DCFO unaffected",
+            paper: "Fig 14: CFO flux drifts ~0.03 Wb; DCFO unaffected".into(),
         },
         Scenario {
-            name: "dc-i",
-            description: "+0.2 A DC on the observer's i_beta at 0.3 m/s",
+            name: "dc-i".into(),
+            description: "+0.2 A DC on the observer's i_beta at 0.3 m/s".into(),
             duration_s: SETTLED_S + 1.0,
             events: {
                 let mut e = base(0.3);
                 e.push((SETTLED_S, Event::ObserverOffsets { u_v: [0.0, 0.0], i_a: [0.0, 0.2] }));
                 e
             },
-            plant_rs_factor: None,
+            plant: PlantChanges::default(),
             event_s: SETTLED_S,
             window_s: 1.0,
-            paper: "Fig 15: CFO ~0.02 Wb; DCFO brief blip only",
+            paper: "Fig 15: CFO ~0.02 Wb; DCFO brief blip only".into(),
         },
         Scenario {
-            name: "resistance",
-            description: "R = 2 Rs in the motor (observer keeps Rs), +0.2 A on i_beta at 0.3 m/s",
+            name: "resistance".into(),
+            description: "R = 2 Rs in the motor (observer keeps Rs), +0.2 A on i_beta at 0.3 m/s".into(),
             duration_s: SETTLED_S + 1.0,
             events: {
                 let mut e = base(0.3);
                 e.push((SETTLED_S, Event::ObserverOffsets { u_v: [0.0, 0.0], i_a: [0.0, 0.2] }));
                 e
             },
-            plant_rs_factor: Some(2.0),
+            plant: PlantChanges::resistance(2.0),
             event_s: SETTLED_S,
             window_s: 1.0,
-            paper: "Fig 16: CFO ~0.04 Wb; DCFO brief blip",
+            paper: "Fig 16: CFO ~0.04 Wb; DCFO brief blip".into(),
         },
         Scenario {
-            name: "load-step",
-            description: "40 N load step at 0.42 m/s",
+            name: "load-step".into(),
+            description: "40 N load step at 0.42 m/s".into(),
             duration_s: SETTLED_S + 1.0,
             events: {
                 let mut e = base(0.42);
                 e.push((SETTLED_S, Event::Load(40.0)));
                 e
             },
-            plant_rs_factor: None,
+            plant: PlantChanges::default(),
             event_s: SETTLED_S,
             window_s: 1.0,
-            paper: "Fig 18-19: speed err CFO 0.039 / DCFO 0.034 m/s; position err CFO ~23 / DCFO ~21 deg",
+            paper: "Fig 18-19: speed err CFO 0.039 / DCFO 0.034 m/s; position err CFO ~23 / DCFO ~21 deg"
+                .into(),
         },
     ]
 }
@@ -178,19 +238,23 @@ pub fn figures(run: &Run, scenario: &Scenario) -> Figures {
     let t1 = scenario.event_s + scenario.window_s;
     let in_window = |s: &&Sample| s.row.t >= t0 && s.row.t <= t1;
     let errs: Vec<f64> = run.samples.iter().filter(in_window).map(theta_err_deg).collect();
-    let theta_err_max_deg = errs.iter().fold(0.0f64, |m, e| m.max(e.abs()));
-    let theta_err_rms_deg = (errs.iter().map(|e| e * e).sum::<f64>() / errs.len().max(1) as f64).sqrt();
+    // No sample in the window (the drive stopped reporting before it): NaN, not zero.
+    let nan_if_empty = |x: f64| if errs.is_empty() { f64::NAN } else { x };
+    let theta_err_max_deg = nan_if_empty(errs.iter().fold(0.0f64, |m, e| m.max(e.abs())));
+    let theta_err_rms_deg =
+        nan_if_empty((errs.iter().map(|e| e * e).sum::<f64>() / errs.len().max(1) as f64).sqrt());
     let v_err_max = run
         .samples
         .iter()
         .filter(in_window)
         .filter_map(|s| s.row.v.map(|v| (v - s.v_hat).abs()))
         .fold(0.0f64, f64::max);
+    let v_err_max = nan_if_empty(v_err_max);
     // One-period moving averages of the flux vector and of its amplitude.
     let period_samples = |s: &Sample| -> usize {
         let v = s.row.v.unwrap_or(0.3).abs().max(0.05);
-        // electrical period = 2 tau / v with tau = 0.015 m for the paper motor
-        ((2.0 * 0.015 / v) / run.period_s).round().max(1.0) as usize
+        // electrical period = 2 tau / v
+        ((2.0 * run.pole_pitch_m / v) / run.period_s).round().max(1.0) as usize
     };
     let mut flux_drift_wb = 0.0f64;
     let mut amp_before = f64::NAN;
