@@ -213,8 +213,6 @@ pub struct Drive<T> {
     /// Filtered speed feedback (rad/s).
     omega_filtered: T,
     i_dq_ref: Dq<T>,
-    /// Start-up thrust current still being faded out after hand-over (A).
-    iq_bridge: T,
     offsets: Abc<T>,
     offset_sum: Abc<T>,
     counter: u32,
@@ -427,7 +425,6 @@ impl<T: Scalar> Drive<T> {
             omega_ref: T::ZERO,
             omega_filtered: T::ZERO,
             i_dq_ref: Dq::default(),
-            iq_bridge: T::ZERO,
             offsets: Abc::default(),
             offset_sum: Abc::default(),
             counter: 0,
@@ -655,7 +652,6 @@ impl<T: Scalar> Drive<T> {
         self.omega_ref = T::ZERO;
         self.omega_filtered = T::ZERO;
         self.i_dq_ref = Dq::new(T::ZERO, self.k.startup_current);
-        self.iq_bridge = T::ZERO;
         self.u_prev = AlphaBeta::default();
         self.u_prev2 = AlphaBeta::default();
         if self.positioning.is_some() {
@@ -809,10 +805,9 @@ impl<T: Scalar> Drive<T> {
         self.omega_ref = estimate.omega_e;
         self.omega_filtered = estimate.omega_e;
         // The start-up vector's q part in the estimated frame is mostly an artefact of
-        // the angle error (|I| sin e): the speed controller starts from zero and the
-        // artefact is faded out with the d-axis current, so nothing jumps.
+        // the angle error (|I| sin e) and of the undamped I/f swing: the speed controller
+        // starts from zero and the d-axis current is ramped out.
         self.pi_speed.reset();
-        self.iq_bridge = i_ref.q;
         self.state = DriveState::Running;
         self.counter = 0;
         self.speed_divider_count = 0;
@@ -862,7 +857,6 @@ impl<T: Scalar> Drive<T> {
                 self.state = DriveState::Reacquiring;
                 self.counter = 0;
                 self.i_dq_ref = Dq::default();
-                self.iq_bridge = T::ZERO;
                 self.pi_speed.reset();
                 self.estimator.reacquire();
             }
