@@ -46,4 +46,14 @@ pub trait PowerStage {
     fn enable_bridge(&mut self);
     /// All six switches off at once.
     fn disable_bridge(&mut self);
+    /// Whether a protection in the power stage itself (e.g. over-current comparators on
+    /// the timer's break input) has switched the bridge off. Latched: it stays `true`, and
+    /// [`PowerStage::enable_bridge`] stays without effect, until
+    /// [`PowerStage::clear_hardware_trip`] re-arms it. Boards without one: always `false`.
+    fn hardware_trip(&mut self) -> bool {
+        false
+    }
+    /// Re-arms the latched hardware trip (called when the drive's faults are cleared). If
+    /// its cause is still present the trip stays latched. Boards without one: nothing.
+    fn clear_hardware_trip(&mut self) {}
 }
