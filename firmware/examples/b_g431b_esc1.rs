@@ -89,6 +89,12 @@ mod firmware {
         fn disable_bridge(&mut self) {
             self.power.disable_bridge();
         }
+        fn hardware_trip(&mut self) -> bool {
+            self.power.hardware_trip()
+        }
+        fn clear_hardware_trip(&mut self) {
+            self.power.clear_hardware_trip();
+        }
     }
 
     struct Control {
@@ -135,11 +141,37 @@ mod firmware {
         };
         defmt::info!("motor: {}, bus {} V", image.motor, image.bus_v);
 
+        // The hardware trip a quarter above the drive's own over-current fault (which acts
+        // first, in software), within the board's limits.
+        let mut power = board.power;
+        let trip_a = power.set_over_current_trip_a(1.25 * drive_config.faults.overcurrent_a);
+        defmt::info!(
+            "over-current trip {} A (hardware), {} A (drive); comparators U/V/W {}",
+            trip_a,
+            drive_config.faults.overcurrent_a,
+            power.comparators()
+        );
+        if power.hardware_trip() {
+            halt(
+                &mut led,
+                "TIM1 break active at start-up: an over-current comparator, lock-up or clock failure",
+            );
+        }
+
         let mut sensors = board.sensors;
         if !sensors.calibrate_current_offsets(64) {
-            halt(&mut led, "no ADC conversions: TIM1 or the ADC trigger is not running");
+            defmt::error!(
+                "current offsets (counts): {} (window {})",
+                sensors.last_calibration(),
+                esc1::CURRENT_OFFSET_WINDOW_COUNTS
+            );
+            halt(
+                &mut led,
+                "current offsets: no ADC conversions, or outside the window (op-amp, channel or bias fault)",
+            );
         }
         defmt::info!("current offsets (counts): {}", sensors.current_offsets());
+        defmt::info!("bus at rest: {} V", sensors.sample().vdc_v);
 
         let Some(queue) = cortex_m::singleton!(: Queue<ActuationFrame, TELEMETRY_QUEUE> = Queue::new())
         else {
@@ -150,7 +182,7 @@ mod firmware {
             Ok(mut slot) => {
                 *slot = Some(Control {
                     control: ControlLoop::new(drive, TELEMETRY_EVERY),
-                    bridge: Bridge { sensors, power: board.power },
+                    bridge: Bridge { sensors, power },
                     telemetry: producer,
                 });
                 true
