@@ -899,11 +899,22 @@ pub const fn pwm_arr(f_pwm_hz: u32, f_tim_hz: u32) -> u32 {
     }
 }
 
-/// Duty fraction -> CCR for PWM mode 2 with half-period `arr` (clamps, NaN -> 0.5, never panics).
+/// Highest high-side duty applied (fraction of the period). The phase currents are sampled at
+/// the carrier valley, in the middle of the low-side on-time; above this duty that window is
+/// too short for a valid low-side shunt sample: at 10 kHz, 0.95 leaves 2.5 us of low-side time
+/// before the valley, 1.7 us after the 0.8 us dead time, against 1.3 us of settling measured
+/// on this board after a switch turns off (github.com/diglet48/FOC-Stim, its ESC1 board support). A current read as
+/// zero where it is not is what a current loop must never see. NuttX's ESC1 board code uses
+/// the same 0.95 limit. Near full modulation (SVPWM peak duty 0.5 + m/2 up to 0.975) this
+/// flattens the top of the highest phase.
+pub const MAX_DUTY: f32 = 0.95;
+
+/// Duty fraction -> CCR for PWM mode 2 with half-period `arr`: clamped to 0..=[`MAX_DUTY`],
+/// NaN -> 0.5, never panics.
 #[inline]
 pub fn duty_to_ccr(d: f32, arr: u32) -> u32 {
     // NaN -> 0.5; `clamp` with constant, ordered bounds cannot panic.
-    let d = if d.is_nan() { 0.5 } else { d.clamp(0.0, 1.0) };
+    let d = if d.is_nan() { 0.5 } else { d.clamp(0.0, MAX_DUTY) };
     // d in [0, 1] and arr <= 65534: the product is in [0, 65534.5], so the (saturating) `as`
     // conversion is exact-rounded and cannot overflow.
     let on = (d * arr as f32 + 0.5) as u32;
