@@ -75,7 +75,9 @@ use stm32g4::stm32g431 as pac;
 //   CHx and CHxN (CCxP = CCxNP = 0, as NuttX requires and MCSDK sets), idle states low
 //   (OISx = OISxN = 0, MCSDK: OCIdleState/OCNIdleState RESET), OSSI = OSSR = 1 (MCSDK), AOE = 0
 //   (MCSDK). A gate pin left floating (reset state: analog, Hi-Z; none of the six is a debug
-//   pin with a reset pull-up) reads low at the driver, i.e. switch off.
+//   pin with a reset pull-up) reads low at the driver, i.e. switch off. The six pins: AF6
+//   (PA8/9/10/12) and AF4 (PC13, PB15), push-pull, pull-down, speed "high" in MCSDK's
+//   HAL_TIM_MspPostInit; the same here.
 // * Current sense: shunt 3 mOhm per low-side leg (MCSDK RSHUNT 0.003; NuttX; SimpleFOC). Each
 //   shunt reaches its op-amp's VINP through 1.5 kOhm, with 2.2 kOhm to ground and 22 kOhm to
 //   3.3 V on that node (schematic values as worked out on the SimpleFOC forum, thread
@@ -85,8 +87,10 @@ use stm32g4::stm32g431 as pac;
 //   9.14 V/V (MCSDK AMPLIFICATION_GAIN 9.14; NuttX "-9.14 (inverted current)"). V_shunt is
 //   positive when current flows down through the low-side switch into ground, which is current
 //   flowing *out of* the motor's phase: with "positive into the motor" the gain is -64/7. The
-//   zero-current output sits near mid-scale (SimpleFOC forum: "0 current is ~1.65V"); it is
-//   measured at start-up, never assumed.
+//   zero-current output is not pinned down by these sources: 16 * 0.1286 V = 2.06 V (2553
+//   counts) if the VINM0 pins (PA3/PA5/PB2, "OPAMPx_INT_GAIN" in MCSDK) sit at 0 V, ~1.65 V
+//   by the SimpleFOC forum's measurement. It is measured at start-up, never assumed, and
+//   checked against a window that holds both.
 // * Bus divider 18 kOhm / (18 + 169) kOhm = 0.09626 (NuttX README; MCSDK
 //   VBUS_PARTITIONING_FACTOR 0.0962556..., the same ratio): 34.3 V at the ADC's full scale.
 //   Bus range: 3S-6S LiPo (UM2516 via the pinout extract: J5/J6), NuttX "Vbus max = 25V",
@@ -490,12 +494,13 @@ fn enable_peripheral_clocks(rcc: &pac::RCC) {
 // GPIO — RM0440 ch. 9 "General-purpose I/Os (GPIO)": MODER, OTYPER, OSPEEDR, PUPDR, AFRL/AFRH.
 // =================================================================================================
 
-/// Puts `$pin` of `$port` into alternate function `$af` with very-high speed, push-pull.
+/// Puts `$pin` of `$port` into alternate function `$af`, push-pull, with output speed
+/// `$speed` (OSPEEDR code: 0 low .. 3 very high).
 macro_rules! pin_af {
-    ($port:expr, $p:expr) => {{
+    ($port:expr, $p:expr, $speed:expr) => {{
         let n: u8 = $p.pin;
         let af: u8 = $p.af;
-        $port.ospeedr().modify(|_, w| w.ospeedr(n).set(3));
+        $port.ospeedr().modify(|_, w| w.ospeedr(n).set($speed));
         $port.otyper().modify(|_, w| w.ot(n).clear_bit());
         if n < 8 {
             $port.afrl().modify(|_, w| w.afr(n).set(af));
@@ -526,17 +531,26 @@ fn init_analog_pins(gpioa: &pac::GPIOA, gpiob: &pac::GPIOB) {
     pin_analog!(gpioa, PIN_VBUS);
 }
 
+/// Output speed of the gate pins: "high" (OSPEEDR 2), as ST's MCSDK project for this board
+/// (HAL_TIM_MspPostInit: GPIO_SPEED_FREQ_HIGH).
+const GATE_PIN_SPEED: u8 = 2;
+
+/// Hands the six gate pins to TIM1. Each gets its pull-down first (MCSDK: GPIO_PULLDOWN on all
+/// six), so that from the moment it leaves analog mode (where pulls are off) a pin that TIM1
+/// does not drive still reads low at the gate driver; TIM1 itself drives them low (MOE = 0,
+/// OSSI = 1, OISx = OISxN = 0) before this is called.
 fn init_pwm_pins(gpioa: &pac::GPIOA, gpiob: &pac::GPIOB, gpioc: &pac::GPIOC) {
-    pin_af!(gpioa, PIN_U_HIGH);
-    pin_af!(gpioc, PIN_U_LOW);
-    // PC13 is supplied through the backup-domain power switch: the datasheet limits it to
-    // 2 MHz and 30 pF as an output (DS12589, PC13..PC15 note). A 10 kHz gate signal is well
-    // inside that; keep its slew rate at the low setting.
-    gpioc.ospeedr().modify(|_, w| w.ospeedr(PIN_U_LOW.pin).set(0));
-    pin_af!(gpioa, PIN_V_HIGH);
-    pin_af!(gpioa, PIN_V_LOW);
-    pin_af!(gpioa, PIN_W_HIGH);
-    pin_af!(gpiob, PIN_W_LOW);
+    for p in [PIN_U_HIGH, PIN_V_HIGH, PIN_V_LOW, PIN_W_HIGH] {
+        gpioa.pupdr().modify(|_, w| w.pupdr(p.pin).pull_down());
+        pin_af!(gpioa, p, GATE_PIN_SPEED);
+    }
+    // PC13 sits behind the backup-domain power switch (DS12589 limits it to 2 MHz and 30 pF
+    // as an output); a 10 kHz signal into a driver input is inside that, and ST's project
+    // drives TIM1_CH1N on it the same way.
+    gpioc.pupdr().modify(|_, w| w.pupdr(PIN_U_LOW.pin).pull_down());
+    pin_af!(gpioc, PIN_U_LOW, GATE_PIN_SPEED);
+    gpiob.pupdr().modify(|_, w| w.pupdr(PIN_W_LOW.pin).pull_down());
+    pin_af!(gpiob, PIN_W_LOW, GATE_PIN_SPEED);
 }
 
 // =================================================================================================
@@ -1181,8 +1195,8 @@ pub struct Esc1Uart {
 
 impl Esc1Uart {
     fn new(usart: pac::USART2, gpiob: &pac::GPIOB, baud: u32, rx_irq: bool) -> Self {
-        pin_af!(gpiob, PIN_UART_TX);
-        pin_af!(gpiob, PIN_UART_RX);
+        pin_af!(gpiob, PIN_UART_TX, 3);
+        pin_af!(gpiob, PIN_UART_RX, 3);
         gpiob.pupdr().modify(|_, w| w.pupdr(PIN_UART_RX.pin).pull_up());
 
         let baud = if baud == 0 { DEFAULT_BAUD } else { baud };
