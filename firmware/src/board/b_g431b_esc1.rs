@@ -153,7 +153,9 @@ pub const PIN_VBUS: PinDef = pin(b'A', 0, 0);
 pub const PIN_UART_TX: PinDef = pin(b'B', 3, 7);
 /// USART2_RX from the ST-LINK virtual COM port (PB4, AF7).
 pub const PIN_UART_RX: PinDef = pin(b'B', 4, 7);
-/// Green user/status LED LD2 (PC6, push-pull output, assumed active high).
+/// User/status LED LD2 (PC6, push-pull output), active high: UM2516 Table 4 via the pinout
+/// extract ("PC6 STATUS LED"); a CubeMX project's notes for the board switch it on with the pin
+/// set. Its colour is given as green (NuttX) and as red (those notes): not verified.
 pub const PIN_LED: PinDef = pin(b'C', 6, 0);
 
 /// ADC1 channel of the OPAMP1 output (VOPAMP1 = ADC1_IN13, internal; RM0440 ADC connectivity).
@@ -639,6 +641,18 @@ fn adc_power_up_and_calibrate(adc: &pac::adc1::RegisterBlock) {
     adc.cr().modify(|_, w| w.aden().set_bit());
     while adc.isr().read().adrdy().bit_is_clear() {}
     adc.isr().write(|w| w.adrdy().clear());
+    // One dummy regular conversion (sequence length 1, SQ1 = channel 0 at reset, software
+    // start), its result dropped, before the injected conversions start: MCSDK's ADC set-up
+    // for the G4 does the same, citing the G431 errata sheet ES0431 ("ADC channel 0 converted
+    // instead of the required ADC channel"); NuttX's FOC driver has its own workaround for it.
+    adc.sqr1().modify(|_, w| w.l().set(0));
+    adc.cr().modify(|_, w| w.adstart().set_bit());
+    let mut spins = 0u32;
+    while adc.isr().read().eoc().bit_is_clear() && spins < 100_000 {
+        spins += 1;
+    }
+    let _ = adc.dr().read();
+    adc.isr().write(|w| w.eoc().clear().eos().clear().ovr().clear());
 }
 
 fn adc_set_sampling(adc: &pac::adc1::RegisterBlock, ch: u8, smp: u8) {
