@@ -206,8 +206,8 @@ pub const AMPS_PER_COUNT: f32 = VREF_V / ADC_FULL_SCALE_COUNTS / (SHUNT_OHM * CU
 pub const VBUS_VOLTS_PER_COUNT: f32 = VREF_V / ADC_FULL_SCALE_COUNTS / VBUS_DIVIDER;
 /// Window (counts) the measured zero-current code of every current channel must fall in for
 /// [`Esc1Sensors::calibrate_current_offsets`] to accept it: mid-scale ± 1000 counts (± 0.8 V,
-/// ± 29 A). The offset is expected near mid-scale (board table); a code near a rail means an
-/// op-amp, channel or bias fault, and the drive must not run on it.
+/// ± 29 A). The offset is expected between about 2048 and 2553 counts (board table); a code
+/// near a rail means an op-amp, channel or bias fault, and the drive must not run on it.
 pub const CURRENT_OFFSET_WINDOW_COUNTS: (f32, f32) = (1048.0, 3048.0);
 
 /// Voltage at an op-amp's non-inverting input (PA1/PA7/PB0) with no shunt current (V):
@@ -363,9 +363,9 @@ pub fn init(dp: pac::Peripherals, config: &Esc1Config) -> Esc1 {
     // break): a core locked up in a double fault cannot leave the bridge switching. Write-once
     // until reset.
     dp.SYSCFG.cfgr2().modify(|_, w| w.cll().set_bit());
-    // PWR_CR3.UCPD1_DBDIS: release the USB-C dead-battery pull-downs that the G4 applies at
-    // reset to the UCPD1 CC pins, one of which is PB4 = USART2 RX (RM0440 PWR_CR3; NuttX's
-    // board code does the same when it uses PB4/PB6).
+    // PWR_CR3.UCPD1_DBDIS: release the USB-C dead-battery resistors the G4 applies from reset
+    // to the UCPD1 CC pins, PB6 and PB4 = USART2 RX (RM0440 PWR_CR3). MCSDK's HAL_MspInit does
+    // the same (HAL_PWREx_DisableUCPDDeadBattery), NuttX's board code when it uses PB6..PB8.
     dp.PWR.cr3().modify(|_, w| w.ucpd1_dbdis().set_bit());
     init_analog_pins(&dp.GPIOA, &dp.GPIOB);
     init_opamps(&dp.OPAMP);
@@ -931,10 +931,11 @@ pub const fn pwm_arr(f_pwm_hz: u32, f_tim_hz: u32) -> u32 {
 /// the carrier valley, in the middle of the low-side on-time; above this duty that window is
 /// too short for a valid low-side shunt sample: at 10 kHz, 0.95 leaves 2.5 us of low-side time
 /// before the valley, 1.7 us after the 0.8 us dead time, against 1.3 us of settling measured
-/// on this board after a switch turns off (github.com/diglet48/FOC-Stim, its ESC1 board support). A current read as
-/// zero where it is not is what a current loop must never see. NuttX's ESC1 board code uses
-/// the same 0.95 limit. Near full modulation (SVPWM peak duty 0.5 + m/2 up to 0.975) this
-/// flattens the top of the highest phase.
+/// on this board after a switch turns off (github.com/diglet48/FOC-Stim, its ESC1 board
+/// support). A current read as zero where it is not is what a current loop must never see.
+/// NuttX's ESC1 board code uses the same 0.95 limit. Near full modulation (SVPWM peak duty
+/// 0.5 + m/2, up to 0.975 at the drive's 0.95 modulation limit) this flattens the top of the
+/// highest phase.
 pub const MAX_DUTY: f32 = 0.95;
 
 /// Duty fraction -> CCR for PWM mode 2 with half-period `arr`: clamped to 0..=[`MAX_DUTY`],
