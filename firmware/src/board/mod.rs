@@ -40,7 +40,8 @@ pub trait PhaseSensors {
 /// What the control step drives on a board: three half-bridges.
 pub trait PowerStage {
     /// High-side on-time of each leg as a fraction of the PWM period (0..=1), for the
-    /// next period. Implementations clamp values outside [0, 1] and treat NaN as 0.5.
+    /// next period. Implementations clamp values outside [0, 1] (a board may hold a lower
+    /// maximum, e.g. the ESC1's 0.95 for its current-sampling window) and treat NaN as 0.5.
     fn set_duties(&mut self, duties: [f32; 3]);
     /// Connects the gate signals (main output enable).
     fn enable_bridge(&mut self);
