@@ -265,8 +265,9 @@ pub const ADC_CLOCK_HZ: u32 = SYSCLK_HZ / 4;
 
 /// Default PWM carrier frequency (Hz): 10 kHz, i.e. 100 us period.
 pub const DEFAULT_PWM_HZ: u32 = 10_000;
-/// Default dead time (ns). 800 ns = DTG 0x84 at 170 MHz (same 800 ns as the DTG=128 @ 160 MHz
-/// of the pat92fr ESC1 CubeMX project; NuttX uses 500 ns).
+/// Default dead time (ns). 800 ns = DTG 0x84 at 170 MHz: MCSDK's value for this board
+/// (power_stage_parameters.h HW_DEAD_TIME_NS 800), as the pat92fr ESC1 CubeMX project (DTG=128
+/// at 160 MHz); NuttX uses 500 ns.
 pub const DEFAULT_DEAD_TIME_NS: u32 = 800;
 /// Default UART baud rate (bit/s).
 pub const DEFAULT_BAUD: u32 = 115_200;
@@ -587,9 +588,11 @@ fn init_opamps(opamp: &pac::OPAMP) {
 // sampling time; ADC12_CCR.CKMODE clock.
 // =================================================================================================
 
-/// Sampling time of the current channels (ADC cycles, SMPx code 1 = 6.5 cycles = 153 ns).
+/// Sampling time of the current channels (ADC cycles, SMPx code 1 = 6.5 cycles = 153 ns), as
+/// MCSDK (ADC_SAMPLETIME_6CYCLES_5 for its current channels).
 const SMP_CURRENT: u8 = 1;
-/// Sampling time of the bus-voltage channel (code 4 = 47.5 cycles = 1.12 us; source ~16 kohm).
+/// Sampling time of the bus-voltage channel (code 4 = 47.5 cycles = 1.12 us; source ~16 kohm),
+/// as MCSDK (M1_VBUS_SAMPLING_TIME 47.5 cycles).
 const SMP_VBUS: u8 = 4;
 /// JEXTSEL code of TIM1_TRGO2 for ADC1/ADC2 injected triggers (RM0440 ADC1/2 injected trigger table).
 const JEXTSEL_TIM1_TRGO2: u8 = 8;
