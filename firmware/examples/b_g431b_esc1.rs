@@ -19,10 +19,12 @@
 //! | context | priority | work | budget |
 //! |---|---|---|---|
 //! | `ADC1_2` (end of injected conversions) | 0x00, highest | `ControlLoop::step`: sample, `Drive::step`, duties / bridge, telemetry record into the queue | one PWM period, 100 µs = 17,000 cycles at 170 MHz; the f32 step is about 1220 instructions on QEMU's Cortex-M4F (`bench_qemu`) |
+//! | SysTick, every 10 ms | 0x80 | stall check: control periods still counting, else bridge off | a load, a swap and a compare (not measured) |
 //! | thread | — | commands in, telemetry out, command watchdog, LED, defmt | — |
 //!
 //! Command watchdog: while enabled, if no valid command frame arrives for 0.5 s the
-//! drive is disabled (bridge off). Run (flashes through the on-board ST-LINK):
+//! drive is disabled (bridge off). Stall check: if the control interrupt stops coming for
+//! 10 to 20 ms (SysTick, priority 0x80), the bridge goes off and the image halts. Run (flashes through the on-board ST-LINK):
 //! ```sh
 //! cargo run -p dcfo-firmware --release --features esc1 --example b_g431b_esc1 --target thumbv7em-none-eabihf
 //! ```
@@ -37,11 +39,13 @@ fn main() {
 #[cfg(target_arch = "arm")]
 mod firmware {
     use core::cell::RefCell;
-    use core::sync::atomic::{AtomicU32, Ordering};
+    use core::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 
     use cortex_m::interrupt::{Mutex, free};
     use cortex_m::peripheral::NVIC;
-    use cortex_m_rt::entry;
+    use cortex_m::peripheral::scb::SystemHandler;
+    use cortex_m::peripheral::syst::SystClkSource;
+    use cortex_m_rt::{entry, exception};
     use dcfo::drive::{Drive, DriveConfig, DriveState};
     use dcfo::link::{ActuationFrame, Receiver, SensorFrame, encode};
     use dcfo::observer::ObserverKind;
@@ -66,6 +70,13 @@ mod firmware {
     const COMMAND_TIMEOUT_PERIODS: u32 = DEFAULT_PWM_HZ / 2;
     /// Telemetry records buffered between the interrupt and the thread.
     const TELEMETRY_QUEUE: usize = 8;
+    /// Rate of the stall check in SysTick (Hz): every 10 ms.
+    const STALL_CHECK_HZ: u32 = 100;
+    /// Stall checks in a row without a control period after which the bridge goes off for
+    /// good (10 to 20 ms). The command watchdog counts control periods, so it cannot see the
+    /// control interrupt stop; with TIM1 still running the bridge would go on switching at
+    /// the last duties with nothing in control.
+    const STALL_CHECKS: u32 = 2;
 
     /// The board's sensors and power stage, as the control loop sees them.
     struct Bridge {
@@ -89,6 +100,12 @@ mod firmware {
         fn disable_bridge(&mut self) {
             self.power.disable_bridge();
         }
+        fn hardware_trip(&mut self) -> bool {
+            self.power.hardware_trip()
+        }
+        fn clear_hardware_trip(&mut self) {
+            self.power.clear_hardware_trip();
+        }
     }
 
     struct Control {
@@ -101,6 +118,11 @@ mod firmware {
     static SETPOINTS: Setpoints = Setpoints::new();
     /// Control periods run (the thread's time base).
     static PERIODS: AtomicU32 = AtomicU32::new(0);
+    /// [`PERIODS`] at the last stall check, and the checks since it last changed.
+    static STALL_SEEN: AtomicU32 = AtomicU32::new(0);
+    static STALL_COUNT: AtomicU32 = AtomicU32::new(0);
+    /// Set by the stall check once it has switched the bridge off.
+    static STALLED: AtomicBool = AtomicBool::new(false);
 
     #[entry]
     fn main() -> ! {
@@ -135,11 +157,37 @@ mod firmware {
         };
         defmt::info!("motor: {}, bus {} V", image.motor, image.bus_v);
 
+        // The hardware trip a quarter above the drive's own over-current fault (which acts
+        // first, in software), within the board's limits.
+        let mut power = board.power;
+        let trip_a = power.set_over_current_trip_a(1.25 * drive_config.faults.overcurrent_a);
+        defmt::info!(
+            "over-current trip {} A (hardware), {} A (drive); comparators U/V/W {}",
+            trip_a,
+            drive_config.faults.overcurrent_a,
+            power.comparators()
+        );
+        if power.hardware_trip() {
+            halt(
+                &mut led,
+                "TIM1 break active at start-up: an over-current comparator, lock-up or clock failure",
+            );
+        }
+
         let mut sensors = board.sensors;
         if !sensors.calibrate_current_offsets(64) {
-            halt(&mut led, "no ADC conversions: TIM1 or the ADC trigger is not running");
+            defmt::error!(
+                "current offsets (counts): {} (window {})",
+                sensors.last_calibration(),
+                esc1::CURRENT_OFFSET_WINDOW_COUNTS
+            );
+            halt(
+                &mut led,
+                "current offsets: no ADC conversions, or outside the window (op-amp, channel or bias fault)",
+            );
         }
         defmt::info!("current offsets (counts): {}", sensors.current_offsets());
+        defmt::info!("bus at rest: {} V", sensors.sample().vdc_v);
 
         let Some(queue) = cortex_m::singleton!(: Queue<ActuationFrame, TELEMETRY_QUEUE> = Queue::new())
         else {
@@ -150,7 +198,7 @@ mod firmware {
             Ok(mut slot) => {
                 *slot = Some(Control {
                     control: ControlLoop::new(drive, TELEMETRY_EVERY),
-                    bridge: Bridge { sensors, power: board.power },
+                    bridge: Bridge { sensors, power },
                     telemetry: producer,
                 });
                 true
@@ -167,6 +215,15 @@ mod firmware {
         // SAFETY: the handler's state is in place (above); critical sections use PRIMASK,
         // not the NVIC mask.
         unsafe { NVIC::unmask(CONTROL_IRQ) };
+        // The stall check: SysTick at a priority below the control interrupt's.
+        STALL_SEEN.store(PERIODS.load(Ordering::Relaxed), Ordering::Relaxed);
+        // SAFETY: set before SysTick is enabled; critical sections use PRIMASK.
+        unsafe { cp.SCB.set_priority(SystemHandler::SysTick, 0x80) };
+        cp.SYST.set_clock_source(SystClkSource::External); // HCLK / 8
+        cp.SYST.set_reload(esc1::SYSCLK_HZ / 8 / STALL_CHECK_HZ - 1);
+        cp.SYST.clear_current();
+        cp.SYST.enable_interrupt();
+        cp.SYST.enable_counter();
 
         let mut commands = Receiver::<SensorFrame>::new();
         let mut last_command = PERIODS.load(Ordering::Relaxed);
@@ -199,6 +256,24 @@ mod firmware {
                 }
             }
             let _ = led.set_state((last_state == DriveState::Running).into());
+            if STALLED.load(Ordering::Relaxed) {
+                halt(&mut led, "control interrupt stalled: no ADC end of conversion for 10-20 ms");
+            }
+        }
+    }
+
+    /// The stall check, every 10 ms: if no control period has run since the check before the
+    /// last, the bridge goes off and the control interrupt is masked for good (the thread
+    /// then halts and says why).
+    #[exception]
+    fn SysTick() {
+        let now = PERIODS.load(Ordering::Relaxed);
+        if STALL_SEEN.swap(now, Ordering::Relaxed) != now {
+            STALL_COUNT.store(0, Ordering::Relaxed);
+        } else if STALL_COUNT.fetch_add(1, Ordering::Relaxed) + 1 >= STALL_CHECKS {
+            NVIC::mask(CONTROL_IRQ);
+            esc1::force_bridge_off();
+            STALLED.store(true, Ordering::Relaxed);
         }
     }
 

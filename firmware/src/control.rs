@@ -110,15 +110,27 @@ impl<T: Scalar> ControlLoop<T> {
     /// One control period (call from the interrupt that follows the current sampling):
     /// setpoints, sensors, [`Drive::step`], then the bridge — duties before enable, or
     /// disable before centring the duties, every period (idempotent, so a missed
-    /// transition cannot leave the bridge on). Returns the drive's state after the step.
+    /// transition cannot leave the bridge on). A latched trip of the board's own
+    /// protection ([`PowerStage::hardware_trip`]) trips the drive (`OVER_CURRENT` and
+    /// `EXTERNAL`) in the same period; the board refuses to switch the bridge on while it
+    /// is latched, so setting the bridge on every period cannot override it. Returns the
+    /// drive's state after the step.
     pub fn step<B: PhaseSensors + PowerStage, const N: usize>(
         &mut self,
         board: &mut B,
         setpoints: &Setpoints,
         telemetry: &mut Producer<'_, ActuationFrame, N>,
     ) -> DriveState {
-        self.apply(setpoints);
+        self.apply(setpoints, board);
         let s = board.sample();
+        // A trip of the power stage's own protection (on the ESC1 the over-current
+        // comparators on TIM1's break input, which cleared MOE in hardware) is latched by
+        // the board; the drive latches it too, so it reports it and stays off until the
+        // faults are cleared: OVER_CURRENT together with EXTERNAL (the board saw it).
+        if board.hardware_trip() {
+            self.drive.trip(Faults::OVER_CURRENT);
+            self.drive.trip(Faults::EXTERNAL);
+        }
         // Fixed point has no NaN: catch a broken conversion before it becomes a number.
         if !(s.i_abc_a.iter().all(|i| i.is_finite()) && s.vdc_v.is_finite()) {
             self.drive.trip(Faults::NON_FINITE);
@@ -148,8 +160,11 @@ impl<T: Scalar> ControlLoop<T> {
         out.state
     }
 
-    fn apply(&mut self, setpoints: &Setpoints) {
+    fn apply<B: PowerStage>(&mut self, setpoints: &Setpoints, board: &mut B) {
         if setpoints.clear_faults.swap(false, Ordering::Relaxed) {
+            // The board's latch first: if its cause is still there it latches again and
+            // the check in `step` trips the drive again in this same period.
+            board.clear_hardware_trip();
             self.drive.clear_faults();
         }
         if setpoints.enable.load(Ordering::Relaxed) {
@@ -296,6 +311,41 @@ mod tests {
             core::iter::from_fn(|| rx.dequeue()).map(|r| r.sequence).collect();
         assert_eq!(sequences.len(), capacity);
         assert!(sequences.iter().enumerate().all(|(i, &s)| usize::from(s) == i));
+    }
+
+    /// A hardware protection of the board (the ESC1's over-current comparators on the
+    /// TIM1 break input) trips the drive in the period it fires, keeps the bridge off
+    /// after its cause is gone, and stays latched through a clear while the cause is
+    /// still there.
+    #[test]
+    fn hardware_trip_latches_and_is_not_overridden() {
+        let mut c = control::<f32>(&Base::SI);
+        let mut board = quiet_board();
+        let sp = Setpoints::new();
+        sp.set_enable(true);
+        assert!(sp.set_speed_m_per_s(0.3));
+        assert!(run_until(&mut c, &mut board, &sp, DriveState::Starting, 10_000).is_some());
+        assert!(board.bridge_on);
+        let both = Faults::OVER_CURRENT | Faults::EXTERNAL;
+        // The comparator fires (hardware cleared MOE): fault in this same period.
+        board.break_input = true;
+        assert_eq!(run_until(&mut c, &mut board, &sp, DriveState::Fault, 1), Some(1));
+        assert!(!board.bridge_on && c.drive().faults() == both);
+        // The current decays, the comparator releases: still off, still latched.
+        board.break_input = false;
+        assert_eq!(run_until(&mut c, &mut board, &sp, DriveState::Starting, 200), None);
+        assert!(!board.bridge_on && board.hardware_tripped);
+        // A clear while the cause is present: latched again at once.
+        board.break_input = true;
+        sp.request_clear_faults();
+        assert_eq!(run_until(&mut c, &mut board, &sp, DriveState::Fault, 1), Some(1));
+        assert!(!board.bridge_on && c.drive().faults() == both);
+        // Cause gone, cleared: the drive starts again.
+        board.break_input = false;
+        sp.request_clear_faults();
+        assert!(run_until(&mut c, &mut board, &sp, DriveState::Starting, 10_000).is_some());
+        assert_eq!(run_until(&mut c, &mut board, &sp, DriveState::Starting, 1), Some(1));
+        assert!(board.bridge_on && !board.hardware_tripped && c.drive().faults() == Faults::NONE);
     }
 
     #[test]

@@ -1,11 +1,22 @@
 //! Board support for the ST **B-G431B-ESC1** (MCU STM32G431CBU6), written directly on the
 //! `stm32g4` PAC (no HAL).
 //!
-//! What [`init`] brings up:
-//! * SYSCLK = HCLK = PCLK1 = PCLK2 = 170 MHz from the PLL (HSI16 by default, optional 8 MHz HSE),
-//!   Range-1 boost mode and 4 flash wait states;
+//! What [`init`] brings up, in this order:
+//! * TIM1 frozen while the core is halted by a debugger (DBGMCU), which also forces its
+//!   outputs off: a breakpoint or a probe halt leaves the bridge off, not switching at the
+//!   last duties;
+//! * SYSCLK = HCLK = PCLK1 = PCLK2 = 170 MHz from the PLL (HSI16 by default, or the board's
+//!   8 MHz HSE, then with the clock security system on), Range-1 boost mode and 4 flash wait
+//!   states; the Cortex-M4 LOCKUP output wired to TIM1's break (a locked-up core cannot leave
+//!   the bridge on); the UCPD dead-battery pull-down released from PB4 (USART2 RX);
+//! * the hardware over-current trip: DAC3 sets a threshold from a trip current, COMP1/2/4
+//!   compare the three shunt inputs with it and drive TIM1's break input, which clears MOE
+//!   in hardware; the power stage latches it ([`PowerStage::hardware_trip`]);
 //! * TIM1: centre-aligned complementary PWM on the board's six gate-driver inputs, dead time,
-//!   preloaded CCR1..3, one update event (and TRGO/TRGO2) per carrier period at the valley;
+//!   preloaded CCR1..3, one update event (and TRGO/TRGO2) per carrier period at the valley,
+//!   break enabled, MOE clear; only then are the six gate pins handed to TIM1 (until then they
+//!   are in their reset state, analog / Hi-Z, and the gate driver's input pull-downs hold
+//!   them low);
 //! * OPAMP1/2/3 in PGA mode (gain 16, VINM0 bias) on the three low-side shunts, read internally
 //!   by ADC1/ADC2 as an injected group triggered by TIM1 TRGO2, plus the DC-bus divider on PA0;
 //! * USART2 on the ST-LINK virtual COM port (PB3/PB4), 8N1;
@@ -14,9 +25,13 @@
 //! The control interrupt is [`CONTROL_IRQ`] (`ADC1_2`, end of the injected sequence of ADC1).
 //!
 //! Reference numbering used below: UM2516 = "B-G431B-ESC1 Discovery kit" user manual,
-//! RM0440 = STM32G4 reference manual, DS12589 = STM32G431xx datasheet. Section numbers of RM0440
-//! are given as chapter titles plus the number as recalled for RM0440 rev 7/8 (see REPORT.md for
-//! what was and was not verified).
+//! RM0440 = STM32G4 reference manual, DS12589 = STM32G431xx datasheet, MCSDK = the ST Motor
+//! Control SDK project generated for this board ("ElectronicSpeedControl_ESC-G4", MCSDK 6.x:
+//! its `main.c`, `mc_parameters.c`, `power_stage_parameters.h`; public copies e.g.
+//! github.com/kennethsauers/B-G431B-ESC1), L6387E = the gate driver's datasheet (DocID13990).
+//! Section numbers of RM0440 are given as chapter titles plus the number as recalled for RM0440
+//! rev 7/8 and are not verified; register and bit names are (they are the PAC's, generated from
+//! ST's SVD). The facts are collected, with their sources, in the board table below.
 
 use core::convert::Infallible;
 
@@ -44,9 +59,54 @@ use stm32g4::stm32g431 as pac;
 // | ST-LINK VCP TX      | USART2_TX             | PB3  | 7   | NuttX board.h/README; Arduino PeripheralPins        |
 // | ST-LINK VCP RX      | USART2_RX             | PB4  | 7   | idem                                                |
 // | Status LED (LD2)    | GPIO output           | PC6  | -   | NuttX b-g431b-esc1.h ("User LD2: green LED ... PC6") |
+// | OCP threshold U     | DAC3_CH1 (internal)   | -    | -   | MCSDK main.c MX_DAC3_Init, mc_parameters.c (DAC_Channel_OCPA) |
+// | OCP threshold V, W  | DAC3_CH2 (internal)   | -    | -   | idem (DAC_Channel_OCPB/OCPC: one channel for V and W) |
+// | OCP comparator U    | COMP1: INP = PA1, INM = DAC3_CH1 | - | - | MCSDK MX_COMP1_Init (INPUT_PLUS_IO1, INPUT_MINUS_DAC3_CH1) |
+// | OCP comparator V    | COMP2: INP = PA7, INM = DAC3_CH2 | - | - | MCSDK MX_COMP2_Init |
+// | OCP comparator W    | COMP4: INP = PB0, INM = DAC3_CH2 | - | - | MCSDK MX_COMP4_Init |
+// | OCP -> bridge off   | TIM1 BRK (not BRK2) from COMP1/2/4, active high, filter 3 | - | - | MCSDK MX_TIM1_Init (TIM_BREAKINPUT_BRK, POLARITY_HIGH, BreakFilter 3, BRK2 disabled) |
+// | HSE                 | 8 MHz on PF0/PF1      | PF0/PF1 | - | UM2516 Table 4 ("OSC 8 MHz"); MCSDK SystemClock_Config (HSE on, PLLM /2, N 85, R /2) |
+//
+// Power stage and analog facts (used below):
+// * Gate driver: three L6387E (NuttX README/stm32_foc.c: "L6387" / "L6387ED"), MOSFETs
+//   STL180N6F7. L6387E inputs HIN/LIN are active high, with an interlock (both high = both
+//   outputs off), V_il <= 1.5 V, and they sink 50-70 uA at 15 V (an input pull-down; L6387E
+//   datasheet DocID13990 §5 Table 7 and the logic-input table). So: TIM1 polarity high on
+//   CHx and CHxN (CCxP = CCxNP = 0, as NuttX requires and MCSDK sets), idle states low
+//   (OISx = OISxN = 0, MCSDK: OCIdleState/OCNIdleState RESET), OSSI = OSSR = 1 (MCSDK), AOE = 0
+//   (MCSDK). A gate pin left floating (reset state: analog, Hi-Z; none of the six is a debug
+//   pin with a reset pull-up) reads low at the driver, i.e. switch off. The six pins: AF6
+//   (PA8/9/10/12) and AF4 (PC13, PB15), push-pull, pull-down, speed "high" in MCSDK's
+//   HAL_TIM_MspPostInit; the same here.
+// * Current sense: shunt 3 mOhm per low-side leg (MCSDK RSHUNT 0.003; NuttX; SimpleFOC). Each
+//   shunt reaches its op-amp's VINP through 1.5 kOhm, with 2.2 kOhm to ground and 22 kOhm to
+//   3.3 V on that node (schematic values as worked out on the SimpleFOC forum, thread
+//   "B-G431B-ESC1 Current Control"): VINP = 3.3 V * 3/77 + (4/7) * V_shunt = 0.1286 V +
+//   0.571 * V_shunt. PGA gain 16 (PGA_GAIN 0b01011, VINM0 as the resistor ground; MCSDK
+//   OPAMP_PGA_GAIN_16_OR_MINUS_15 with INVERTINGINPUT_IO0_BIAS; NuttX) gives 16 * 4/7 = 64/7 =
+//   9.14 V/V (MCSDK AMPLIFICATION_GAIN 9.14; NuttX "-9.14 (inverted current)"). V_shunt is
+//   positive when current flows down through the low-side switch into ground, which is current
+//   flowing *out of* the motor's phase: with "positive into the motor" the gain is -64/7. The
+//   zero-current output is not pinned down by these sources: 16 * 0.1286 V = 2.06 V (2553
+//   counts) if the VINM0 pins (PA3/PA5/PB2, "OPAMPx_INT_GAIN" in MCSDK) sit at 0 V, ~1.65 V
+//   by the SimpleFOC forum's measurement. It is measured at start-up, never assumed, and
+//   checked against a window that holds both.
+// * Bus divider 18 kOhm / (18 + 169) kOhm = 0.09626 (NuttX README; MCSDK
+//   VBUS_PARTITIONING_FACTOR 0.0962556..., the same ratio): 34.3 V at the ADC's full scale.
+//   Bus range: 3S-6S LiPo (UM2516 via the pinout extract: J5/J6), NuttX "Vbus max = 25V",
+//   "Iout max = 40A peak".
+// * Hardware over-current trip (MCSDK): COMPx compares the op-amp's *input* VINP (not its
+//   output) with DAC3, so it sees current flowing down a low-side shunt (out of the motor's
+//   phase, and every shoot-through or phase-to-phase short); current into the motor lowers
+//   VINP and does not trip that leg's comparator (in a balanced three-phase load a large
+//   current always flows out of some phase). A short from a phase to ground bypasses the
+//   shunts and is not seen. MCSDK's DAC_OCP_Threshold for this board is 4083 (16-bit
+//   left-aligned = 255 of 4095 = 0.2056 V), i.e. 45 A with the network above.
 //
 // Not used here (for the record): PB14 temperature NTC (ADC1_IN5), PB12 potentiometer
-// (ADC1_IN11), PA15 PWM input, PB6/7/8 encoder/Hall, PC10 button, PA11/PB9 FDCAN1.
+// (ADC1_IN11), PA15 PWM input, PB6/7/8 encoder/Hall, PC10 button, PA11/PB9 FDCAN1, PA4/PC4/PB11
+// BEMF dividers and PB5 (BEMF enable), PA2/PA6/PB1 op-amp outputs (MCSDK reads OPAMP1/2 there;
+// here all three are read internally).
 
 /// Port letter / pin number / alternate function of one pin (AF is 0 for analog / GPIO pins).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -93,7 +153,9 @@ pub const PIN_VBUS: PinDef = pin(b'A', 0, 0);
 pub const PIN_UART_TX: PinDef = pin(b'B', 3, 7);
 /// USART2_RX from the ST-LINK virtual COM port (PB4, AF7).
 pub const PIN_UART_RX: PinDef = pin(b'B', 4, 7);
-/// Green user/status LED LD2 (PC6, push-pull output, assumed active high).
+/// User/status LED LD2 (PC6, push-pull output), active high: UM2516 Table 4 via the pinout
+/// extract ("PC6 STATUS LED"); a CubeMX project's notes for the board switch it on with the pin
+/// set. Its colour is given as green (NuttX) and as red (those notes): not verified.
 pub const PIN_LED: PinDef = pin(b'C', 6, 0);
 
 /// ADC1 channel of the OPAMP1 output (VOPAMP1 = ADC1_IN13, internal; RM0440 ADC connectivity).
@@ -112,19 +174,20 @@ pub const CONTROL_IRQ: pac::Interrupt = pac::Interrupt::ADC1_2;
 pub const UART_IRQ: pac::Interrupt = pac::Interrupt::USART2;
 
 // -------------------------------------------------------------------------------------------------
-// Analog front-end constants (board facts; see REPORT.md for sources and confidence).
+// Analog front-end constants (board facts; sources in the board table above).
 // -------------------------------------------------------------------------------------------------
 
-/// Low-side shunt resistance (ohm), one per phase. NuttX board README / stm32_foc.c: 0.003;
-/// SimpleFOC ESC1 example `LowsideCurrentSense(0.003, ...)`.
+/// Low-side shunt resistance (ohm), one per phase. MCSDK RSHUNT 0.003; NuttX board README /
+/// stm32_foc.c: 0.003; SimpleFOC ESC1 example `LowsideCurrentSense(0.003, ...)`.
 pub const SHUNT_OHM: f32 = 0.003;
 /// Internal PGA setting (V/V) for the non-inverting input: PGA_GAIN = 0b01011
 /// ("gain 16 / -15 with VINM0"). NuttX stm32_foc.c, SimpleFOC (`OPAMP_PGA_GAIN_16_OR_MINUS_15`).
 pub const PGA_GAIN: f32 = 16.0;
-/// Net transfer of shunt voltage to OPAMP output (V/V) including the board's external
-/// resistor/bias network: -64/7 = -9.142857 (negative: with "positive into the motor" the
-/// amplified voltage falls below the bias). SimpleFOC ESC1 example `-64.0/7.0`;
-/// NuttX README "Current sense gain = -9.14 (inverted current)".
+/// Net transfer of phase current times shunt resistance to OPAMP output (V/V), including the
+/// board's input network (4/7) and the PGA (16): -64/7 = -9.142857, negative because with
+/// "positive into the motor" the current flows up through the low-side shunt and the amplified
+/// voltage falls below the bias. MCSDK AMPLIFICATION_GAIN 9.14; SimpleFOC ESC1 example
+/// `-64.0/7.0`; NuttX README "Current sense gain = -9.14 (inverted current)".
 pub const CURRENT_SENSE_GAIN: f32 = -64.0 / 7.0;
 /// ADC reference / full-scale voltage (V). VDDA = VREF+ = 3.3 V on the board (assumed, 3.3 V LDO).
 pub const VREF_V: f32 = 3.3;
@@ -134,12 +197,58 @@ pub const ADC_FULL_SCALE_COUNTS: f32 = 4096.0;
 /// the real bias comes from the board's resistor network and differs per phase, so call
 /// [`Esc1Sensors::calibrate_current_offsets`] with the bridge disabled before use.
 pub const CURRENT_OFFSET_NOMINAL_COUNTS: f32 = 2048.0;
-/// DC-bus divider ratio V_adc / V_bus (V/V) = 18 k / (18 k + 169 k) = 0.09626. NuttX README.
+/// DC-bus divider ratio V_adc / V_bus (V/V) = 18 k / (18 k + 169 k) = 0.09626. NuttX README;
+/// MCSDK VBUS_PARTITIONING_FACTOR 0.09625565501973242 (= 18/187 to 7 digits).
 pub const VBUS_DIVIDER: f32 = 18.0 / (18.0 + 169.0);
 /// Amperes per ADC count of a current channel (A/count) = VREF / 4096 / (R_shunt * gain) ≈ -0.02937.
 pub const AMPS_PER_COUNT: f32 = VREF_V / ADC_FULL_SCALE_COUNTS / (SHUNT_OHM * CURRENT_SENSE_GAIN);
 /// Bus volts per ADC count (V/count) = VREF / 4096 / divider ≈ 0.00837.
 pub const VBUS_VOLTS_PER_COUNT: f32 = VREF_V / ADC_FULL_SCALE_COUNTS / VBUS_DIVIDER;
+/// Window (counts) the measured zero-current code of every current channel must fall in for
+/// [`Esc1Sensors::calibrate_current_offsets`] to accept it: mid-scale ± 1000 counts (± 0.8 V,
+/// ± 29 A). The offset is expected between about 2048 and 2553 counts (board table); a code
+/// near a rail means an op-amp, channel or bias fault, and the drive must not run on it.
+pub const CURRENT_OFFSET_WINDOW_COUNTS: (f32, f32) = (1048.0, 3048.0);
+
+/// Voltage at an op-amp's non-inverting input (PA1/PA7/PB0) with no shunt current (V):
+/// 3.3 V * 3/77, from the board's input network (board table).
+pub const SHUNT_INPUT_BIAS_V: f32 = 3.3 * 3.0 / 77.0;
+/// Shunt voltage to op-amp input voltage (V/V): 4/7, from the same network.
+pub const SHUNT_INPUT_GAIN: f32 = 4.0 / 7.0;
+/// DAC3 full scale (V): its reference is VREF+ = 3.3 V on this board.
+pub const DAC_FULL_SCALE_V: f32 = 3.3;
+/// Default hardware over-current trip (A, down a low-side shunt): the board's rating,
+/// "Iout max = 40A peak" (NuttX README). MCSDK's threshold for this board is 45 A.
+pub const DEFAULT_OVER_CURRENT_TRIP_A: f32 = 40.0;
+/// Lowest hardware trip accepted (A): 10 A is 17 mV (21 DAC counts) above the comparator
+/// inputs' zero-current level; lower would trip on noise and offsets.
+pub const OVER_CURRENT_TRIP_MIN_A: f32 = 10.0;
+/// Highest hardware trip accepted (A): MCSDK's own threshold for the board (45 A).
+pub const OVER_CURRENT_TRIP_MAX_A: f32 = 45.0;
+
+/// Trip current actually used for a request of `trip_a` (A): clamped to
+/// [`OVER_CURRENT_TRIP_MIN_A`]..=[`OVER_CURRENT_TRIP_MAX_A`], NaN -> the default.
+pub const fn over_current_trip_clamped(trip_a: f32) -> f32 {
+    if trip_a.is_nan() {
+        DEFAULT_OVER_CURRENT_TRIP_A
+    } else if trip_a < OVER_CURRENT_TRIP_MIN_A {
+        OVER_CURRENT_TRIP_MIN_A
+    } else if trip_a > OVER_CURRENT_TRIP_MAX_A {
+        OVER_CURRENT_TRIP_MAX_A
+    } else {
+        trip_a
+    }
+}
+
+/// DAC3 code (12-bit right-aligned, counts) of the comparator threshold for a trip at
+/// `trip_a` amperes flowing down a low-side shunt (clamped as in
+/// [`over_current_trip_clamped`]): (bias + 4/7 · R_shunt · I) / 3.3 V · 4096, rounded.
+pub const fn over_current_dac_code(trip_a: f32) -> u16 {
+    let i = over_current_trip_clamped(trip_a);
+    let v = SHUNT_INPUT_BIAS_V + SHUNT_INPUT_GAIN * SHUNT_OHM * i;
+    // In range by the clamp: 0.146 V .. 0.206 V -> 181 .. 255 counts.
+    (v / DAC_FULL_SCALE_V * 4096.0 + 0.5) as u16
+}
 
 // -------------------------------------------------------------------------------------------------
 // Clock constants.
@@ -147,16 +256,18 @@ pub const VBUS_VOLTS_PER_COUNT: f32 = VREF_V / ADC_FULL_SCALE_COUNTS / VBUS_DIVI
 
 /// System, AHB, APB1, APB2 and TIM1 kernel clock after [`init`] (Hz).
 pub const SYSCLK_HZ: u32 = 170_000_000;
-/// HSE crystal frequency assumed for [`ClockSource::Hse8MHz`] (Hz). NOT confirmed from UM2516
-/// (see REPORT.md: a CubeMX project for the board uses an 8 MHz HSE, NuttX says "not installed").
+/// HSE frequency of [`ClockSource::Hse8MHz`] (Hz): UM2516 Table 4 lists "OSC 8 MHz" on
+/// PF0/PF1 and ST's MCSDK project for the board runs its PLL from an 8 MHz HSE (oscillator
+/// mode, not bypass). HSI16 stays the default: it needs nothing from the board.
 pub const HSE_HZ: u32 = 8_000_000;
 /// ADC kernel clock: synchronous HCLK / 4 (Hz) = 42.5 MHz.
 pub const ADC_CLOCK_HZ: u32 = SYSCLK_HZ / 4;
 
 /// Default PWM carrier frequency (Hz): 10 kHz, i.e. 100 us period.
 pub const DEFAULT_PWM_HZ: u32 = 10_000;
-/// Default dead time (ns). 800 ns = DTG 0x84 at 170 MHz (same 800 ns as the DTG=128 @ 160 MHz
-/// of the pat92fr ESC1 CubeMX project; NuttX uses 500 ns).
+/// Default dead time (ns). 800 ns = DTG 0x84 at 170 MHz: MCSDK's value for this board
+/// (power_stage_parameters.h HW_DEAD_TIME_NS 800), as the pat92fr ESC1 CubeMX project (DTG=128
+/// at 160 MHz); NuttX uses 500 ns.
 pub const DEFAULT_DEAD_TIME_NS: u32 = 800;
 /// Default UART baud rate (bit/s).
 pub const DEFAULT_BAUD: u32 = 115_200;
@@ -170,13 +281,15 @@ pub const DEFAULT_BAUD: u32 = 115_200;
 pub enum ClockSource {
     /// Internal 16 MHz RC oscillator (always present). PLLM = /4.
     Hsi16,
-    /// External 8 MHz crystal on PF0/PF1 (presence on the board not verified), PLLM = /2.
-    /// Falls back to HSI16 if the HSE does not become ready.
+    /// The board's 8 MHz HSE on PF0/PF1 (UM2516 Table 4, MCSDK), PLLM = /2. Falls back to
+    /// HSI16 if the HSE does not become ready; once it runs, the clock security system is on:
+    /// a failing HSE switches the clock to HSI16, breaks TIM1 (bridge off in hardware) and
+    /// raises the NMI, which the images' default handler ends in with the bridge off.
     Hse8MHz,
 }
 
 /// Board configuration passed to [`init`].
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Esc1Config {
     /// PWM carrier frequency (Hz); clamped so that the TIM1 half-period fits 16 bits
     /// (about 1.3 kHz .. 850 kHz at 170 MHz).
@@ -189,6 +302,10 @@ pub struct Esc1Config {
     pub clock_source: ClockSource,
     /// Enable the USART2 RX-not-empty interrupt (vector [`UART_IRQ`]) at init.
     pub uart_rx_interrupt: bool,
+    /// Hardware over-current trip (A, down any low-side shunt): DAC3 threshold of COMP1/2/4,
+    /// which break TIM1. Clamped to [`OVER_CURRENT_TRIP_MIN_A`]..=[`OVER_CURRENT_TRIP_MAX_A`];
+    /// can be lowered later with [`Esc1PowerStage::set_over_current_trip_a`].
+    pub over_current_trip_a: f32,
 }
 
 impl Default for Esc1Config {
@@ -199,6 +316,7 @@ impl Default for Esc1Config {
             baud: DEFAULT_BAUD,
             clock_source: ClockSource::Hsi16,
             uart_rx_interrupt: false,
+            over_current_trip_a: DEFAULT_OVER_CURRENT_TRIP_A,
         }
     }
 }
@@ -228,21 +346,44 @@ pub struct Esc1 {
 /// On return: TIM1 counts, ADC1/ADC2 convert the injected group at every carrier valley and
 /// ADC1 raises `JEOS` (interrupt [`CONTROL_IRQ`] is enabled in the ADC but *not* unmasked in the
 /// NVIC: unmask it yourself once your handler is ready), the bridge is off (MOE = 0, all six
-/// gate inputs driven low). Call [`Esc1Sensors::calibrate_current_offsets`] before enabling the
-/// bridge. Peripherals not used here are dropped with `dp`.
+/// gate inputs driven low), the over-current comparators are armed on TIM1's break input.
+/// Call [`Esc1Sensors::calibrate_current_offsets`] before enabling the bridge. Peripherals not
+/// used here are dropped with `dp`.
+///
+/// Order matters for the board: the gate pins stay in their reset state (analog, Hi-Z: the
+/// L6387E input pull-downs keep every switch off) until TIM1 is configured with MOE = 0,
+/// OSSI = 1, idle levels low and the break armed; only then do they become TIM1 outputs, and
+/// the first level TIM1 drives on them is low.
 pub fn init(dp: pac::Peripherals, config: &Esc1Config) -> Esc1 {
+    // A debugger halt stops TIM1 and disables its outputs as if MOE were cleared (RM0440,
+    // advanced-control timers, "Debug mode"; DBGMCU_APB2FZR.DBG_TIM1_STOP). MCSDK sets it too.
+    dp.DBGMCU.apb2_fz().modify(|_, w| w.dbg_tim1_stop().set_bit());
     let clock_source = init_clocks(&dp.RCC, &dp.FLASH, &dp.PWR, config.clock_source);
     enable_peripheral_clocks(&dp.RCC);
+    // SYSCFG_CFGR2.CLL: the core's LOCKUP output breaks TIM1 (RM0440 SYSCFG_CFGR2, TIM1 system
+    // break): a core locked up in a double fault cannot leave the bridge switching. Write-once
+    // until reset.
+    dp.SYSCFG.cfgr2().modify(|_, w| w.cll().set_bit());
+    // PWR_CR3.UCPD1_DBDIS: release the USB-C dead-battery resistors the G4 applies from reset
+    // to the UCPD1 CC pins, PB6 and PB4 = USART2 RX (RM0440 PWR_CR3). MCSDK's HAL_MspInit does
+    // the same (HAL_PWREx_DisableUCPDDeadBattery), NuttX's board code when it uses PB6..PB8.
+    dp.PWR.cr3().modify(|_, w| w.ucpd1_dbdis().set_bit());
     init_analog_pins(&dp.GPIOA, &dp.GPIOB);
     init_opamps(&dp.OPAMP);
     init_adcs(&dp.ADC1, &dp.ADC2, &dp.ADC12_COMMON);
-    let power = Esc1PowerStage::new(dp.TIM1, config);
+    let trip_a = over_current_trip_clamped(config.over_current_trip_a);
+    init_over_current(&dp.DAC3, &dp.COMP, over_current_dac_code(trip_a));
+    let power = Esc1PowerStage::new(dp.TIM1, dp.DAC3, dp.COMP, config, trip_a);
     // Gate pins switch to TIM1 only now: TIM1 already drives them low (OSSI = 1, MOE = 0).
     init_pwm_pins(&dp.GPIOA, &dp.GPIOB, &dp.GPIOC);
     let uart = Esc1Uart::new(dp.USART2, &dp.GPIOB, config.baud, config.uart_rx_interrupt);
     let led = StatusLed::new(dp.GPIOC);
-    let sensors =
-        Esc1Sensors { adc1: dp.ADC1, adc2: dp.ADC2, offset_counts: [CURRENT_OFFSET_NOMINAL_COUNTS; 3] };
+    let sensors = Esc1Sensors {
+        adc1: dp.ADC1,
+        adc2: dp.ADC2,
+        offset_counts: [CURRENT_OFFSET_NOMINAL_COUNTS; 3],
+        last_calibration: [CURRENT_OFFSET_NOMINAL_COUNTS; 3],
+    };
     Esc1 { power, sensors, uart, led, clock_source }
 }
 
@@ -270,6 +411,9 @@ fn init_clocks(rcc: &pac::RCC, flash: &pac::FLASH, pwr: &pac::PWR, want: ClockSo
         }
         if rcc.cr().read().hserdy().bit_is_set() {
             source = ClockSource::Hse8MHz;
+            // Clock security system (MCSDK enables it too): an HSE failure switches to HSI16,
+            // raises the NMI and is a system break of TIM1 (MOE cleared in hardware).
+            rcc.cr().modify(|_, w| w.csson().set_bit());
         } else {
             rcc.cr().modify(|_, w| w.hseon().clear_bit());
         }
@@ -331,10 +475,11 @@ fn enable_peripheral_clocks(rcc: &pac::RCC) {
         w.gpioaen().set_bit();
         w.gpioben().set_bit();
         w.gpiocen().set_bit();
-        w.adc12en().set_bit()
+        w.adc12en().set_bit();
+        w.dac3en().set_bit()
     });
     rcc.apb2enr().modify(|_, w| {
-        w.syscfgen().set_bit(); // OPAMP registers live in the SYSCFG/COMP/OPAMP APB2 block
+        w.syscfgen().set_bit(); // SYSCFG, COMP and OPAMP registers: the SYSCFG APB2 clock
         w.tim1en().set_bit()
     });
     rcc.apb1enr1().modify(|_, w| w.usart2en().set_bit());
@@ -352,12 +497,13 @@ fn enable_peripheral_clocks(rcc: &pac::RCC) {
 // GPIO — RM0440 ch. 9 "General-purpose I/Os (GPIO)": MODER, OTYPER, OSPEEDR, PUPDR, AFRL/AFRH.
 // =================================================================================================
 
-/// Puts `$pin` of `$port` into alternate function `$af` with very-high speed, push-pull.
+/// Puts `$pin` of `$port` into alternate function `$af`, push-pull, with output speed
+/// `$speed` (OSPEEDR code: 0 low .. 3 very high).
 macro_rules! pin_af {
-    ($port:expr, $p:expr) => {{
+    ($port:expr, $p:expr, $speed:expr) => {{
         let n: u8 = $p.pin;
         let af: u8 = $p.af;
-        $port.ospeedr().modify(|_, w| w.ospeedr(n).set(3));
+        $port.ospeedr().modify(|_, w| w.ospeedr(n).set($speed));
         $port.otyper().modify(|_, w| w.ot(n).clear_bit());
         if n < 8 {
             $port.afrl().modify(|_, w| w.afr(n).set(af));
@@ -388,13 +534,26 @@ fn init_analog_pins(gpioa: &pac::GPIOA, gpiob: &pac::GPIOB) {
     pin_analog!(gpioa, PIN_VBUS);
 }
 
+/// Output speed of the gate pins: "high" (OSPEEDR 2), as ST's MCSDK project for this board
+/// (HAL_TIM_MspPostInit: GPIO_SPEED_FREQ_HIGH).
+const GATE_PIN_SPEED: u8 = 2;
+
+/// Hands the six gate pins to TIM1. Each gets its pull-down first (MCSDK: GPIO_PULLDOWN on all
+/// six), so that from the moment it leaves analog mode (where pulls are off) a pin that TIM1
+/// does not drive still reads low at the gate driver; TIM1 itself drives them low (MOE = 0,
+/// OSSI = 1, OISx = OISxN = 0) before this is called.
 fn init_pwm_pins(gpioa: &pac::GPIOA, gpiob: &pac::GPIOB, gpioc: &pac::GPIOC) {
-    pin_af!(gpioa, PIN_U_HIGH);
-    pin_af!(gpioc, PIN_U_LOW);
-    pin_af!(gpioa, PIN_V_HIGH);
-    pin_af!(gpioa, PIN_V_LOW);
-    pin_af!(gpioa, PIN_W_HIGH);
-    pin_af!(gpiob, PIN_W_LOW);
+    for p in [PIN_U_HIGH, PIN_V_HIGH, PIN_V_LOW, PIN_W_HIGH] {
+        gpioa.pupdr().modify(|_, w| w.pupdr(p.pin).pull_down());
+        pin_af!(gpioa, p, GATE_PIN_SPEED);
+    }
+    // PC13 sits behind the backup-domain power switch (DS12589 limits it to 2 MHz and 30 pF
+    // as an output); a 10 kHz signal into a driver input is inside that, and ST's project
+    // drives TIM1_CH1N on it the same way.
+    gpioc.pupdr().modify(|_, w| w.pupdr(PIN_U_LOW.pin).pull_down());
+    pin_af!(gpioc, PIN_U_LOW, GATE_PIN_SPEED);
+    gpiob.pupdr().modify(|_, w| w.pupdr(PIN_W_LOW.pin).pull_down());
+    pin_af!(gpiob, PIN_W_LOW, GATE_PIN_SPEED);
 }
 
 // =================================================================================================
@@ -429,9 +588,11 @@ fn init_opamps(opamp: &pac::OPAMP) {
 // sampling time; ADC12_CCR.CKMODE clock.
 // =================================================================================================
 
-/// Sampling time of the current channels (ADC cycles, SMPx code 1 = 6.5 cycles = 153 ns).
+/// Sampling time of the current channels (ADC cycles, SMPx code 1 = 6.5 cycles = 153 ns), as
+/// MCSDK (ADC_SAMPLETIME_6CYCLES_5 for its current channels).
 const SMP_CURRENT: u8 = 1;
-/// Sampling time of the bus-voltage channel (code 4 = 47.5 cycles = 1.12 us; source ~16 kohm).
+/// Sampling time of the bus-voltage channel (code 4 = 47.5 cycles = 1.12 us; source ~16 kohm),
+/// as MCSDK (M1_VBUS_SAMPLING_TIME 47.5 cycles).
 const SMP_VBUS: u8 = 4;
 /// JEXTSEL code of TIM1_TRGO2 for ADC1/ADC2 injected triggers (RM0440 ADC1/2 injected trigger table).
 const JEXTSEL_TIM1_TRGO2: u8 = 8;
@@ -483,6 +644,18 @@ fn adc_power_up_and_calibrate(adc: &pac::adc1::RegisterBlock) {
     adc.cr().modify(|_, w| w.aden().set_bit());
     while adc.isr().read().adrdy().bit_is_clear() {}
     adc.isr().write(|w| w.adrdy().clear());
+    // One dummy regular conversion (sequence length 1, SQ1 = channel 0 at reset, software
+    // start), its result dropped, before the injected conversions start: MCSDK's ADC set-up
+    // for the G4 does the same, citing the G431 errata sheet ES0431 ("ADC channel 0 converted
+    // instead of the required ADC channel"); NuttX's FOC driver has its own workaround for it.
+    adc.sqr1().modify(|_, w| w.l().set(0));
+    adc.cr().modify(|_, w| w.adstart().set_bit());
+    let mut spins = 0u32;
+    while adc.isr().read().eoc().bit_is_clear() && spins < 100_000 {
+        spins += 1;
+    }
+    let _ = adc.dr().read();
+    adc.isr().write(|w| w.eoc().clear().eos().clear().ovr().clear());
 }
 
 fn adc_set_sampling(adc: &pac::adc1::RegisterBlock, ch: u8, smp: u8) {
@@ -517,6 +690,8 @@ pub struct Esc1Sensors {
     adc2: pac::ADC2,
     /// Zero-current ADC code of phases U, V, W (counts).
     offset_counts: [f32; 3],
+    /// What the last calibration measured (counts).
+    last_calibration: [f32; 3],
 }
 
 impl Esc1Sensors {
@@ -550,7 +725,9 @@ impl Esc1Sensors {
     /// Measures the zero-current offsets by averaging `n` valley samples (n = 1..=4096 periods;
     /// 64 takes 6.4 ms at 10 kHz). Preconditions: bridge disabled, motor at rest, and the control
     /// interrupt masked in the NVIC (this polls the same JEOS flag). Returns `false` (offsets
-    /// unchanged) if conversions stop arriving.
+    /// unchanged) if conversions stop arriving or if any channel's average is outside
+    /// [`CURRENT_OFFSET_WINDOW_COUNTS`] (an op-amp, channel or bias fault: the currents would be
+    /// wrong by amperes); [`Esc1Sensors::last_calibration`] has what was measured either way.
     pub fn calibrate_current_offsets(&mut self, n: u16) -> bool {
         let n = n.clamp(1, 4096);
         let mut acc = [0u32; 3];
@@ -572,8 +749,20 @@ impl Esc1Sensors {
         }
         self.clear_flags();
         let nf = f32::from(n);
-        self.offset_counts = [acc[0] as f32 / nf, acc[1] as f32 / nf, acc[2] as f32 / nf];
+        let measured = [acc[0] as f32 / nf, acc[1] as f32 / nf, acc[2] as f32 / nf];
+        self.last_calibration = measured;
+        let (lo, hi) = CURRENT_OFFSET_WINDOW_COUNTS;
+        if measured.iter().any(|&c| !(lo..=hi).contains(&c)) {
+            return false;
+        }
+        self.offset_counts = measured;
         true
+    }
+
+    /// Averages of the last [`Esc1Sensors::calibrate_current_offsets`] (counts, U/V/W),
+    /// accepted or not; the nominal mid-scale before any.
+    pub fn last_calibration(&self) -> [f32; 3] {
+        self.last_calibration
     }
 }
 
@@ -596,6 +785,69 @@ impl PhaseSensors for Esc1Sensors {
 }
 
 // =================================================================================================
+// Hardware over-current trip — DAC3 (RM0440 ch. 22 "DAC": DAC_MCR.MODEx / HFSEL, DAC_CR.ENx,
+// DAC_SR.DACxRDY, DAC_DHR12Rx) and COMP1/2/4 (ch. 24 "COMP": COMPx_CSR), wired as in MCSDK's
+// project for this board (board table). The comparators feed TIM1's break (TIM1_AF1, below).
+// =================================================================================================
+
+/// Busy-wait bound for the DAC3 channels' ready flags (iterations).
+const DAC_READY_SPINS: u32 = 100_000;
+
+/// COMPx_CSR.INMSEL code of "DAC3 channel" (DAC3_CH1 for COMP1, DAC3_CH2 for COMP2 and COMP4;
+/// RM0440 COMPx_CSR, MCSDK COMP_INPUT_MINUS_DAC3_CH1/_CH2 = INMSEL bit 2).
+const COMP_INMSEL_DAC3: u8 = 0b100;
+
+fn init_over_current(dac: &pac::DAC3, comp: &pac::COMP, code: u16) {
+    // DAC3: internal only (it has no pin), buffer off, as MCSDK configures it
+    // (DAC_CHIPCONNECT_INTERNAL, OUTPUTBUFFER_DISABLE); the bus interface in its >160 MHz mode
+    // for HCLK = 170 MHz. MODEx and HFSEL are written with the channels disabled.
+    dac.cr().write(|w| w.en1().clear_bit().en2().clear_bit());
+    dac.mcr().write(|w| {
+        w.hfsel().variant(pac::dac1::mcr::HFSEL::More160mhz);
+        w.mode1().normal_chip_no_buffer();
+        w.mode2().normal_chip_no_buffer()
+    });
+    dac.cr().write(|w| w.en1().set_bit().en2().set_bit());
+    let mut spins = 0;
+    while !(dac.sr().read().dac1rdy().is_ready() && dac.sr().read().dac2rdy().is_ready())
+        && spins < DAC_READY_SPINS
+    {
+        spins += 1;
+    }
+    // No trigger (TENx = 0): DHR goes to the output one clock after the write.
+    dac.dhr12r1().write(|w| w.daccdhr().set(code));
+    dac.dhr12r2().write(|w| w.daccdhr().set(code));
+    // Let the threshold settle before the comparators look at it (a few us).
+    cortex_m::asm::delay(SYSCLK_HZ / 1_000_000 * 10);
+
+    // COMP1 (INP0 = PA1, U), COMP2 (INP0 = PA7, V), COMP4 (INP0 = PB0, W) against DAC3: output
+    // high while the shunt input is above the threshold; no hysteresis, no blanking, not
+    // inverted (MCSDK MX_COMPx_Init). Locked afterwards (MCSDK locks them too): their
+    // configuration cannot change until reset.
+    for n in [0usize, 1, 3] {
+        let csr = comp.ccsr(n);
+        csr.write(|w| {
+            // SAFETY: INMSEL is 3 bits; 0b100 selects the DAC3 channel of this comparator
+            // (RM0440 COMPx_CSR).
+            unsafe { w.inmsel().bits(COMP_INMSEL_DAC3) };
+            w.inpsel().clear_bit();
+            w.pol().clear_bit();
+            // SAFETY: HYST and BLANKSEL are 3 bits; 0 = none (RM0440 COMPx_CSR).
+            unsafe {
+                w.hyst().bits(0);
+                w.blanksel().bits(0)
+            }
+        });
+        csr.modify(|_, w| w.en().set_bit());
+    }
+    // Comparator start-up time (t_START, a few us in DS12589) before TIM1 reads them.
+    cortex_m::asm::delay(SYSCLK_HZ / 1_000_000 * 10);
+    for n in [0usize, 1, 3] {
+        comp.ccsr(n).modify(|_, w| w.lock().set_bit());
+    }
+}
+
+// =================================================================================================
 // TIM1 PWM — RM0440 ch. 28 "Advanced-control timers (TIM1/TIM8/TIM20)": §28.3.3 repetition
 // counter, §28.3.13 PWM mode (centre-aligned), §28.3.14 complementary outputs and dead-time,
 // §28.3.16 break / MOE, TIMx_CR2.MMS2 (TRGO2), TIMx_BDTR.DTG encoding.
@@ -608,10 +860,22 @@ impl PhaseSensors for Esc1Sensors {
 /// the counter *peak* and the low sides conduct around the *valley* (CNT = 0) — the instant at
 /// which the update event, TRGO and TRGO2 (ADC trigger) fire once per period (RCR = 1, phase
 /// verified at init). High-side on time = 2·(ARR − CCR) ticks, so CCR = ARR·(1 − duty).
+///
+/// Break: COMP1/2/4 (the hardware over-current trip) and the system break sources (core
+/// LOCKUP, HSE clock failure when the HSE runs) clear MOE in hardware. The break inputs act on
+/// level, but once the current has decayed the comparators release, and MOE could be set
+/// again by software. So the stage latches any break it sees (`BIF`/`SBIF`) and
+/// [`PowerStage::enable_bridge`] does nothing while latched, checking again right after it
+/// sets MOE (a break between the check and the write is caught in the same call). Only
+/// [`PowerStage::clear_hardware_trip`] re-arms it, and only once the break input is inactive.
 pub struct Esc1PowerStage {
     tim: pac::TIM1,
+    dac: pac::DAC3,
+    comp: pac::COMP,
     arr: u32,
     dtg: u8,
+    trip_a: f32,
+    tripped: bool,
 }
 
 /// Result of the dead-time computation (for logging / tests).
@@ -666,11 +930,23 @@ pub const fn pwm_arr(f_pwm_hz: u32, f_tim_hz: u32) -> u32 {
     }
 }
 
-/// Duty fraction -> CCR for PWM mode 2 with half-period `arr` (clamps, NaN -> 0.5, never panics).
+/// Highest high-side duty applied (fraction of the period). The phase currents are sampled at
+/// the carrier valley, in the middle of the low-side on-time; above this duty that window is
+/// too short for a valid low-side shunt sample: at 10 kHz, 0.95 leaves 2.5 us of low-side time
+/// before the valley, 1.7 us after the 0.8 us dead time, against 1.3 us of settling measured
+/// on this board after a switch turns off (github.com/diglet48/FOC-Stim, its ESC1 board
+/// support). A current read as zero where it is not is what a current loop must never see.
+/// NuttX's ESC1 board code uses the same 0.95 limit. Near full modulation (SVPWM peak duty
+/// 0.5 + m/2, up to 0.975 at the drive's 0.95 modulation limit) this flattens the top of the
+/// highest phase.
+pub const MAX_DUTY: f32 = 0.95;
+
+/// Duty fraction -> CCR for PWM mode 2 with half-period `arr`: clamped to 0..=[`MAX_DUTY`],
+/// NaN -> 0.5, never panics.
 #[inline]
 pub fn duty_to_ccr(d: f32, arr: u32) -> u32 {
     // NaN -> 0.5; `clamp` with constant, ordered bounds cannot panic.
-    let d = if d.is_nan() { 0.5 } else { d.clamp(0.0, 1.0) };
+    let d = if d.is_nan() { 0.5 } else { d.clamp(0.0, MAX_DUTY) };
     // d in [0, 1] and arr <= 65534: the product is in [0, 65534.5], so the (saturating) `as`
     // conversion is exact-rounded and cannot overflow.
     let on = (d * arr as f32 + 0.5) as u32;
@@ -683,7 +959,7 @@ pub fn duty_to_ccr(d: f32, arr: u32) -> u32 {
 }
 
 impl Esc1PowerStage {
-    fn new(tim: pac::TIM1, config: &Esc1Config) -> Self {
+    fn new(tim: pac::TIM1, dac: pac::DAC3, comp: pac::COMP, config: &Esc1Config, trip_a: f32) -> Self {
         let arr = pwm_arr(config.pwm_frequency_hz, SYSCLK_HZ);
         let dt = dead_time_dtg(config.dead_time_ns, SYSCLK_HZ);
 
@@ -735,13 +1011,31 @@ impl Esc1PowerStage {
             w.cc3e().set_bit();
             w.cc3ne().set_bit()
         });
+        // Break sources (TIM1_AF1): COMP1, COMP2, COMP4, not inverted (BKCMPxP = 0); the BKIN
+        // pin input off (BKINE resets to 1; no pin is in its alternate function, cleared anyway).
+        // As MCSDK: TIM_BREAKINPUT_BRK from COMP1/2/4, POLARITY_HIGH.
+        tim.af1().write(|w| {
+            w.bkine().clear_bit();
+            w.bkcmp1e().set_bit();
+            w.bkcmp2e().set_bit();
+            w.bkcmp4e().set_bit();
+            w.bkcmp1p().clear_bit();
+            w.bkcmp2p().clear_bit();
+            w.bkcmp4p().clear_bit()
+        });
         // Dead time; OSSI = OSSR = 1 so that with MOE = 0 the timer keeps *driving* all six pins
-        // to their idle level (low = switch off) instead of releasing them (Hi-Z); no break input,
-        // no automatic output enable, no lock.
+        // to their idle level (low = switch off) instead of releasing them (Hi-Z); break on,
+        // active high, filtered over 8 samples of f_CK_INT (BKF = 3, 47 ns, as MCSDK); BRK2 off;
+        // no automatic output enable (a break stays until software clears it); no lock.
         tim.bdtr().write(|w| {
             w.dtg().set(dt.dtg);
             w.ossi().set_bit();
             w.ossr().set_bit();
+            w.bke().set_bit();
+            w.bkp().set_bit();
+            // SAFETY: BKF is 4 bits; 3 = f_CK_INT, N = 8 (RM0440 TIMx_BDTR).
+            unsafe { w.bkf().bits(3) };
+            w.bk2e().clear_bit();
             w.aoe().clear_bit();
             w.moe().clear_bit()
         });
@@ -749,9 +1043,46 @@ impl Esc1PowerStage {
         tim.egr().write(|w| w.ug().set_bit());
         tim.sr().write(|w| w.uif().clear());
 
-        let mut s = Self { tim, arr, dtg: dt.dtg };
+        let mut s = Self { tim, dac, comp, arr, dtg: dt.dtg, trip_a, tripped: false };
         s.align_update_to_valley();
+        // Break flags set while the comparators and the DAC came up (MOE was 0 throughout):
+        // cleared; a break input that is *still* active stays latched (the drive then
+        // reports it at its first step and never switches on).
+        s.clear_hardware_trip();
         s
+    }
+
+    /// Whether a break (over-current comparators or a system break) has fired since the last
+    /// re-arm: TIM1 `SR.BIF` / `SR.SBIF`.
+    fn break_seen(&self) -> bool {
+        let sr = self.tim.sr().read();
+        sr.bif().bit_is_set() || sr.sbif().bit_is_set()
+    }
+
+    /// Comparator outputs of phases U, V, W now (`COMPx_CSR.VALUE`; `true` = that shunt's input
+    /// is above the trip threshold). With no current all three must be `false`.
+    pub fn comparators(&self) -> [bool; 3] {
+        [
+            self.comp.c1csr().read().value().bit_is_set(),
+            self.comp.c2csr().read().value().bit_is_set(),
+            self.comp.c4csr().read().value().bit_is_set(),
+        ]
+    }
+
+    /// Hardware over-current trip in use (A, down a low-side shunt).
+    pub fn over_current_trip_a(&self) -> f32 {
+        self.trip_a
+    }
+
+    /// Sets the hardware over-current trip (A, clamped to [`OVER_CURRENT_TRIP_MIN_A`]..=
+    /// [`OVER_CURRENT_TRIP_MAX_A`]) and returns the value in use: rewrites both DAC3 channels.
+    /// Lower it to the motor's needs before enabling the bridge.
+    pub fn set_over_current_trip_a(&mut self, trip_a: f32) -> f32 {
+        self.trip_a = over_current_trip_clamped(trip_a);
+        let code = over_current_dac_code(self.trip_a);
+        self.dac.dhr12r1().write(|w| w.daccdhr().set(code));
+        self.dac.dhr12r2().write(|w| w.daccdhr().set(code));
+        self.trip_a
     }
 
     /// Starts the counter and arranges RCR = 1 so the single update event per period (which
@@ -817,12 +1148,34 @@ impl PowerStage for Esc1PowerStage {
     }
 
     fn enable_bridge(&mut self) {
+        if self.hardware_trip() {
+            return;
+        }
         self.tim.bdtr().modify(|_, w| w.moe().set_bit());
+        // A break between the check and the write: MOE may have been set after the hardware
+        // cleared it; take it back and latch.
+        if self.hardware_trip() {
+            self.disable_bridge();
+        }
     }
 
     fn disable_bridge(&mut self) {
         // MOE = 0 with OSSI = 1: all six outputs go to their idle level (low) at once.
         self.tim.bdtr().modify(|_, w| w.moe().clear_bit());
+    }
+
+    fn hardware_trip(&mut self) -> bool {
+        if self.break_seen() {
+            self.tripped = true;
+        }
+        self.tripped
+    }
+
+    fn clear_hardware_trip(&mut self) {
+        // BIF/SBIF cannot be cleared while the break input is active: if they read set again
+        // the cause is still there and the trip stays latched.
+        self.tim.sr().write(|w| w.bif().clear().sbif().clear()); // rc_w0: others written 1
+        self.tripped = self.break_seen();
     }
 }
 
@@ -860,8 +1213,8 @@ pub struct Esc1Uart {
 
 impl Esc1Uart {
     fn new(usart: pac::USART2, gpiob: &pac::GPIOB, baud: u32, rx_irq: bool) -> Self {
-        pin_af!(gpiob, PIN_UART_TX);
-        pin_af!(gpiob, PIN_UART_RX);
+        pin_af!(gpiob, PIN_UART_TX, 3);
+        pin_af!(gpiob, PIN_UART_RX, 3);
         gpiob.pupdr().modify(|_, w| w.pupdr(PIN_UART_RX.pin).pull_up());
 
         let baud = if baud == 0 { DEFAULT_BAUD } else { baud };
@@ -1038,6 +1391,14 @@ const _: () = {
     assert!(dead_time_dtg(500, SYSCLK_HZ).dtg == 85);
     // 10 kHz centre-aligned -> ARR 8500 (period 17000 ticks = 100 us).
     assert!(pwm_arr(10_000, SYSCLK_HZ) == 8500);
+    // The over-current threshold at MCSDK's 45 A is MCSDK's DAC value for this board
+    // (DAC_OCP_Threshold 4083, 16-bit left-aligned = 255 in 12 bits); 40 A -> 0.197 V = 245.
+    assert!(over_current_dac_code(45.0) == 255);
+    assert!(over_current_dac_code(DEFAULT_OVER_CURRENT_TRIP_A) == 245);
+    // Clamped at both ends, NaN -> the default; the lowest threshold is above the
+    // zero-current level of the comparator inputs (0.1286 V = 159.6 counts).
+    assert!(over_current_dac_code(1000.0) == 255 && over_current_dac_code(f32::NAN) == 245);
+    assert!(over_current_dac_code(0.0) == 181 && over_current_dac_code(-5.0) == 181);
 };
 
 // =================================================================================================

@@ -29,6 +29,11 @@ pub struct FakeBoard {
     pub enables: u32,
     /// See `enables`.
     pub disables: u32,
+    /// A hardware protection's input (e.g. an over-current comparator) is active: it
+    /// switches the bridge off at once and latches [`FakeBoard::hardware_tripped`].
+    pub break_input: bool,
+    /// The latched hardware trip ([`PowerStage::hardware_trip`]).
+    pub hardware_tripped: bool,
 }
 
 impl PhaseSensors for FakeBoard {
@@ -49,11 +54,24 @@ impl PowerStage for FakeBoard {
         self.duties = Some(duties.map(|d| if d.is_nan() { 0.5 } else { d.clamp(0.0, 1.0) }));
     }
     fn enable_bridge(&mut self) {
+        if self.hardware_trip() {
+            return;
+        }
         self.bridge_on = true;
         self.enables += 1;
     }
     fn disable_bridge(&mut self) {
         self.bridge_on = false;
         self.disables += 1;
+    }
+    fn hardware_trip(&mut self) -> bool {
+        if self.break_input {
+            self.hardware_tripped = true;
+            self.bridge_on = false;
+        }
+        self.hardware_tripped
+    }
+    fn clear_hardware_trip(&mut self) {
+        self.hardware_tripped = self.break_input;
     }
 }

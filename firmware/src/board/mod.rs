@@ -40,10 +40,21 @@ pub trait PhaseSensors {
 /// What the control step drives on a board: three half-bridges.
 pub trait PowerStage {
     /// High-side on-time of each leg as a fraction of the PWM period (0..=1), for the
-    /// next period. Implementations clamp values outside [0, 1] and treat NaN as 0.5.
+    /// next period. Implementations clamp values outside [0, 1] (a board may hold a lower
+    /// maximum, e.g. the ESC1's 0.95 for its current-sampling window) and treat NaN as 0.5.
     fn set_duties(&mut self, duties: [f32; 3]);
     /// Connects the gate signals (main output enable).
     fn enable_bridge(&mut self);
     /// All six switches off at once.
     fn disable_bridge(&mut self);
+    /// Whether a protection in the power stage itself (e.g. over-current comparators on
+    /// the timer's break input) has switched the bridge off. Latched: it stays `true`, and
+    /// [`PowerStage::enable_bridge`] stays without effect, until
+    /// [`PowerStage::clear_hardware_trip`] re-arms it. Boards without one: always `false`.
+    fn hardware_trip(&mut self) -> bool {
+        false
+    }
+    /// Re-arms the latched hardware trip (called when the drive's faults are cleared). If
+    /// its cause is still present the trip stays latched. Boards without one: nothing.
+    fn clear_hardware_trip(&mut self) {}
 }
