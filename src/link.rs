@@ -501,6 +501,7 @@ fn state_from_code(code: u8) -> Option<DriveState> {
         4 => Some(DriveState::Fault),
         5 => Some(DriveState::Reacquiring),
         6 => Some(DriveState::LowSpeed),
+        7 => Some(DriveState::Commissioning),
         _ => None,
     }
 }
@@ -1035,9 +1036,11 @@ mod tests {
             DriveState::Fault,
             DriveState::Reacquiring,
             DriveState::LowSpeed,
+            DriveState::Commissioning,
         ] {
             assert_eq!(state_from_code(s.code()), Some(s));
         }
-        assert_eq!(state_from_code(7), None);
+        assert_eq!(DriveState::Commissioning.code(), 7);
+        assert_eq!(state_from_code(8), None);
     }
 }

@@ -132,6 +132,9 @@ fn state() -> impl Strategy<Value = DriveState> {
         Just(DriveState::Starting),
         Just(DriveState::Running),
         Just(DriveState::Fault),
+        Just(DriveState::Reacquiring),
+        Just(DriveState::LowSpeed),
+        Just(DriveState::Commissioning),
     ]
 }
 
@@ -441,7 +444,7 @@ fn unknown_flags_and_bad_values_are_malformed() {
         cases.push((p, LinkError::Value));
     }
     let mut p = payload.clone();
-    p[16] = 7; // no such drive state
+    p[16] = 8; // no such drive state
     cases.push((p, LinkError::Value));
     let mut p = payload.clone();
     p[27..31].copy_from_slice(&f32::NAN.to_le_bytes()); // psi_alpha with the estimate valid

@@ -339,6 +339,7 @@ mod firmware {
             DriveState::Fault => "fault",
             DriveState::Reacquiring => "reacquiring",
             DriveState::LowSpeed => "low speed",
+            DriveState::Commissioning => "commissioning",
         }
     }
 

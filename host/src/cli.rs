@@ -66,6 +66,38 @@ pub enum Command {
     /// Write a motor image: the motor (file or preset) and the bus voltage as the binary
     /// record a drive board reads from its reserved flash page (dcfo::motor_image).
     MotorImage(MotorImageArgs),
+    /// Commissioning: the drive identifies Rs, Ld, Lq, psi_f and the inverter's voltage
+    /// error on the simulated plant of a motor (`--sim`), prints identified against true
+    /// values and writes the identified motor file (`-o`).
+    Identify(IdentifyArgs),
+}
+
+/// Arguments of `dcfo identify`.
+#[derive(Debug, Clone, Args)]
+pub struct IdentifyArgs {
+    /// Run the drive's commissioning in-process against the simulated plant of `--motor`.
+    #[arg(long)]
+    pub sim: bool,
+    /// Run the firmware's commissioning under QEMU (not implemented: exits with status 2).
+    #[arg(long)]
+    pub qemu: bool,
+    /// Run the commissioning of a board on this serial port (not implemented: exits with
+    /// status 2).
+    #[arg(long, value_name = "DEVICE")]
+    pub port: Option<String>,
+    /// Motor the plant is built from: a preset name (`paper`) or a motor TOML file. The
+    /// drive is told only its rated current and voltage, the bus and the pole pitch.
+    #[arg(long, default_value = "paper")]
+    pub motor: String,
+    /// Seed of the plant's sensor noise.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Write the identified motor (shared motor-file format) to this file.
+    #[arg(short = 'o', long = "output", value_name = "FILE")]
+    pub output: Option<PathBuf>,
+    /// Print one JSON object on the last line of stdout.
+    #[arg(long)]
+    pub json: bool,
 }
 
 /// What tunes the DCFO's notch (`dcfo::estimator::NotchTuning`).
@@ -335,7 +367,34 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             run_stroke(&args)?;
             Ok(ExitCode::SUCCESS)
         }
+        Command::Identify(args) => run_identify(&args),
     }
+}
+
+/// `dcfo identify` (see `crate::identify`).
+pub fn run_identify(args: &IdentifyArgs) -> anyhow::Result<ExitCode> {
+    if args.qemu || args.port.is_some() {
+        eprintln!(
+            "dcfo identify: --qemu and --port are not implemented yet (the firmware images do \
+             not run commissioning over the link); use --sim"
+        );
+        return Ok(ExitCode::from(2));
+    }
+    if !args.sim {
+        anyhow::bail!("identify: say where to run the commissioning: --sim (or --qemu, --port)");
+    }
+    let motor = load_motor(&args.motor)?;
+    let report = crate::identify::identify(&args.motor, &motor.params, args.seed, Default::default())
+        .map_err(|e| anyhow::anyhow!("identify {}: {e}", args.motor))?;
+    if let Some(path) = &args.output {
+        let text = crate::identify::motor_toml(&report, &motor.params)?;
+        std::fs::write(path, text).with_context(|| format!("writing {}", path.display()))?;
+    }
+    print!("{}", crate::identify::table(&report));
+    if args.json {
+        println!("{}", crate::identify::json_line(&report));
+    }
+    Ok(ExitCode::SUCCESS)
 }
 
 /// `dcfo stroke`: the positioning drive over the stroke (see `crate::stroke`).

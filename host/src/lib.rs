@@ -5,6 +5,7 @@
 pub mod acquire;
 pub mod cli;
 pub mod hil;
+pub mod identify;
 pub mod motor_file;
 pub mod plant;
 pub mod plot;

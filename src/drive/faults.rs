@@ -27,6 +27,9 @@ impl Faults {
     pub const MODULATION: Faults = Faults(1 << 7);
     /// The board or host link reported a fault (e.g. a silent HIL link).
     pub const EXTERNAL: Faults = Faults(1 << 8);
+    /// Commissioning stopped: a named error of its own, or a protection of the drive
+    /// while it ran ([`super::Drive::commissioning_result`]).
+    pub const COMMISSIONING: Faults = Faults(1 << 9);
 
     /// The raw bits (for telemetry frames).
     pub const fn bits(self) -> u16 {

@@ -40,10 +40,15 @@
 //! ramp, a move's acceleration): the estimator's notch leads by the PLL's lag on that
 //! ramp ([`Estimator::set_commanded_acceleration`]).
 
+mod commissioning;
 mod config;
 mod faults;
 mod positioning;
 
+pub use commissioning::{
+    Commissioning, CommissioningConfig, CommissioningError, CommissioningResult, CommissioningStep,
+    IF_FREQUENCY_HZ, SWEEP_FRACTIONS, SWEEP_LEVELS, VoltageErrorPoint,
+};
 pub use config::{
     DeadTimeCompensation, DriveConfig, DriveConfigError, FaultConfig, MotionConfig, PAPER_AXIS_BUS_V,
     PAPER_AXIS_PAYLOAD_KG, StartupConfig,
@@ -84,10 +89,15 @@ pub enum DriveState {
     /// the reference position (and holds it at rest); see the `positioning` docs of
     /// [`Drive`]. Also the alignment on enable.
     LowSpeed,
+    /// Identifying the motor and the inverter ([`Drive::start_commissioning`], the
+    /// `commissioning` module): the bridge applies the commissioning's test voltages, with
+    /// its own limits; it ends in `Disabled` with a result, or in `Fault`
+    /// ([`Faults::COMMISSIONING`]) with a named error ([`Drive::commissioning_result`]).
+    Commissioning,
 }
 
 impl DriveState {
-    /// A small number for telemetry frames (0..=6 in declaration order).
+    /// A small number for telemetry frames (0..=7 in declaration order).
     pub fn code(self) -> u8 {
         match self {
             DriveState::Disabled => 0,
@@ -97,6 +107,7 @@ impl DriveState {
             DriveState::Fault => 4,
             DriveState::Reacquiring => 5,
             DriveState::LowSpeed => 6,
+            DriveState::Commissioning => 7,
         }
     }
 }
@@ -244,6 +255,10 @@ pub struct Drive<T> {
     /// In the low-speed mode, where the mover is expected (the position estimate
     /// follows it rather than the control angle).
     low_speed_mover_angle: Option<Angle>,
+    /// Commissioning requested or under way.
+    commissioning: Option<Commissioning>,
+    /// The last commissioning's outcome.
+    commissioning_outcome: Option<Result<CommissioningResult, CommissioningError>>,
 }
 
 /// `x` as a working value, or the configuration error naming `field` when the numeric
@@ -442,6 +457,8 @@ impl<T: Scalar> Drive<T> {
             u_dq_last: Dq::default(),
             i_dq_measured: Dq::default(),
             low_speed_mover_angle: None,
+            commissioning: None,
+            commissioning_outcome: None,
         })
     }
 
@@ -467,9 +484,31 @@ impl<T: Scalar> Drive<T> {
         self.enable_requested = true;
     }
 
+    /// Starts commissioning (see the `commissioning` module): from `Disabled` only; the
+    /// drive calibrates its current offsets, then identifies R, the inverter's voltage
+    /// error, Ld, Lq and psi_f with the bridge on, and returns to `Disabled`. Read the
+    /// outcome with [`Drive::commissioning_result`]. A bad setting or a drive that is not
+    /// `Disabled` is refused (`BadSetting`).
+    pub fn start_commissioning(&mut self, config: CommissioningConfig) -> Result<(), CommissioningError> {
+        if self.state != DriveState::Disabled {
+            return Err(CommissioningError::BadSetting("drive state (not disabled)"));
+        }
+        self.commissioning = Some(Commissioning::new(config, self.k.dt_s)?);
+        self.commissioning_outcome = None;
+        self.enable_requested = true;
+        Ok(())
+    }
+
+    /// The last commissioning's outcome: `None` before one has ended, else the result
+    /// (SI) or why it stopped.
+    pub fn commissioning_result(&self) -> Option<Result<CommissioningResult, CommissioningError>> {
+        self.commissioning_outcome
+    }
+
     /// Switches the bridge off at the next step and returns to `Disabled`.
     pub fn disable(&mut self) {
         self.enable_requested = false;
+        self.commissioning = None;
         self.drop_moves();
     }
 
@@ -564,10 +603,32 @@ impl<T: Scalar> Drive<T> {
             DriveState::Starting | DriveState::Running | DriveState::Reacquiring | DriveState::LowSpeed => {
                 self.control(m, &mut out)
             }
+            DriveState::Commissioning => self.commission(m, &mut out),
+        }
+        if self.state == DriveState::Fault
+            && let Some(_) = self.commissioning.take()
+        {
+            // A protection of the drive's own stopped the commissioning.
+            let f = self.faults;
+            let e = if f.contains(Faults::BUS_UNDER_VOLTAGE) || f.contains(Faults::BUS_OVER_VOLTAGE) {
+                CommissioningError::BusOutOfRange
+            } else if f.contains(Faults::OVER_CURRENT) {
+                CommissioningError::RunawayCurrent
+            } else if f.contains(Faults::NON_FINITE) {
+                CommissioningError::NonFinite
+            } else {
+                CommissioningError::DriveFault(f.bits())
+            };
+            self.commissioning_outcome = Some(Err(e));
+            self.faults.insert(Faults::COMMISSIONING);
         }
         if !matches!(
             self.state,
-            DriveState::Starting | DriveState::Running | DriveState::Reacquiring | DriveState::LowSpeed
+            DriveState::Starting
+                | DriveState::Running
+                | DriveState::Reacquiring
+                | DriveState::LowSpeed
+                | DriveState::Commissioning
         ) {
             // Bridge off: nothing is applied, the history is cleared.
             self.u_prev = AlphaBeta::default();
@@ -622,6 +683,11 @@ impl<T: Scalar> Drive<T> {
             return;
         }
         self.offsets = o;
+        if self.commissioning.is_some() {
+            self.state = DriveState::Commissioning;
+            self.counter = 0;
+            return;
+        }
         self.start();
         if self.positioning.is_none() && self.k.catch_probe_samples > 0 {
             // Catch a mover that is already moving: hold zero current (the current loops
@@ -630,6 +696,45 @@ impl<T: Scalar> Drive<T> {
             self.state = DriveState::Reacquiring;
             self.catching = true;
             self.i_dq_ref = Dq::default();
+        }
+    }
+
+    /// Commissioning: one step of the identification, its voltage modulated.
+    fn commission(&mut self, m: &Measurements<T>, out: &mut StepOutput<T>) {
+        let base = self.k.base;
+        let (i_alpha, i_beta) = (base.to_amperes(out.i_ab.alpha), base.to_amperes(out.i_ab.beta));
+        let step = match self.commissioning.as_mut() {
+            Some(c) => c.step(i_alpha, i_beta, base.to_volts(m.vdc)),
+            None => CommissioningStep::Failed(CommissioningError::BadSetting("commissioning")),
+        };
+        match step {
+            CommissioningStep::Apply(u_alpha, u_beta) => {
+                let command = AlphaBeta::new(base.voltage(u_alpha), base.voltage(u_beta));
+                match svpwm(command, m.vdc) {
+                    Ok(modulation) => {
+                        out.duties = modulation.duties;
+                        out.bridge_enabled = true;
+                        out.u_applied = self.u_prev;
+                        self.u_prev = command;
+                    }
+                    Err(_) => {
+                        self.commissioning = None;
+                        self.commissioning_outcome = Some(Err(CommissioningError::NonFinite));
+                        self.trip(Faults::COMMISSIONING | Faults::MODULATION);
+                    }
+                }
+            }
+            CommissioningStep::Done(result) => {
+                self.commissioning = None;
+                self.commissioning_outcome = Some(Ok(result));
+                self.enable_requested = false;
+                self.state = DriveState::Disabled;
+            }
+            CommissioningStep::Failed(e) => {
+                self.commissioning = None;
+                self.commissioning_outcome = Some(Err(e));
+                self.trip(Faults::COMMISSIONING);
+            }
         }
     }
 

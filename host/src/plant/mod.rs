@@ -376,6 +376,8 @@ pub struct Plant {
     stuck: bool,
     last: PeriodAverage,
     sensors: Sensors,
+    /// The phase (0, 1, 2 for a, b, c) whose connection is broken, if any.
+    open_phase: Option<usize>,
 }
 
 fn finite(what: &'static str, x: f64) -> Result<f64, PlantError> {
@@ -406,6 +408,7 @@ impl Plant {
                 u_phase_avg_v: [0.0; 3],
             },
             sensors: Sensors::new(params.sensors, params.seed),
+            open_phase: None,
         };
         p.last.vdc_avg_v = p.vdc_at(0.0);
         Ok(p)
@@ -449,6 +452,29 @@ impl Plant {
             None => self.clamp = None,
         }
         Ok(())
+    }
+
+    /// Breaks the connection of phase `Some(k)` (0, 1, 2 for a, b, c; others are
+    /// ignored) from now on, or restores it (`None`): that phase's current is held at zero
+    /// (after every integration step the current vector loses its component along the
+    /// phase's axis), the other two carry equal and opposite currents. Exact for equal
+    /// `Ld` and `Lq`; with saliency the projection is an approximation.
+    pub fn set_open_phase(&mut self, phase: Option<usize>) {
+        self.open_phase = phase.filter(|&k| k < 3);
+        self.enforce_open_phase();
+    }
+
+    fn enforce_open_phase(&mut self) {
+        let Some(k) = self.open_phase else { return };
+        let axis = [0.0f64, 2.0 * PI / 3.0, -2.0 * PI / 3.0][k];
+        let theta = self.model.theta(self.y[X]);
+        // Phase k's current is the projection of the current vector on its axis.
+        let rel = theta - axis;
+        let (s, c) = rel.sin_cos();
+        // Current vector in the phase's frame: along = c i_d - s i_q.
+        let along = c * self.y[ID] - s * self.y[IQ];
+        self.y[ID] -= along * c;
+        self.y[IQ] -= along * (-s);
     }
 
     /// Moves the mover to `x_m` (metre); speed and currents are kept.
@@ -561,6 +587,7 @@ impl Plant {
                 self.stuck = mech == Mech::Stuck;
                 let fr = Frozen { open, modes, signs, upper_last: self.upper_last, vdc, mech, load };
                 model.rk4(&mut self.y, h, &fr);
+                self.enforce_open_phase();
                 // Coulomb friction cannot push the mover back through zero speed:
                 // stop it there and book the (tiny) overshoot energy as friction.
                 if let Mech::Sliding(dir) = mech
