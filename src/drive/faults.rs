@@ -27,6 +27,10 @@ impl Faults {
     pub const MODULATION: Faults = Faults(1 << 7);
     /// The board or host link reported a fault (e.g. a silent HIL link).
     pub const EXTERNAL: Faults = Faults(1 << 8);
+    /// The current loops lost control: their voltage stayed on the bridge's limit while
+    /// the measured current stayed off its reference (an open phase, a stuck or
+    /// disconnected current sensor), see [`super::FaultConfig::current_error_a`].
+    pub const CURRENT_CONTROL: Faults = Faults(1 << 9);
 
     /// The raw bits (for telemetry frames).
     pub const fn bits(self) -> u16 {

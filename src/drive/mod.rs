@@ -171,6 +171,10 @@ struct Constants<T> {
     startup_timeout_samples: u32,
     id_ramp_step: T,
     lock_loss_samples: u32,
+    /// Current-control supervision: the error (A, working units) and the periods it may
+    /// last with the voltage on its limit ([`FaultConfig::current_error_a`]).
+    current_error: T,
+    current_error_samples: u32,
     reacquire_timeout_samples: u32,
     delay_periods: T,
     dead_time_ratio: T,
@@ -246,6 +250,9 @@ pub struct Drive<T> {
     /// In the low-speed mode, where the mover is expected (the position estimate
     /// follows it rather than the control angle).
     low_speed_mover_angle: Option<Angle>,
+    /// Consecutive periods with the current loops' voltage on its limit and the current
+    /// off its reference (current-control supervision).
+    current_error_count: u32,
 }
 
 /// `x` as a working value, or the configuration error naming `field` when the numeric
@@ -323,6 +330,8 @@ impl<T: Scalar> Drive<T> {
             startup_timeout_samples: samples(config.startup.dwell_s).saturating_mul(10).max(samples(1.0)),
             id_ramp_step: base.current(config.startup.current_a * ts / config.startup.id_ramp_s),
             lock_loss_samples: samples(config.faults.lock_loss_s).max(1),
+            current_error: base.current(config.faults.current_error_a),
+            current_error_samples: samples(config.faults.current_error_s).max(1),
             reacquire_timeout_samples: samples(config.faults.reacquire_timeout_s).max(1),
             delay_periods: T::from_f32(1.5),
             dead_time_ratio: T::from_f32(dead_time_ratio),
@@ -445,6 +454,7 @@ impl<T: Scalar> Drive<T> {
             u_dq_last: Dq::default(),
             i_dq_measured: Dq::default(),
             low_speed_mover_angle: None,
+            current_error_count: 0,
         })
     }
 
@@ -658,6 +668,7 @@ impl<T: Scalar> Drive<T> {
         self.iq_bridge = T::ZERO;
         self.u_prev = AlphaBeta::default();
         self.u_prev2 = AlphaBeta::default();
+        self.current_error_count = 0;
         if self.positioning.is_some() {
             self.start_positioning();
         }
@@ -716,6 +727,19 @@ impl<T: Scalar> Drive<T> {
         let u_q = ff_q + self.pi_q.update_within(self.i_dq_ref.q - i_dq.q, -v_q_max - ff_q, v_q_max - ff_q);
         let u_q = u_q.clamp_to(-v_q_max, v_q_max);
         self.u_dq_last = Dq::new(u_d, u_q);
+        // Current-control supervision: the voltage on its limit (within 2 %) and the
+        // current still off its reference, period after period, means the loops have
+        // lost control of the current (an open phase; a stuck sensor, behind which the
+        // true current can grow to what the bus drives through the winding).
+        let e = Dq::new(self.i_dq_ref.d - i_dq.d, self.i_dq_ref.q - i_dq.q);
+        let at_limit = u_d * u_d + u_q * u_q >= v_max * v_max * T::from_f32(0.96);
+        let off = e.d * e.d + e.q * e.q > k.current_error * k.current_error;
+        self.current_error_count =
+            if at_limit && off { self.current_error_count.saturating_add(1) } else { 0 };
+        if self.current_error_count > k.current_error_samples {
+            self.trip(Faults::CURRENT_CONTROL);
+            return;
+        }
 
         // The command is applied from the next period on: rotate it to the middle of
         // its application window.
