@@ -415,7 +415,9 @@ impl Axis {
                             self.link.corrupted_answered += 1;
                         }
                     }
-                    Some(Injection::LinkReplay { every, age }) if u32::from(sensor.sequence).is_multiple_of(every) => {
+                    Some(Injection::LinkReplay { every, age })
+                        if u32::from(sensor.sequence).is_multiple_of(every) =>
+                    {
                         let first = deliver(&wire[..n], drive, server);
                         self.link.duplicates += 1;
                         let again = deliver(&wire[..n], drive, server);
