@@ -175,6 +175,8 @@ struct Constants<T> {
     /// last with the voltage on its limit ([`FaultConfig::current_error_a`]).
     current_error: T,
     current_error_samples: u32,
+    /// `0.98^2`: the voltage counts as on its limit above 98 % of it.
+    at_limit_sq: T,
     reacquire_timeout_samples: u32,
     delay_periods: T,
     dead_time_ratio: T,
@@ -332,6 +334,7 @@ impl<T: Scalar> Drive<T> {
             lock_loss_samples: samples(config.faults.lock_loss_s).max(1),
             current_error: base.current(config.faults.current_error_a),
             current_error_samples: samples(config.faults.current_error_s).max(1),
+            at_limit_sq: T::from_f32(0.98 * 0.98),
             reacquire_timeout_samples: samples(config.faults.reacquire_timeout_s).max(1),
             delay_periods: T::from_f32(1.5),
             dead_time_ratio: T::from_f32(dead_time_ratio),
@@ -732,7 +735,7 @@ impl<T: Scalar> Drive<T> {
         // lost control of the current (an open phase; a stuck sensor, behind which the
         // true current can grow to what the bus drives through the winding).
         let e = Dq::new(self.i_dq_ref.d - i_dq.d, self.i_dq_ref.q - i_dq.q);
-        let at_limit = u_d * u_d + u_q * u_q >= v_max * v_max * T::from_f32(0.96);
+        let at_limit = u_d * u_d + u_q * u_q >= v_max * v_max * k.at_limit_sq;
         let off = e.d * e.d + e.q * e.q > k.current_error * k.current_error;
         self.current_error_count =
             if at_limit && off { self.current_error_count.saturating_add(1) } else { 0 };
