@@ -63,6 +63,10 @@ pub enum Command {
     /// Positioning over a 0.3 m stroke: back-and-forth moves through zero speed with
     /// the low-speed mode at every reversal, position estimate against the truth.
     Stroke(StrokeArgs),
+    /// Fault campaign: inject each fault a real axis meets (open phase, short, sensor,
+    /// ADC, bus, blocked mover, overload, lock loss, link faults, parameter errors) into
+    /// the closed-loop simulation and check the drive's reaction.
+    Faults(FaultsArgs),
     /// Write a motor image: the motor (file or preset) and the bus voltage as the binary
     /// record a drive board reads from its reserved flash page (dcfo::motor_image).
     MotorImage(MotorImageArgs),
@@ -136,6 +140,19 @@ pub struct StrokeArgs {
     /// Directory for `stroke.json`, `stroke.csv` (every 10th period) and the figure
     /// `stroke.png` / `stroke.svg`.
     #[arg(long, value_name = "DIR", default_value = "out/stroke")]
+    pub out: PathBuf,
+}
+
+/// Arguments of `dcfo faults`.
+#[derive(Debug, Clone, Args)]
+pub struct FaultsArgs {
+    /// Print exactly one JSON object (cases, silent_failures, max_bridge_off_periods and
+    /// every case's figures) on stdout, on its last line.
+    #[arg(long)]
+    pub json: bool,
+    /// Directory for `faults.json` and one figure per case (`CASE.png` / `CASE.svg`):
+    /// angle, error, speed, currents and state around the injection.
+    #[arg(long, value_name = "DIR", default_value = "out/faults")]
     pub out: PathBuf,
 }
 
@@ -368,6 +385,7 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             Ok(ExitCode::SUCCESS)
         }
         Command::Identify(args) => run_identify(&args),
+        Command::Faults(args) => run_faults(&args),
     }
 }
 
@@ -395,6 +413,31 @@ pub fn run_identify(args: &IdentifyArgs) -> anyhow::Result<ExitCode> {
         println!("{}", crate::identify::json_line(&report));
     }
     Ok(ExitCode::SUCCESS)
+}
+
+/// `dcfo faults`: the fault campaign (see `crate::faults`). Exit status 1 when a floor
+/// is missed (a silent failure, a bridge switched off later than one period after its
+/// fault's condition); cases that miss their stated expectation are counted as `unmet`.
+pub fn run_faults(args: &FaultsArgs) -> anyhow::Result<ExitCode> {
+    let started = Instant::now();
+    let threads = std::thread::available_parallelism().map_or(2, |n| n.get());
+    let (campaign, logs) = crate::faults::run_all(threads, |name| eprintln!("faults: {name} done"))
+        .map_err(|e| anyhow::anyhow!(e))?;
+    std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
+    std::fs::write(args.out.join("faults.json"), serde_json::to_string_pretty(&campaign)?)
+        .with_context(|| format!("writing {}", args.out.join("faults.json").display()))?;
+    for (r, log) in campaign.results.iter().zip(&logs) {
+        crate::plot::write_figure(&crate::faults::figure(r, log), &args.out.join(&r.name))?;
+    }
+    eprintln!("faults: {:.1} s; results in {}", started.elapsed().as_secs_f64(), args.out.display());
+    if args.json {
+        println!("{}", serde_json::to_string(&campaign)?);
+    } else {
+        print!("{}", crate::faults::table(&campaign));
+    }
+    // The floors: no silent failure, the bridge off within one period on every trip.
+    let floors = campaign.silent_failures == 0 && campaign.max_bridge_off_periods <= 1;
+    Ok(if floors { ExitCode::SUCCESS } else { ExitCode::FAILURE })
 }
 
 /// `dcfo stroke`: the positioning drive over the stroke (see `crate::stroke`).

@@ -79,6 +79,17 @@ impl<W: Write> SerialController<W> {
         }
     }
 
+    /// Writes `bytes` to the link as they are, expecting no answer (fault injection: a
+    /// corrupted or replayed frame). An answer the target sends anyway is met by the next
+    /// [`Controller::step`] as a frame of another sequence number and counted in
+    /// [`SerialController::stale_frames`].
+    pub fn send_raw(&mut self, bytes: &[u8]) -> Result<(), SimError> {
+        self.writer
+            .write_all(bytes)
+            .and_then(|_| self.writer.flush())
+            .map_err(|e| SimError::Controller(format!("link write failed: {e}")))
+    }
+
     /// Lock-step round trips per second since the controller was created.
     pub fn round_trips_per_s(&self) -> f64 {
         self.round_trips as f64 / self.started.elapsed().as_secs_f64().max(1e-9)

@@ -4,6 +4,7 @@
 
 pub mod acquire;
 pub mod cli;
+pub mod faults;
 pub mod hil;
 pub mod identify;
 pub mod motor_file;

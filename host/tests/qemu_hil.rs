@@ -4,7 +4,8 @@
 //! steady scenario must reach its position-error figure, and every angle estimate must
 //! equal the in-process run of the same numeric type bit for bit, and the firmware's
 //! deepest stack (painted at boot, read through QEMU's monitor) must stay within its
-//! budget. A silent link must switch the bridge off. A stack overflow must fault before
+//! budget. A silent link must switch the bridge off; corrupted, replayed and duplicated
+//! frames must not be acted on. A stack overflow must fault before
 //! it reaches the statics (flip-link, `examples/stack_guard`).
 //!
 //! Skips with a message when `qemu-system-arm` or a thumb target is missing, unless
@@ -143,6 +144,65 @@ fn a_silent_link_switches_the_bridge_off() {
         let reply = send(&mut link, &mut frame);
         assert_ne!(reply.state, DriveState::Fault, "{:?}", reply.faults);
     }
+}
+
+/// Link faults on the firmware (issue 11's fault campaign, the cases that live on the
+/// link): a corrupted frame is counted and not acted on, a replayed old frame is counted
+/// and not answered, a duplicate of the last frame is answered with the same answer
+/// without a second step. `dcfo faults` runs the same `LinkServer` in process.
+#[test]
+fn corrupted_replayed_and_duplicated_frames_are_counted_and_never_acted_on() {
+    let cpu = QemuCpu::M4f;
+    let Some(elf) = firmware(cpu) else { return };
+    let (_session, mut link) = QemuSession::start(&elf, cpu).expect("qemu starts");
+    let mut frame = SensorFrame {
+        sequence: 0,
+        i_a: 0.0,
+        i_b: 0.0,
+        i_c: 0.0,
+        vdc: dcfo::drive::PAPER_AXIS_BUS_V,
+        speed_ref: 0.0,
+        enable: false,
+        clear_faults: false,
+    };
+    let wire = |f: &SensorFrame| {
+        let mut buf = [0u8; SensorFrame::WIRE_LEN];
+        let n = dcfo::link::encode(f, &mut buf).expect("encodes");
+        buf[..n].to_vec()
+    };
+    let mut sent = Vec::new();
+    let mut last = None;
+    for _ in 0..5 {
+        sent.push(wire(&frame));
+        last = Some(link.step(&frame).expect("answer").frame);
+        frame.sequence += 1;
+    }
+    let before = last.expect("answered").stats;
+    // A corrupted copy of the next frame (one bit of a current), then the frame itself:
+    // the corrupted one is dropped as a bad CRC, the good one answered.
+    let mut bad = wire(&frame);
+    bad[6] ^= 0x10;
+    link.send_raw(&[0]).expect("write");
+    link.send_raw(&bad).expect("write");
+    let good = link.step(&frame).expect("answer").frame;
+    assert_eq!(good.sequence, frame.sequence);
+    assert_eq!(
+        good.stats.bad_crc + good.stats.malformed,
+        before.bad_crc + before.malformed + 1,
+        "{:?}",
+        good.stats
+    );
+    // A duplicate of that frame: the same answer again (the drive steps once).
+    let again = link.step(&frame).expect("answer").frame;
+    assert_eq!(again, good);
+    frame.sequence += 1;
+    // An old frame replayed: counted out of order, not answered.
+    link.send_raw(&sent[1]).expect("write");
+    let next = link.step(&frame).expect("answer").frame;
+    assert_eq!(next.sequence, frame.sequence);
+    // The duplicate and the replay.
+    assert_eq!(next.stats.out_of_order, before.out_of_order + 2, "{:?}", next.stats);
+    assert_eq!(link.stale_frames, 0, "the target answered a frame it should have dropped");
 }
 
 /// flip-link: unbounded recursion (`examples/stack_guard`) faults at the bottom of the

@@ -68,6 +68,15 @@ pub struct FaultConfig {
     pub calibration_samples: u16,
     /// Largest acceptable current offset, A (> 0).
     pub max_offset_a: f32,
+    /// Current-control supervision, A (peak, positive): the loops' voltage command on
+    /// the bridge's limit while the measured current vector is more than this off its
+    /// reference for longer than `current_error_s` trips `CURRENT_CONTROL`. Catches what the
+    /// overcurrent trip cannot see: an open phase, and a stuck current sensor (with two
+    /// sensors the third current is computed, so a current that the stuck sensor hides
+    /// can grow to the bus over the winding resistance).
+    pub current_error_a: f32,
+    /// See `current_error_a`, s (positive).
+    pub current_error_s: f32,
 }
 
 /// Everything the drive needs besides the motor, SI.
@@ -193,7 +202,9 @@ impl DriveConfig {
     /// a 50 ms catch probe on enable (the FLL's acquisition sweep from its start
     /// frequency down to the notch floor takes about `1 / (4 w_floor)` = 20 ms);
     /// acceleration limited to 0.5 m/s^2; protection at 3x rated current and
-    /// 60-130 % of the nominal bus.
+    /// 60-130 % of the nominal bus; current control lost when the voltage sits on its
+    /// limit with the current 10 % of rated peak off its reference for 5 ms (an open
+    /// phase or a stuck sensor: `dcfo faults`).
     pub fn for_motor(motor: &MotorParams, bus_v: f32, observer: ObserverKind) -> Self {
         let rated_peak = motor.rated_current_a * core::f32::consts::SQRT_2;
         DriveConfig {
@@ -224,6 +235,8 @@ impl DriveConfig {
                 reacquire_timeout_s: 0.5,
                 calibration_samples: 1024,
                 max_offset_a: 0.1 * rated_peak,
+                current_error_a: 0.1 * rated_peak,
+                current_error_s: 0.005,
             },
             estimator: EstimatorConfig::for_motor(motor, observer),
             motion: None,
@@ -279,7 +292,7 @@ impl DriveConfig {
     pub fn validate(&self) -> Result<(), DriveConfigError> {
         let pos = |x: f32| x.is_finite() && x > 0.0;
         let non_neg = |x: f32| x.is_finite() && x >= 0.0;
-        let checks: [(bool, &'static str); 22] = [
+        let checks: [(bool, &'static str); 24] = [
             (pos(self.control_period_s), "control_period_s"),
             (self.speed_loop_divider >= 1, "speed_loop_divider"),
             (pos(self.current_bandwidth_rad_s), "current_bandwidth_rad_s"),
@@ -306,6 +319,8 @@ impl DriveConfig {
             (pos(self.faults.reacquire_timeout_s), "faults.reacquire_timeout_s"),
             (self.faults.calibration_samples > 0, "faults.calibration_samples"),
             (pos(self.faults.max_offset_a), "faults.max_offset_a"),
+            (pos(self.faults.current_error_a), "faults.current_error_a"),
+            (pos(self.faults.current_error_s), "faults.current_error_s"),
         ];
         for (ok, field) in checks {
             if !ok {

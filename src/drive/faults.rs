@@ -27,9 +27,29 @@ impl Faults {
     pub const MODULATION: Faults = Faults(1 << 7);
     /// The board or host link reported a fault (e.g. a silent HIL link).
     pub const EXTERNAL: Faults = Faults(1 << 8);
+    /// The current loops lost control: their voltage stayed on the bridge's limit while
+    /// the measured current stayed off its reference (an open phase, a stuck or
+    /// disconnected current sensor), see [`super::FaultConfig::current_error_a`].
+    pub const CURRENT_CONTROL: Faults = Faults(1 << 9);
     /// Commissioning stopped: a named error of its own, or a protection of the drive
     /// while it ran ([`super::Drive::commissioning_result`]).
-    pub const COMMISSIONING: Faults = Faults(1 << 9);
+    pub const COMMISSIONING: Faults = Faults(1 << 10);
+
+    /// Every fault bit with its name (as the constants are called), for logs and
+    /// reports.
+    pub const NAMES: [(Faults, &'static str); 11] = [
+        (Faults::OVER_CURRENT, "OVER_CURRENT"),
+        (Faults::BUS_UNDER_VOLTAGE, "BUS_UNDER_VOLTAGE"),
+        (Faults::BUS_OVER_VOLTAGE, "BUS_OVER_VOLTAGE"),
+        (Faults::NON_FINITE, "NON_FINITE"),
+        (Faults::ESTIMATOR, "ESTIMATOR"),
+        (Faults::LOCK_LOST, "LOCK_LOST"),
+        (Faults::CALIBRATION, "CALIBRATION"),
+        (Faults::MODULATION, "MODULATION"),
+        (Faults::EXTERNAL, "EXTERNAL"),
+        (Faults::CURRENT_CONTROL, "CURRENT_CONTROL"),
+        (Faults::COMMISSIONING, "COMMISSIONING"),
+    ];
 
     /// The raw bits (for telemetry frames).
     pub const fn bits(self) -> u16 {

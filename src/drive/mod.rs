@@ -182,6 +182,12 @@ struct Constants<T> {
     startup_timeout_samples: u32,
     id_ramp_step: T,
     lock_loss_samples: u32,
+    /// Current-control supervision: the error (A, working units) and the periods it may
+    /// last with the voltage on its limit ([`FaultConfig::current_error_a`]).
+    current_error: T,
+    current_error_samples: u32,
+    /// `0.98^2`: the voltage counts as on its limit above 98 % of it.
+    at_limit_sq: T,
     reacquire_timeout_samples: u32,
     delay_periods: T,
     dead_time_ratio: T,
@@ -259,6 +265,9 @@ pub struct Drive<T> {
     commissioning: Option<Commissioning>,
     /// The last commissioning's outcome.
     commissioning_outcome: Option<Result<CommissioningResult, CommissioningError>>,
+    /// Consecutive periods with the current loops' voltage on its limit and the current
+    /// off its reference (current-control supervision).
+    current_error_count: u32,
 }
 
 /// `x` as a working value, or the configuration error naming `field` when the numeric
@@ -336,6 +345,9 @@ impl<T: Scalar> Drive<T> {
             startup_timeout_samples: samples(config.startup.dwell_s).saturating_mul(10).max(samples(1.0)),
             id_ramp_step: base.current(config.startup.current_a * ts / config.startup.id_ramp_s),
             lock_loss_samples: samples(config.faults.lock_loss_s).max(1),
+            current_error: base.current(config.faults.current_error_a),
+            current_error_samples: samples(config.faults.current_error_s).max(1),
+            at_limit_sq: T::from_f32(0.98 * 0.98),
             reacquire_timeout_samples: samples(config.faults.reacquire_timeout_s).max(1),
             delay_periods: T::from_f32(1.5),
             dead_time_ratio: T::from_f32(dead_time_ratio),
@@ -459,6 +471,7 @@ impl<T: Scalar> Drive<T> {
             low_speed_mover_angle: None,
             commissioning: None,
             commissioning_outcome: None,
+            current_error_count: 0,
         })
     }
 
@@ -759,6 +772,7 @@ impl<T: Scalar> Drive<T> {
         self.i_dq_ref = Dq::new(T::ZERO, self.k.startup_current);
         self.u_prev = AlphaBeta::default();
         self.u_prev2 = AlphaBeta::default();
+        self.current_error_count = 0;
         if self.positioning.is_some() {
             self.start_positioning();
         }
@@ -817,6 +831,19 @@ impl<T: Scalar> Drive<T> {
         let u_q = ff_q + self.pi_q.update_within(self.i_dq_ref.q - i_dq.q, -v_q_max - ff_q, v_q_max - ff_q);
         let u_q = u_q.clamp_to(-v_q_max, v_q_max);
         self.u_dq_last = Dq::new(u_d, u_q);
+        // Current-control supervision: the voltage on its limit (within 2 %) and the
+        // current still off its reference, period after period, means the loops have
+        // lost control of the current (an open phase; a stuck sensor, behind which the
+        // true current can grow to what the bus drives through the winding).
+        let e = Dq::new(self.i_dq_ref.d - i_dq.d, self.i_dq_ref.q - i_dq.q);
+        let at_limit = u_d * u_d + u_q * u_q >= v_max * v_max * k.at_limit_sq;
+        let off = e.d * e.d + e.q * e.q > k.current_error * k.current_error;
+        self.current_error_count =
+            if at_limit && off { self.current_error_count.saturating_add(1) } else { 0 };
+        if self.current_error_count > k.current_error_samples {
+            self.trip(Faults::CURRENT_CONTROL);
+            return;
+        }
 
         // The command is applied from the next period on: rotate it to the middle of
         // its application window.

@@ -38,6 +38,7 @@
 //! Energy book-keeping ([`Plant::energy`]) integrates every power flow with the
 //! same RK4 stages as the state, so that the energy balance can be checked.
 
+mod faults;
 mod inverter;
 mod params;
 mod sensors;

@@ -265,24 +265,13 @@ pub fn trace_of(run: &Run) -> Result<(InputTrace, Vec<Estimate>)> {
     Ok((trace, estimates))
 }
 
-/// The names of the fault bits set in `faults` (`OVER_CURRENT | LOCK_LOST`), `none`
-/// for none; unknown bits as hex.
+/// The names of the fault bits set in `faults` (`OVER_CURRENT+LOCK_LOST`,
+/// [`dcfo::drive::Faults::NAMES`]), `none` for none; bits without a name as hex.
 pub fn fault_names(faults: dcfo::drive::Faults) -> String {
     use dcfo::drive::Faults;
-    const NAMES: [(Faults, &str); 9] = [
-        (Faults::OVER_CURRENT, "OVER_CURRENT"),
-        (Faults::BUS_UNDER_VOLTAGE, "BUS_UNDER_VOLTAGE"),
-        (Faults::BUS_OVER_VOLTAGE, "BUS_OVER_VOLTAGE"),
-        (Faults::NON_FINITE, "NON_FINITE"),
-        (Faults::ESTIMATOR, "ESTIMATOR"),
-        (Faults::LOCK_LOST, "LOCK_LOST"),
-        (Faults::CALIBRATION, "CALIBRATION"),
-        (Faults::MODULATION, "MODULATION"),
-        (Faults::EXTERNAL, "EXTERNAL"),
-    ];
     let mut known = 0u16;
     let mut names: Vec<String> = Vec::new();
-    for (bit, name) in NAMES {
+    for (bit, name) in Faults::NAMES {
         known |= bit.bits();
         if faults.contains(bit) {
             names.push(name.to_string());
@@ -292,7 +281,7 @@ pub fn fault_names(faults: dcfo::drive::Faults) -> String {
     if unknown != 0 {
         names.push(format!("{unknown:#06x}"));
     }
-    if names.is_empty() { "none".to_string() } else { names.join(" | ") }
+    if names.is_empty() { "none".to_string() } else { names.join("+") }
 }
 
 /// A scenario argument: a paper experiment by name, else a scenario file

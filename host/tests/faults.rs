@@ -1,0 +1,82 @@
+//! `dcfo faults`: the fault campaign against its floors (issue 11, item 4) and each
+//! case against the reaction the design promises (stated in `dcfo_host::faults::cases`
+//! before it was measured). Measured figures are in the README's `dcfo faults` table.
+
+use dcfo::drive::Faults;
+use dcfo_host::faults::{Expected, cases, run_all};
+
+/// Cases that do not meet the expectation stated before measuring (README, Status):
+/// their floors (no silent failure, a named fault and the bridge off within a period on
+/// any trip, no trip on a ride-through) are still asserted.
+const SHORTFALLS: [&str; 3] = [
+    // Expected LOCK_LOST; the mover reverses under the load, the estimate stops
+    // tracking and the current overshoots in Reacquiring: OVER_CURRENT at 110 ms.
+    "load-400N",
+    // The flying restart rides through but swings for 0.7 s (15.7 deg over the last
+    // 0.5 s, expected 5 deg).
+    "lock-loss",
+    // 5 % corrupted frames: 5.1 deg over the last 0.5 s (expected 5 deg).
+    "corrupted-frames",
+];
+
+#[test]
+fn every_fault_trips_in_a_period_or_rides_through_and_none_fails_silently() {
+    let (campaign, _) = run_all(2, |_| {}).expect("campaign runs");
+    println!("{}", dcfo_host::faults::table(&campaign));
+    assert!(campaign.cases >= 12, "{} cases", campaign.cases);
+    assert_eq!(campaign.silent_failures, 0);
+    assert!(campaign.max_bridge_off_periods <= 1, "{}", campaign.max_bridge_off_periods);
+    for (case, r) in cases().iter().zip(&campaign.results) {
+        assert_eq!(case.name, r.name);
+        assert!(!r.silent_failure, "{}: locked and wrong for {} s", r.name, r.locked_wrong_s);
+        match case.expected {
+            Expected::Trip(_) => {
+                assert_ne!(r.faults, "none", "{}: no fault latched", r.name);
+                assert!(
+                    r.bridge_off_periods.is_some_and(|p| p <= 1),
+                    "{}: {:?}",
+                    r.name,
+                    r.bridge_off_periods
+                );
+            }
+            Expected::RideThrough(_) => assert_eq!(r.faults, "none", "{}: tripped", r.name),
+        }
+        if SHORTFALLS.contains(&case.name) {
+            println!("known shortfall {}: {}", r.name, r.happened);
+        } else {
+            assert!(r.met, "{}: expected {}, {}", r.name, r.expected, r.happened);
+        }
+    }
+    // The link cases: no corrupted or replayed frame was acted on, duplicates were
+    // answered with the same bytes.
+    for r in campaign.results.iter().filter_map(|r| r.link.map(|l| (r.name.clone(), l))) {
+        let (name, l) = r;
+        assert_eq!((l.corrupted_answered, l.duplicate_mismatches, l.replays_answered), (0, 0, 0), "{name}");
+    }
+    let corrupted = campaign.results.iter().find(|r| r.name == "corrupted-frames").and_then(|r| r.link);
+    assert!(corrupted.is_some_and(
+        |l| l.corrupted > 100 && u32::from(l.drive_bad_crc) + u32::from(l.drive_malformed) >= l.corrupted
+    ));
+}
+
+#[test]
+fn the_faults_the_campaign_names_are_distinct_bits() {
+    let all = [
+        Faults::OVER_CURRENT,
+        Faults::BUS_UNDER_VOLTAGE,
+        Faults::BUS_OVER_VOLTAGE,
+        Faults::NON_FINITE,
+        Faults::ESTIMATOR,
+        Faults::LOCK_LOST,
+        Faults::CALIBRATION,
+        Faults::MODULATION,
+        Faults::EXTERNAL,
+        Faults::CURRENT_CONTROL,
+    ];
+    let mut seen = 0u16;
+    for f in all {
+        assert_eq!(f.bits().count_ones(), 1);
+        assert_eq!(seen & f.bits(), 0);
+        seen |= f.bits();
+    }
+}
