@@ -19,7 +19,7 @@
 
 use std::f64::consts::PI;
 
-use dcfo::drive::{DeadTimeCompensation, Drive, DriveConfig, DriveState, Measurements, MotionConfig};
+use dcfo::drive::{DeadTimeCompensation, Drive, DriveConfig, DriveState, MotionConfig};
 use dcfo::motion::{Move, ProfileLimits};
 use dcfo::motor::MotorParams;
 use dcfo::observer::ObserverKind;
@@ -197,14 +197,7 @@ pub fn run(name: &str, motor: &MotorParams, log_every: usize) -> Result<(StrokeS
         let reading = plant.sample();
         let truth = plant.state();
         drive.enable();
-        let m = Measurements {
-            i_abc: Abc {
-                a: reading.i_abc_a[0] as f32,
-                b: reading.i_abc_a[1] as f32,
-                c: reading.i_abc_a[2] as f32,
-            },
-            vdc: reading.vdc_v as f32,
-        };
+        let m = reading.measurements();
         let out = drive.step(&m);
         if pending_on {
             plant.step(pending, 0.0);

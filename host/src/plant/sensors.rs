@@ -25,6 +25,21 @@ pub struct SensorReading {
     pub current_saturated: bool,
 }
 
+impl SensorReading {
+    /// This reading as the drive takes it: phase currents (A) and bus voltage (V) in
+    /// f32, SI.
+    pub fn measurements(&self) -> dcfo::drive::Measurements<f32> {
+        dcfo::drive::Measurements {
+            i_abc: dcfo::transforms::Abc {
+                a: self.i_abc_a[0] as f32,
+                b: self.i_abc_a[1] as f32,
+                c: self.i_abc_a[2] as f32,
+            },
+            vdc: self.vdc_v as f32,
+        }
+    }
+}
+
 /// Sensor chain state: parameters and the noise generator.
 #[derive(Debug, Clone)]
 pub(crate) struct Sensors {
