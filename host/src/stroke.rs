@@ -23,7 +23,7 @@ use dcfo::drive::{DeadTimeCompensation, Drive, DriveConfig, DriveState, MotionCo
 use dcfo::motion::{Move, ProfileLimits};
 use dcfo::motor::MotorParams;
 use dcfo::observer::ObserverKind;
-use dcfo::transforms::{Abc, Dq, inverse_park};
+use dcfo::transforms::{Dq, inverse_park};
 use dcfo::units::Base;
 use serde::Serialize;
 
