@@ -471,8 +471,8 @@ impl Commissioning {
     /// The DC integral controllers towards `(i_ref, 0)` on alpha-beta.
     fn dc_loops(&mut self, i_alpha: f32, i_beta: f32) {
         let k = self.ki * self.ts;
-        self.u_alpha = (self.u_alpha + k * (self.i_ref - i_alpha)).clamp(-self.v_limit, self.v_limit);
-        self.u_beta = (self.u_beta + k * (0.0 - i_beta)).clamp(-self.v_limit, self.v_limit);
+        self.u_alpha = within(self.u_alpha + k * (self.i_ref - i_alpha), self.v_limit);
+        self.u_beta = within(self.u_beta + k * (0.0 - i_beta), self.v_limit);
     }
 
     fn ramp(&mut self, i_alpha: f32, _i_beta: f32) -> Result<CommissioningStep, CommissioningError> {
@@ -723,10 +723,10 @@ impl Commissioning {
         let (kp, ki_ts) = (l * wc, self.rs * wc * self.ts);
         let i_ref = 0.5 * self.i_peak;
         let (ed, eq) = (i_ref - i_d, -i_q);
-        self.int_d = (self.int_d + ki_ts * ed).clamp(-self.v_limit, self.v_limit);
-        self.int_q = (self.int_q + ki_ts * eq).clamp(-self.v_limit, self.v_limit);
-        let u_d = (self.int_d + kp * ed).clamp(-self.v_limit, self.v_limit);
-        let u_q = (self.int_q + kp * eq).clamp(-self.v_limit, self.v_limit);
+        self.int_d = within(self.int_d + ki_ts * ed, self.v_limit);
+        self.int_q = within(self.int_q + ki_ts * eq, self.v_limit);
+        let u_d = within(self.int_d + kp * ed, self.v_limit);
+        let u_q = within(self.int_q + kp * eq, self.v_limit);
         // E = u - R i - j w Lq i in the open-loop frame, low-passed over 1 ms.
         let w = self.omega;
         let e = C(u_d - self.rs * i_d + w * self.lq * i_q, u_q - self.rs * i_q - w * self.lq * i_d);
@@ -796,5 +796,18 @@ impl Commissioning {
             self.theta -= 2.0 * core::f32::consts::PI;
         }
         Ok(CommissioningStep::Apply(u_alpha + comp_alpha, u_beta + comp_beta))
+    }
+}
+
+/// `x` limited to `[-limit, limit]` (`limit >= 0`). `f32::clamp` with bounds that are
+/// not constants asserts their order and links float formatting (a path to a panic in
+/// the firmware images, `.ci/no-panic`); NaN passes through, as with `clamp`.
+fn within(x: f32, limit: f32) -> f32 {
+    if x > limit {
+        limit
+    } else if x < -limit {
+        -limit
+    } else {
+        x
     }
 }
