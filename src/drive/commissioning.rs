@@ -80,9 +80,11 @@ use crate::motor::MotorParams;
 /// any electrical time constant up to 6 ms whatever the rough resistance's error).
 pub const DC_LOOP_RAD_S: f32 = 30.0;
 /// Number of DC sweep levels.
-pub const SWEEP_LEVELS: usize = 10;
-/// The DC sweep's levels as fractions of the rated peak current, descending.
-pub const SWEEP_FRACTIONS: [f32; SWEEP_LEVELS] = [1.0, 0.8, 0.6, 0.45, 0.3, 0.2, 0.12, 0.07, 0.04, 0.02];
+pub const SWEEP_LEVELS: usize = 12;
+/// The DC sweep's levels as fractions of the rated peak current, descending (the lowest,
+/// 0.5 %, is 15 mA on the paper motor: about one and a half noise sigmas of its sensors).
+pub const SWEEP_FRACTIONS: [f32; SWEEP_LEVELS] =
+    [1.0, 0.8, 0.6, 0.45, 0.3, 0.2, 0.12, 0.07, 0.04, 0.02, 0.01, 0.005];
 /// Levels at or above this fraction of rated peak current are in the straight-line fit.
 const FIT_FRACTION: f32 = 0.299;
 /// Electrical frequency of the I/f run, Hz.
@@ -153,7 +155,9 @@ pub enum CommissioningError {
     /// No current at the voltage limit, or a current that does not follow the commanded
     /// direction: a phase is open (or a sensor is missing).
     OpenPhase,
-    /// Resistance or inductance far below anything a motor of these ratings has: a short.
+    /// Resistance or inductance far below anything a motor of these ratings has, or a
+    /// held current that jumps from one sample to the next (nothing smooths the PWM): a
+    /// short.
     ShortedPhase,
     /// A phase current beyond 1.5 times the rated peak.
     RunawayCurrent,
@@ -321,7 +325,11 @@ pub struct Commissioning {
     sum_u: f32,
     sum_i: f32,
     sum_vdc: f32,
+    sum_i2: f32,
     count: u32,
+    /// RMS noise of the alpha current, A (from the first sweep level).
+    noise_a: f32,
+    i_previous: f32,
     levels_u: [f32; SWEEP_LEVELS],
     levels_i: [f32; SWEEP_LEVELS],
     vdc_mean: f32,
@@ -394,7 +402,10 @@ impl Commissioning {
             sum_u: 0.0,
             sum_i: 0.0,
             sum_vdc: 0.0,
+            sum_i2: 0.0,
             count: 0,
+            noise_a: 0.0,
+            i_previous: 0.0,
             levels_u: [0.0; SWEEP_LEVELS],
             levels_i: [0.0; SWEEP_LEVELS],
             vdc_mean: config.bus_v,
@@ -465,6 +476,7 @@ impl Commissioning {
         self.sum_u = 0.0;
         self.sum_i = 0.0;
         self.sum_vdc = 0.0;
+        self.sum_i2 = 0.0;
         self.count = 0;
     }
 
@@ -494,13 +506,22 @@ impl Commissioning {
         if self.n > self.steps(ALIGN_S - AVERAGE_S) {
             self.sum_i += i_alpha;
             self.sum_u += i_beta;
+            let d = i_alpha - self.i_previous;
+            self.sum_i2 += d * d;
             self.count += 1;
         }
+        self.i_previous = i_alpha;
         if self.n >= self.steps(ALIGN_S) {
             // Settled on alpha: a mean current that cannot be steered there means a phase
             // is open (with a, b or c open the vector is confined to one axis).
             let c = 1.0 / self.count.max(1) as f32;
             let (ia, ib) = (self.sum_i * c, self.sum_u * c);
+            // A winding smooths the PWM: from one valley sample to the next, a held DC
+            // current changes by its sensors' noise. Jumps of a fifth of the current mean
+            // an inductance far too small to be the motor's: a short.
+            if libm::sqrtf(0.5 * self.sum_i2 * c) > 0.2 * self.i_ref {
+                return Err(CommissioningError::ShortedPhase);
+            }
             if (ia - self.i_ref).abs() > 0.3 * self.i_ref || ib.abs() > 0.3 * self.i_ref {
                 return Err(CommissioningError::OpenPhase);
             }
@@ -525,6 +546,10 @@ impl Commissioning {
         if self.n > self.steps(SETTLE_S) {
             self.sum_u += self.u_alpha;
             self.sum_i += i_alpha;
+            // Sample-to-sample differences: twice the white noise's variance, blind to
+            // the loop's slow motion.
+            let d = i_alpha - self.i_previous;
+            self.sum_i2 += d * d;
             self.sum_vdc += vdc;
             self.count += 1;
         }
@@ -536,6 +561,7 @@ impl Commissioning {
             }
             if k == 0 {
                 self.vdc_mean = self.sum_vdc / c;
+                self.noise_a = libm::sqrtf(0.5 * self.sum_i2 / c);
             }
             if k + 1 < SWEEP_LEVELS {
                 self.i_ref = self.level(k + 1);
@@ -547,6 +573,7 @@ impl Commissioning {
                 self.start_hf();
             }
         }
+        self.i_previous = i_alpha;
         Ok(CommissioningStep::Apply(self.u_alpha, self.u_beta))
     }
 
@@ -577,9 +604,14 @@ impl Commissioning {
             *p = VoltageErrorPoint { current_a: i, error_v: 0.75 * (u - slope * i) };
         }
         // Band: twice the current at which the error reaches half its saturated value
-        // (interpolated between levels; the lowest level if it is already above half).
+        // (interpolated between levels). If the error is above half at the lowest level
+        // already, the switching is sharper than the sweep resolves (a DC current has no
+        // ripple): the band is then the current sensors' noise (RMS, measured at the
+        // first level from sample-to-sample differences),
+        // below which the sign of a measured current is uncertain; a wider band would
+        // leave the light-load currents of a running drive under-compensated.
         let half = 0.5 * self.e_sat;
-        let mut band = self.curve.last().map_or(0.0, |p| 2.0 * p.current_a);
+        let mut band = self.noise_a;
         for w in self.curve.windows(2) {
             if let [hi, lo] = w
                 && hi.error_v >= half
@@ -589,7 +621,7 @@ impl Commissioning {
                 band = 2.0 * (lo.current_a + t * (hi.current_a - lo.current_a));
             }
         }
-        self.band = band.max(0.002 * self.i_peak);
+        self.band = band.max(0.001 * self.i_peak);
         Ok(())
     }
 
