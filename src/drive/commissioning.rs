@@ -266,6 +266,23 @@ impl CommissioningResult {
     }
 }
 
+impl CommissioningResult {
+    /// The identified motor as the board's flash record ([`crate::motor_image`]): the
+    /// motor of [`Self::motor`] and the nominal bus commissioning was told. The inverter
+    /// compensation has no field in image version 1 and is not stored.
+    pub fn motor_image(
+        &self,
+        config: &CommissioningConfig,
+        mass_kg: f32,
+        viscous_n_s_per_m: f32,
+    ) -> Result<crate::motor_image::MotorImage, crate::motor_image::MotorImageError> {
+        let motor = self
+            .motor(config, mass_kg, viscous_n_s_per_m)
+            .map_err(crate::motor_image::MotorImageError::Param)?;
+        crate::motor_image::MotorImage::new(motor, config.bus_v)
+    }
+}
+
 /// What one commissioning step asks for.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum CommissioningStep {
