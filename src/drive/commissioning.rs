@@ -7,7 +7,7 @@
 //! and the pole pitch ([`CommissioningConfig`]); every level, voltage, duration and speed
 //! below is derived from those.
 //!
-//! ## Sequence (about 3.3 s, bounded: every phase has a fixed or capped length)
+//! ## Sequence (about 4.1 s, bounded: every phase has a fixed or capped length)
 //! 1. **Ramp and align** (mover free): the alpha voltage ramps from zero until the alpha
 //!    current reaches half the rated peak current `I_p`. The current pulls the magnet's
 //!    d axis onto alpha (the mover moves up to half a pole pitch). `U / I` at that point
@@ -22,11 +22,12 @@
 //!    saturated, gives the slope `R_t` (the difference between levels removes the drop)
 //!    and the intercept `4/3 e_sat`; each level then gives a point `e(I) = 3/4 (U - R_t I)`
 //!    of the voltage-error curve, whose half-amplitude current sets the compensation's
-//!    band. The drive's dead-time compensation ([`super::DeadTimeCompensation`]) is this
+//!    band (or, if the error has not fallen to half at the lowest level, the current
+//!    sensors' noise RMS). The drive's dead-time compensation ([`super::DeadTimeCompensation`]) is this
 //!    curve's model: amplitude `e_sat`, band from the curve.
 //! 3. **Ld, Lq at standstill** (mover free, held on d by a bias of `I_p / 2` on alpha): a
 //!    sinusoidal voltage at `f_pwm / 10` on alpha (Ld) and then on beta (Lq), its amplitude
-//!    raised per cycle until the current's reaches `I_p / 5` (below the bias, so no phase
+//!    raised per cycle until the current's reaches `I_p / 10` (below the bias, so no phase
 //!    current changes sign and the dead-time error stays constant). The demodulated
 //!    voltage and current phasors, with the one-period computation delay, fit the exact
 //!    discrete model of an R-L winding over one period, `i(k+1) = a i(k) + b u(k)` with
@@ -36,11 +37,13 @@
 //!    1 kHz, less with any carriage. A locked mover removes it.
 //! 4. **psi_f from an I/f run**: a current vector of `I_p / 2` (current loops on the
 //!    identified R and L, inverter compensation on) turned at a frequency ramped to
-//!    [`IF_FREQUENCY_HZ`]; the mover follows. Averaged over whole electrical periods in
-//!    the open-loop frame, `E = u - R i - j w Lq i` is `j w psi_a`, the active flux
+//!    [`IF_FREQUENCY_HZ`]; the mover follows. In the open-loop frame `E = u - R i - j w Lq
+//!    i` is `j w_m psi_a` with `w_m` the mover's own speed; the mover swings about the
+//!    vector (end-effect ripple, friction), so the mean of `|E|` over whole electrical
+//!    periods, divided by the vector's speed (the mover's mean), gives `psi_a`, the active flux
 //!    `psi_a = psi_f + (Ld - Lq) i_d` along the rotor's d axis: `psi_f = |E| / w - (Ld -
-//!    Lq) i_d`, with `i_d` the current's projection on `E / j`. Travel: about 14 pole
-//!    pitches (0.2 m on the paper motor). Then the frequency ramps down and the bridge
+//!    Lq) i_d`, with `i_d` the current's projection on `E / j`. Travel: about 20 pole
+//!    pitches (0.3 m on the paper motor). Then the frequency ramps down and the bridge
 //!    turns off.
 //!
 //! **Direction convention.** Positive speed is the direction the mover moves when the
