@@ -382,6 +382,9 @@ pub struct Commissioning {
     psi_f: f32,
 }
 
+// Variable limits are applied with `max` and `min`, not `f32::clamp`: clamp panics when its
+// bounds are NaN or crossed, which the optimiser cannot rule out (no image may link a panic).
+
 fn pos(x: f32) -> bool {
     x.is_finite() && x > 0.0
 }
@@ -503,8 +506,8 @@ impl Commissioning {
     /// The DC integral controllers towards `(i_ref, 0)` on alpha-beta.
     fn dc_loops(&mut self, i_alpha: f32, i_beta: f32) {
         let k = self.ki * self.ts;
-        self.u_alpha = (self.u_alpha + k * (self.i_ref - i_alpha)).clamp(-self.v_limit, self.v_limit);
-        self.u_beta = (self.u_beta + k * (0.0 - i_beta)).clamp(-self.v_limit, self.v_limit);
+        self.u_alpha = (self.u_alpha + k * (self.i_ref - i_alpha)).max(-self.v_limit).min(self.v_limit);
+        self.u_beta = (self.u_beta + k * (0.0 - i_beta)).max(-self.v_limit).min(self.v_limit);
     }
 
     fn ramp(&mut self, i_alpha: f32, _i_beta: f32) -> Result<CommissioningStep, CommissioningError> {
@@ -775,10 +778,10 @@ impl Commissioning {
         let (kp, ki_ts) = (l * wc, self.rs * wc * self.ts);
         let i_ref = 0.5 * self.i_peak;
         let (ed, eq) = (i_ref - i_d, -i_q);
-        self.int_d = (self.int_d + ki_ts * ed).clamp(-self.v_limit, self.v_limit);
-        self.int_q = (self.int_q + ki_ts * eq).clamp(-self.v_limit, self.v_limit);
-        let u_d = (self.int_d + kp * ed).clamp(-self.v_limit, self.v_limit);
-        let u_q = (self.int_q + kp * eq).clamp(-self.v_limit, self.v_limit);
+        self.int_d = (self.int_d + ki_ts * ed).max(-self.v_limit).min(self.v_limit);
+        self.int_q = (self.int_q + ki_ts * eq).max(-self.v_limit).min(self.v_limit);
+        let u_d = (self.int_d + kp * ed).max(-self.v_limit).min(self.v_limit);
+        let u_q = (self.int_q + kp * eq).max(-self.v_limit).min(self.v_limit);
         // E = u - R i - j w Lq i in the open-loop frame, low-passed over 1 ms.
         let w = self.omega;
         let e = C(u_d - self.rs * i_d + w * self.lq * i_q, u_q - self.rs * i_q - w * self.lq * i_d);
