@@ -34,8 +34,8 @@ pub enum PlantFault {
     /// A healthy motor.
     #[default]
     None,
-    /// Phase a disconnected.
-    OpenPhase,
+    /// A phase disconnected (0, 1, 2: a, b, c).
+    OpenPhase(usize),
     /// A short across the motor terminals: the drive sees only the cable up to the short
     /// (R and L a hundredth of the motor's, no back-EMF: the motor is bypassed).
     ShortedTerminals,
@@ -136,7 +136,7 @@ pub fn plant_for(motor: &MotorParams, seed: u64, fault: PlantFault) -> SimParams
         }
         PlantFault::NoMagnet => p.plant.psi_f_wb = 0.0,
         PlantFault::LowBus => p.inverter.dc_bus_v *= 0.5,
-        PlantFault::None | PlantFault::OpenPhase => {}
+        PlantFault::None | PlantFault::OpenPhase(_) => {}
     }
     p
 }
@@ -158,8 +158,8 @@ pub fn identify(
     // Start off alignment: the commissioning's alignment has to pull the mover.
     let x0 = 1.0 * sim.plant.pole_pitch_m / PI;
     plant.set_position(x0).map_err(|e| IdentifyError::Setup(e.to_string()))?;
-    if fault == PlantFault::OpenPhase {
-        plant.set_open_phase(Some(0));
+    if let PlantFault::OpenPhase(k) = fault {
+        plant.set_open_phase(Some(k));
     }
     drive.start_commissioning(config).map_err(IdentifyError::Commissioning)?;
     let ts = plant.pwm_period_s();
