@@ -12,9 +12,13 @@
 //!    current reaches half the rated peak current `I_p`. The current pulls the magnet's
 //!    d axis onto alpha (the mover moves up to half a pole pitch). `U / I` at that point
 //!    is a rough resistance that tunes the slow integral current controllers of the DC
-//!    tests (crossover [`DC_LOOP_RAD_S`]). No current at the voltage limit, or a current
-//!    that does not follow the commanded direction: [`CommissioningError::OpenPhase`].
-//! 2. **DC sweep** on the alpha (d) axis at [`SWEEP_LEVELS`] from `I_p` down to `0.02 I_p`.
+//!    tests (crossover [`DC_LOOP_RAD_S`]), which then hold the current for 0.4 s while the
+//!    mover settles. No current at the voltage limit, or a mean current at the end of the
+//!    hold that is not on alpha: [`CommissioningError::OpenPhase`]; sample-to-sample jumps
+//!    of a fifth of the held current (no winding inductance smoothing the PWM):
+//!    [`CommissioningError::ShortedPhase`].
+//! 2. **DC sweep** on the alpha (d) axis at [`SWEEP_LEVELS`] levels from `I_p` down to
+//!    `0.005 I_p`.
 //!    With the alpha current `I` the phase currents are `I, -I/2, -I/2`, and the voltage
 //!    the controller needs is `U(I) = R_t I + 4/3 e(I)`, where `e(I)` is the per-phase
 //!    voltage error of the inverter (dead time and device threshold, saturating with the
