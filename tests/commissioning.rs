@@ -93,3 +93,31 @@ fn commissioning_starts_only_from_disabled_and_checks_its_settings() {
     assert_eq!(d.state(), DriveState::Calibrating);
     assert!(matches!(d.start_commissioning(config()), Err(CommissioningError::BadSetting(_))));
 }
+
+#[test]
+fn a_result_goes_into_the_motor_image_and_back() {
+    use dcfo::drive::{CommissioningResult, SWEEP_LEVELS, VoltageErrorPoint};
+    use dcfo::motor_image::{MotorImage, MotorImageError};
+    let r = CommissioningResult {
+        rs_ohm: 5.15,
+        ld_h: 0.00854,
+        lq_h: 0.00867,
+        psi_f_wb: 0.1612,
+        voltage_error_v: 7.25,
+        current_band_a: 0.0097,
+        bus_v: 314.7,
+        curve: [VoltageErrorPoint::default(); SWEEP_LEVELS],
+        direction: 1,
+        duration_s: 3.8,
+    };
+    let image = r.motor_image(&config(), 0.66, 0.5).unwrap();
+    let back = MotorImage::decode(&image.encode()).unwrap();
+    assert_eq!(back, image);
+    let m = back.motor;
+    assert_eq!((m.rs_ohm, m.ld_h, m.lq_h, m.psi_f_wb), (5.15, 0.00854, 0.00867, 0.1612));
+    assert_eq!((m.pole_pitch_m, m.rated_current_a, m.rated_voltage_v), (0.015, 2.1, 220.0));
+    assert_eq!(back.bus_v, 311.0);
+    // A result that is not physical never becomes an image.
+    let bad = CommissioningResult { psi_f_wb: -0.1, ..r };
+    assert!(matches!(bad.motor_image(&config(), 0.66, 0.5), Err(MotorImageError::Param(_))));
+}

@@ -102,6 +102,11 @@ pub struct IdentifyArgs {
     /// Print one JSON object on the last line of stdout.
     #[arg(long)]
     pub json: bool,
+    /// Instead: the light-load steady angle error of the paper axis (`dcfo sim steady`)
+    /// without, with the typed-in and with the identified inverter compensation, over
+    /// this many plant seeds (1..=N), and the medians.
+    #[arg(long, value_name = "SEEDS")]
+    pub steady: Option<u64>,
 }
 
 /// What tunes the DCFO's notch (`dcfo::estimator::NotchTuning`).
@@ -400,6 +405,51 @@ pub fn run_identify(args: &IdentifyArgs) -> anyhow::Result<ExitCode> {
     }
     if !args.sim {
         anyhow::bail!("identify: say where to run the commissioning: --sim (or --qemu, --port)");
+    }
+    if let Some(seeds) = args.steady {
+        let median = |mut v: Vec<f64>| -> String {
+            if v.is_empty() {
+                return "-".into();
+            }
+            v.sort_by(f64::total_cmp);
+            let n = v.len();
+            format!("{:.3}", if n % 2 == 1 { v[n / 2] } else { 0.5 * (v[n / 2 - 1] + v[n / 2]) })
+        };
+        let show = |x: Option<f64>| x.map_or("lost".to_string(), |d| format!("{d:.3}"));
+        println!("seed  none(deg)  typed-in  identified-comp  identified-motor+comp");
+        let mut rows = Vec::new();
+        for seed in 1..=seeds {
+            let r = crate::identify::steady_row(seed).map_err(|e| anyhow::anyhow!("seed {seed}: {e}"))?;
+            println!(
+                "{:>4}  {:>9}  {:>8}  {:>15}  {:>21}",
+                seed,
+                show(r.none_deg),
+                show(r.typed_deg),
+                show(r.identified_comp_deg),
+                show(r.identified_all_deg)
+            );
+            rows.push(r);
+        }
+        let col = |f: fn(&crate::identify::SteadyRow) -> Option<f64>| -> (String, usize) {
+            let v: Vec<f64> = rows.iter().filter_map(f).collect();
+            let lost = rows.len() - v.len();
+            (median(v), lost)
+        };
+        let cols = [
+            col(|r| r.none_deg),
+            col(|r| r.typed_deg),
+            col(|r| r.identified_comp_deg),
+            col(|r| r.identified_all_deg),
+        ];
+        println!(
+            "median rms angle error (deg; runs lost): none {} ({}), typed-in {} ({}), identified comp {} ({}), \
+             identified motor + comp {} ({})",
+            cols[0].0, cols[0].1, cols[1].0, cols[1].1, cols[2].0, cols[2].1, cols[3].0, cols[3].1
+        );
+        if args.json {
+            println!("{}", serde_json::to_string(&rows)?);
+        }
+        return Ok(ExitCode::SUCCESS);
     }
     let motor = load_motor(&args.motor)?;
     let report = crate::identify::identify(&args.motor, &motor.params, args.seed, Default::default())

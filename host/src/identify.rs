@@ -34,10 +34,10 @@ pub enum PlantFault {
     /// A healthy motor.
     #[default]
     None,
-    /// Phase a disconnected.
-    OpenPhase,
-    /// A short at the motor terminals: the drive sees only the cable, R and L a hundredth
-    /// of the motor's.
+    /// A phase disconnected (0, 1, 2: a, b, c).
+    OpenPhase(usize),
+    /// A short across the motor terminals: the drive sees only the cable up to the short
+    /// (R and L a hundredth of the motor's, no back-EMF: the motor is bypassed).
     ShortedTerminals,
     /// A motor without magnets (psi_f = 0).
     NoMagnet,
@@ -132,10 +132,11 @@ pub fn plant_for(motor: &MotorParams, seed: u64, fault: PlantFault) -> SimParams
             p.plant.rs_ohm *= 0.01;
             p.plant.ld_h *= 0.01;
             p.plant.lq_h *= 0.01;
+            p.plant.psi_f_wb = 0.0;
         }
         PlantFault::NoMagnet => p.plant.psi_f_wb = 0.0,
         PlantFault::LowBus => p.inverter.dc_bus_v *= 0.5,
-        PlantFault::None | PlantFault::OpenPhase => {}
+        PlantFault::None | PlantFault::OpenPhase(_) => {}
     }
     p
 }
@@ -157,8 +158,8 @@ pub fn identify(
     // Start off alignment: the commissioning's alignment has to pull the mover.
     let x0 = 1.0 * sim.plant.pole_pitch_m / PI;
     plant.set_position(x0).map_err(|e| IdentifyError::Setup(e.to_string()))?;
-    if fault == PlantFault::OpenPhase {
-        plant.set_open_phase(Some(0));
+    if let PlantFault::OpenPhase(k) = fault {
+        plant.set_open_phase(Some(k));
     }
     drive.start_commissioning(config).map_err(IdentifyError::Commissioning)?;
     let ts = plant.pwm_period_s();
@@ -302,4 +303,57 @@ pub fn json_line(r: &IdentifyReport) -> String {
         "duration_s": r.duration_s,
     })
     .to_string()
+}
+
+/// The light-load steady angle error of the paper axis (`dcfo sim steady`: 0.3 m/s, no
+/// load, [`crate::sim::Setup::paper`]) for one plant noise seed, under four inverter
+/// compensations: none, the typed-in one of [`DriveConfig::paper_axis`], the one
+/// identified by commissioning (`identified`, on the paper motor's plant with the same
+/// seed), and the identified compensation together with the identified motor.
+#[derive(Clone, Copy, Debug, Serialize)]
+pub struct SteadyRow {
+    /// Plant noise seed.
+    pub seed: u64,
+    /// RMS angle error without compensation, electrical degrees (`None`: the run did not
+    /// stay healthy, e.g. lost lock).
+    pub none_deg: Option<f64>,
+    /// With the typed-in compensation (2 us, 0.95 V, 0.01 A).
+    pub typed_deg: Option<f64>,
+    /// With the identified compensation.
+    pub identified_comp_deg: Option<f64>,
+    /// With the identified compensation and the identified motor (Rs, Ld, Lq, psi_f).
+    pub identified_all_deg: Option<f64>,
+}
+
+/// Runs the four steady runs of [`SteadyRow`] for `seed`.
+pub fn steady_row(seed: u64) -> Result<SteadyRow, IdentifyError> {
+    use crate::sim::scenarios::{figures, scenario};
+    use crate::sim::{Setup, run};
+    let paper = MotorParams::paper();
+    let report = identify("paper", &paper, seed, PlantFault::None)?;
+    let result = report.result.ok_or_else(|| IdentifyError::Setup("no result".into()))?;
+    let sc = scenario("steady").ok_or_else(|| IdentifyError::Setup("no steady scenario".into()))?;
+    let base = Setup::paper(ObserverKind::Dcfo);
+    let comp = result.dead_time_compensation(base.drive.control_period_s);
+    let identified_motor = result
+        .motor(&told(&paper), paper.mass_kg, paper.viscous_n_s_per_m)
+        .map_err(|e| IdentifyError::Setup(format!("{e:?}")))?;
+    let once = |motor: MotorParams, c: Option<dcfo::drive::DeadTimeCompensation>| -> Option<f64> {
+        let mut setup = base.clone();
+        setup.plant.seed = seed;
+        setup.motor = motor;
+        setup.drive.dead_time_compensation = c;
+        let estimator = dcfo::estimator::EstimatorConfig::for_motor(&motor, ObserverKind::Dcfo);
+        setup.drive.estimator = estimator;
+        let r = run(&setup, &sc, |_| {}).ok()?;
+        let f = figures(&r, &sc);
+        f.healthy.then_some(f.theta_err_rms_deg)
+    };
+    Ok(SteadyRow {
+        seed,
+        none_deg: once(paper, None),
+        typed_deg: once(paper, base.drive.dead_time_compensation),
+        identified_comp_deg: once(paper, Some(comp)),
+        identified_all_deg: once(identified_motor, Some(comp)),
+    })
 }

@@ -53,7 +53,10 @@ fn refused(fault: PlantFault) -> CommissioningError {
 
 #[test]
 fn open_phase_is_named() {
-    assert_eq!(refused(PlantFault::OpenPhase), CommissioningError::OpenPhase);
+    // a: no current at all; b or c: the current is confined to one axis, off alpha.
+    for k in 0..3 {
+        assert_eq!(refused(PlantFault::OpenPhase(k)), CommissioningError::OpenPhase, "phase {k}");
+    }
 }
 
 #[test]

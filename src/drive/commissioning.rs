@@ -7,14 +7,18 @@
 //! and the pole pitch ([`CommissioningConfig`]); every level, voltage, duration and speed
 //! below is derived from those.
 //!
-//! ## Sequence (about 3.3 s, bounded: every phase has a fixed or capped length)
+//! ## Sequence (about 4.1 s, bounded: every phase has a fixed or capped length)
 //! 1. **Ramp and align** (mover free): the alpha voltage ramps from zero until the alpha
 //!    current reaches half the rated peak current `I_p`. The current pulls the magnet's
 //!    d axis onto alpha (the mover moves up to half a pole pitch). `U / I` at that point
 //!    is a rough resistance that tunes the slow integral current controllers of the DC
-//!    tests (crossover [`DC_LOOP_RAD_S`]). No current at the voltage limit, or a current
-//!    that does not follow the commanded direction: [`CommissioningError::OpenPhase`].
-//! 2. **DC sweep** on the alpha (d) axis at [`SWEEP_LEVELS`] from `I_p` down to `0.02 I_p`.
+//!    tests (crossover [`DC_LOOP_RAD_S`]), which then hold the current for 0.4 s while the
+//!    mover settles. No current at the voltage limit, or a mean current at the end of the
+//!    hold that is not on alpha: [`CommissioningError::OpenPhase`]; sample-to-sample jumps
+//!    of a fifth of the held current (no winding inductance smoothing the PWM):
+//!    [`CommissioningError::ShortedPhase`].
+//! 2. **DC sweep** on the alpha (d) axis at [`SWEEP_LEVELS`] levels from `I_p` down to
+//!    `0.005 I_p`.
 //!    With the alpha current `I` the phase currents are `I, -I/2, -I/2`, and the voltage
 //!    the controller needs is `U(I) = R_t I + 4/3 e(I)`, where `e(I)` is the per-phase
 //!    voltage error of the inverter (dead time and device threshold, saturating with the
@@ -22,11 +26,12 @@
 //!    saturated, gives the slope `R_t` (the difference between levels removes the drop)
 //!    and the intercept `4/3 e_sat`; each level then gives a point `e(I) = 3/4 (U - R_t I)`
 //!    of the voltage-error curve, whose half-amplitude current sets the compensation's
-//!    band. The drive's dead-time compensation ([`super::DeadTimeCompensation`]) is this
+//!    band (or, if the error has not fallen to half at the lowest level, the current
+//!    sensors' noise RMS). The drive's dead-time compensation ([`super::DeadTimeCompensation`]) is this
 //!    curve's model: amplitude `e_sat`, band from the curve.
 //! 3. **Ld, Lq at standstill** (mover free, held on d by a bias of `I_p / 2` on alpha): a
 //!    sinusoidal voltage at `f_pwm / 10` on alpha (Ld) and then on beta (Lq), its amplitude
-//!    raised per cycle until the current's reaches `I_p / 5` (below the bias, so no phase
+//!    raised per cycle until the current's reaches `I_p / 10` (below the bias, so no phase
 //!    current changes sign and the dead-time error stays constant). The demodulated
 //!    voltage and current phasors, with the one-period computation delay, fit the exact
 //!    discrete model of an R-L winding over one period, `i(k+1) = a i(k) + b u(k)` with
@@ -36,11 +41,13 @@
 //!    1 kHz, less with any carriage. A locked mover removes it.
 //! 4. **psi_f from an I/f run**: a current vector of `I_p / 2` (current loops on the
 //!    identified R and L, inverter compensation on) turned at a frequency ramped to
-//!    [`IF_FREQUENCY_HZ`]; the mover follows. Averaged over whole electrical periods in
-//!    the open-loop frame, `E = u - R i - j w Lq i` is `j w psi_a`, the active flux
+//!    [`IF_FREQUENCY_HZ`]; the mover follows. In the open-loop frame `E = u - R i - j w Lq
+//!    i` is `j w_m psi_a` with `w_m` the mover's own speed; the mover swings about the
+//!    vector (end-effect ripple, friction), so the mean of `|E|` over whole electrical
+//!    periods, divided by the vector's speed (the mover's mean), gives `psi_a`, the active flux
 //!    `psi_a = psi_f + (Ld - Lq) i_d` along the rotor's d axis: `psi_f = |E| / w - (Ld -
-//!    Lq) i_d`, with `i_d` the current's projection on `E / j`. Travel: about 14 pole
-//!    pitches (0.2 m on the paper motor). Then the frequency ramps down and the bridge
+//!    Lq) i_d`, with `i_d` the current's projection on `E / j`. Travel: about 20 pole
+//!    pitches (0.3 m on the paper motor). Then the frequency ramps down and the bridge
 //!    turns off.
 //!
 //! **Direction convention.** Positive speed is the direction the mover moves when the
@@ -80,9 +87,11 @@ use crate::motor::MotorParams;
 /// any electrical time constant up to 6 ms whatever the rough resistance's error).
 pub const DC_LOOP_RAD_S: f32 = 30.0;
 /// Number of DC sweep levels.
-pub const SWEEP_LEVELS: usize = 10;
-/// The DC sweep's levels as fractions of the rated peak current, descending.
-pub const SWEEP_FRACTIONS: [f32; SWEEP_LEVELS] = [1.0, 0.8, 0.6, 0.45, 0.3, 0.2, 0.12, 0.07, 0.04, 0.02];
+pub const SWEEP_LEVELS: usize = 12;
+/// The DC sweep's levels as fractions of the rated peak current, descending (the lowest,
+/// 0.5 %, is 15 mA on the paper motor: about one and a half noise sigmas of its sensors).
+pub const SWEEP_FRACTIONS: [f32; SWEEP_LEVELS] =
+    [1.0, 0.8, 0.6, 0.45, 0.3, 0.2, 0.12, 0.07, 0.04, 0.02, 0.01, 0.005];
 /// Levels at or above this fraction of rated peak current are in the straight-line fit.
 const FIT_FRACTION: f32 = 0.299;
 /// Electrical frequency of the I/f run, Hz.
@@ -153,7 +162,9 @@ pub enum CommissioningError {
     /// No current at the voltage limit, or a current that does not follow the commanded
     /// direction: a phase is open (or a sensor is missing).
     OpenPhase,
-    /// Resistance or inductance far below anything a motor of these ratings has: a short.
+    /// Resistance or inductance far below anything a motor of these ratings has, or a
+    /// held current that jumps from one sample to the next (nothing smooths the PWM): a
+    /// short.
     ShortedPhase,
     /// A phase current beyond 1.5 times the rated peak.
     RunawayCurrent,
@@ -262,6 +273,23 @@ impl CommissioningResult {
     }
 }
 
+impl CommissioningResult {
+    /// The identified motor as the board's flash record ([`crate::motor_image`]): the
+    /// motor of [`Self::motor`] and the nominal bus commissioning was told. The inverter
+    /// compensation has no field in image version 1 and is not stored.
+    pub fn motor_image(
+        &self,
+        config: &CommissioningConfig,
+        mass_kg: f32,
+        viscous_n_s_per_m: f32,
+    ) -> Result<crate::motor_image::MotorImage, crate::motor_image::MotorImageError> {
+        let motor = self
+            .motor(config, mass_kg, viscous_n_s_per_m)
+            .map_err(crate::motor_image::MotorImageError::Param)?;
+        crate::motor_image::MotorImage::new(motor, config.bus_v)
+    }
+}
+
 /// What one commissioning step asks for.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum CommissioningStep {
@@ -321,7 +349,11 @@ pub struct Commissioning {
     sum_u: f32,
     sum_i: f32,
     sum_vdc: f32,
+    sum_i2: f32,
     count: u32,
+    /// RMS noise of the alpha current, A (from the first sweep level).
+    noise_a: f32,
+    i_previous: f32,
     levels_u: [f32; SWEEP_LEVELS],
     levels_i: [f32; SWEEP_LEVELS],
     vdc_mean: f32,
@@ -353,6 +385,9 @@ pub struct Commissioning {
     if_count: u32,
     psi_f: f32,
 }
+
+// Variable limits are applied with `max` and `min`, not `f32::clamp`: clamp panics when its
+// bounds are NaN or crossed, which the optimiser cannot rule out (no image may link a panic).
 
 fn pos(x: f32) -> bool {
     x.is_finite() && x > 0.0
@@ -394,7 +429,10 @@ impl Commissioning {
             sum_u: 0.0,
             sum_i: 0.0,
             sum_vdc: 0.0,
+            sum_i2: 0.0,
             count: 0,
+            noise_a: 0.0,
+            i_previous: 0.0,
             levels_u: [0.0; SWEEP_LEVELS],
             levels_i: [0.0; SWEEP_LEVELS],
             vdc_mean: config.bus_v,
@@ -465,6 +503,7 @@ impl Commissioning {
         self.sum_u = 0.0;
         self.sum_i = 0.0;
         self.sum_vdc = 0.0;
+        self.sum_i2 = 0.0;
         self.count = 0;
     }
 
@@ -494,13 +533,22 @@ impl Commissioning {
         if self.n > self.steps(ALIGN_S - AVERAGE_S) {
             self.sum_i += i_alpha;
             self.sum_u += i_beta;
+            let d = i_alpha - self.i_previous;
+            self.sum_i2 += d * d;
             self.count += 1;
         }
+        self.i_previous = i_alpha;
         if self.n >= self.steps(ALIGN_S) {
             // Settled on alpha: a mean current that cannot be steered there means a phase
             // is open (with a, b or c open the vector is confined to one axis).
             let c = 1.0 / self.count.max(1) as f32;
             let (ia, ib) = (self.sum_i * c, self.sum_u * c);
+            // A winding smooths the PWM: from one valley sample to the next, a held DC
+            // current changes by its sensors' noise. Jumps of a fifth of the current mean
+            // an inductance far too small to be the motor's: a short.
+            if libm::sqrtf(0.5 * self.sum_i2 * c) > 0.2 * self.i_ref {
+                return Err(CommissioningError::ShortedPhase);
+            }
             if (ia - self.i_ref).abs() > 0.3 * self.i_ref || ib.abs() > 0.3 * self.i_ref {
                 return Err(CommissioningError::OpenPhase);
             }
@@ -525,6 +573,10 @@ impl Commissioning {
         if self.n > self.steps(SETTLE_S) {
             self.sum_u += self.u_alpha;
             self.sum_i += i_alpha;
+            // Sample-to-sample differences: twice the white noise's variance, blind to
+            // the loop's slow motion.
+            let d = i_alpha - self.i_previous;
+            self.sum_i2 += d * d;
             self.sum_vdc += vdc;
             self.count += 1;
         }
@@ -536,6 +588,7 @@ impl Commissioning {
             }
             if k == 0 {
                 self.vdc_mean = self.sum_vdc / c;
+                self.noise_a = libm::sqrtf(0.5 * self.sum_i2 / c);
             }
             if k + 1 < SWEEP_LEVELS {
                 self.i_ref = self.level(k + 1);
@@ -547,6 +600,7 @@ impl Commissioning {
                 self.start_hf();
             }
         }
+        self.i_previous = i_alpha;
         Ok(CommissioningStep::Apply(self.u_alpha, self.u_beta))
     }
 
@@ -577,9 +631,14 @@ impl Commissioning {
             *p = VoltageErrorPoint { current_a: i, error_v: 0.75 * (u - slope * i) };
         }
         // Band: twice the current at which the error reaches half its saturated value
-        // (interpolated between levels; the lowest level if it is already above half).
+        // (interpolated between levels). If the error is above half at the lowest level
+        // already, the switching is sharper than the sweep resolves (a DC current has no
+        // ripple): the band is then the current sensors' noise (RMS, measured at the
+        // first level from sample-to-sample differences),
+        // below which the sign of a measured current is uncertain; a wider band would
+        // leave the light-load currents of a running drive under-compensated.
         let half = 0.5 * self.e_sat;
-        let mut band = self.curve.last().map_or(0.0, |p| 2.0 * p.current_a);
+        let mut band = self.noise_a;
         for w in self.curve.windows(2) {
             if let [hi, lo] = w
                 && hi.error_v >= half
@@ -589,7 +648,7 @@ impl Commissioning {
                 band = 2.0 * (lo.current_a + t * (hi.current_a - lo.current_a));
             }
         }
-        self.band = band.max(0.002 * self.i_peak);
+        self.band = band.max(0.001 * self.i_peak);
         Ok(())
     }
 
