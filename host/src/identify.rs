@@ -18,11 +18,9 @@ use std::fmt::Write as _;
 
 use dcfo::drive::{
     CommissioningConfig, CommissioningError, CommissioningResult, Drive, DriveConfig, DriveState,
-    Measurements,
 };
 use dcfo::motor::MotorParams;
 use dcfo::observer::ObserverKind;
-use dcfo::transforms::Abc;
 use dcfo::units::Base;
 use serde::Serialize;
 
@@ -171,14 +169,7 @@ pub fn identify(
     let mut started = false;
     for _ in 0..n {
         let reading = plant.sample();
-        let m = Measurements {
-            i_abc: Abc {
-                a: reading.i_abc_a[0] as f32,
-                b: reading.i_abc_a[1] as f32,
-                c: reading.i_abc_a[2] as f32,
-            },
-            vdc: reading.vdc_v as f32,
-        };
+        let m = reading.measurements();
         let out = drive.step(&m);
         if pending_on {
             plant.step(pending, 0.0);
