@@ -22,8 +22,6 @@
 
 pub mod axis;
 
-use std::f64::consts::PI;
-
 use dcfo::drive::{Drive, DriveConfig, DriveState, Faults};
 use dcfo::link::SILENT_LINK_PERIODS;
 use dcfo::motor::MotorParams;
@@ -577,6 +575,3 @@ pub fn figure(result: &CaseResult, log: &[Period]) -> crate::plot::Figure {
         ],
     )
 }
-
-/// Electrical degrees per radian (for readers of the JSON).
-pub const DEG_PER_RAD: f64 = 180.0 / PI;
