@@ -156,6 +156,23 @@ mod tests {
     use super::*;
     use crate::motor::ParamFault;
 
+    /// Found by the fuzzer (`fuzz/fuzz_targets/motor_image.rs`, whose contract first
+    /// compared the CRC too): the reserved bytes are documented as 0 and not read, so a
+    /// record with other reserved bytes and its CRC over them is the same image (and
+    /// re-encodes with zeros, so with another CRC).
+    #[test]
+    fn reserved_bytes_are_not_read() {
+        let image = MotorImage::new(MotorParams::paper(), 24.0).unwrap();
+        let mut bytes = image.encode();
+        bytes[6] = 0x44;
+        bytes[7] = 0x43;
+        bytes[50..].fill(0xA5);
+        let crc = CRC16.checksum(&bytes[..CRC_AT]);
+        bytes[CRC_AT..CRC_AT + 2].copy_from_slice(&crc.to_le_bytes());
+        assert_eq!(MotorImage::decode(&bytes), Ok(image));
+        assert_ne!(image.encode()[CRC_AT..CRC_AT + 2], bytes[CRC_AT..CRC_AT + 2]);
+    }
+
     #[test]
     fn round_trips_and_matches_the_documented_layout() {
         let image = MotorImage::new(MotorParams::paper(), 24.0).unwrap();

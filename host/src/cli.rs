@@ -804,6 +804,19 @@ mod tests {
     }
 
     #[test]
+    fn faults_arguments_parse() {
+        let cli = Cli::try_parse_from(["dcfo", "faults", "--json", "--out", "x"]).unwrap();
+        let Command::Faults(a) = cli.command else { panic!("not faults") };
+        assert!(a.json);
+        assert_eq!(a.out, PathBuf::from("x"));
+        let Command::Faults(d) = Cli::try_parse_from(["dcfo", "faults"]).unwrap().command else {
+            panic!("not faults")
+        };
+        assert_eq!((d.json, d.out), (false, PathBuf::from("out/faults")));
+        assert!(Cli::try_parse_from(["dcfo", "faults", "--bogus"]).is_err());
+    }
+
+    #[test]
     fn every_option_has_help_with_units() {
         let mut cmd = Cli::command();
         for sub in ["replay", "paper", "sim"] {

@@ -23,7 +23,6 @@
 pub mod axis;
 
 use crate::sim::report::fault_names;
-use std::f64::consts::PI;
 
 use dcfo::drive::{Drive, DriveConfig, DriveState, Faults};
 use dcfo::link::SILENT_LINK_PERIODS;
@@ -560,6 +559,3 @@ pub fn figure(result: &CaseResult, log: &[Period]) -> crate::plot::Figure {
         ],
     )
 }
-
-/// Electrical degrees per radian (for readers of the JSON).
-pub const DEG_PER_RAD: f64 = 180.0 / PI;
