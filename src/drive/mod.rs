@@ -211,6 +211,17 @@ struct Constants<T> {
     inv_omega_base: f32,
     /// One electrical turn, m (two pole pitches).
     metres_per_turn: f32,
+    /// Winding resistance (ohm, working units) and `1 / psi_f` (1/Wb, working units):
+    /// the mover's speed read from the voltage during the I/f start.
+    rs: T,
+    inv_psi_f: T,
+    /// I/f damping: the vector is retarded by `k dw_e` (rad) with
+    /// `k = startup_damping_s_sqrt_a / sqrt(|I|)` (s, `|I|` in A), damping ratio 0.7
+    /// of the vector's spring on the moving mass (see [`Drive::startup_references`]).
+    startup_damping_s_sqrt_a: f32,
+    /// Per-period rate of the low-pass on the mover's speed error during the I/f
+    /// start: five times the spring's natural frequency at the start-up current.
+    startup_speed_filter_rate: f32,
 }
 
 /// The drive. See the module documentation.
@@ -268,6 +279,9 @@ pub struct Drive<T> {
     /// Consecutive periods with the current loops' voltage on its limit and the current
     /// off its reference (current-control supervision).
     current_error_count: u32,
+    /// During the I/f start: the mover's electrical speed less the open-loop speed,
+    /// low-passed (rad/s, SI), read from the d voltage.
+    startup_speed_error_rad_s: f32,
 }
 
 /// `x` as a working value, or the configuration error naming `field` when the numeric
@@ -368,6 +382,18 @@ impl<T: Scalar> Drive<T> {
             inv_dt: representable(1.0 / base.time::<f32>(ts), "control_period_s")?,
             inv_omega_base: 1.0 / base.omega_rad_s,
             metres_per_turn: 2.0 * motor.pole_pitch_m,
+            rs: base.resistance(motor.rs_ohm),
+            inv_psi_f: T::from_f32(1.0 / base.flux::<f32>(motor.psi_f_wb)),
+            // The I/f vector is a spring of stiffness K_f I pi/tau (N/m) on the moving
+            // mass: natural frequency w_n = sqrt(K_f I pi / (tau M)). Retarding the
+            // vector by k dw_e (rad) gives a force -K_f I k dw_e against the swing:
+            // damping ratio 0.7 for k = 1.4 / w_n = 1.4 sqrt(M tau / (K_f pi)) / sqrt(I).
+            startup_damping_s_sqrt_a: 1.4
+                * libm::sqrtf(config.moving_mass_kg / (motor.thrust_constant_n_per_a() * omega_per_speed)),
+            startup_speed_filter_rate: {
+                let stiffness = motor.thrust_constant_n_per_a() * config.startup.current_a * omega_per_speed;
+                (5.0 * libm::sqrtf(stiffness / config.moving_mass_kg) * ts).min(1.0)
+            },
         };
         let positioning = config.motion.map(|m| -> Result<Positioning<T>, DriveConfigError> {
             // A profile the motor cannot follow is refused: the acceleration of the
@@ -472,6 +498,7 @@ impl<T: Scalar> Drive<T> {
             commissioning: None,
             commissioning_outcome: None,
             current_error_count: 0,
+            startup_speed_error_rad_s: 0.0,
         })
     }
 
@@ -773,6 +800,7 @@ impl<T: Scalar> Drive<T> {
         self.u_prev = AlphaBeta::default();
         self.u_prev2 = AlphaBeta::default();
         self.current_error_count = 0;
+        self.startup_speed_error_rad_s = 0.0;
         if self.positioning.is_some() {
             self.start_positioning();
         }
@@ -899,7 +927,26 @@ impl<T: Scalar> Drive<T> {
         } else {
             (self.omega_ol - step).max(target)
         };
-        let theta = self.theta_ol;
+        // Damping: the vector drags the mover on a spring (stiffness K_f I pi/tau) that
+        // nothing but friction damps, so the mover swings about the open-loop speed (a
+        // bare paper mover between 0.1 and 0.4 m/s about 0.25 m/s) and can be where
+        // friction stops it when the speed loop takes over. The mover's speed from the
+        // d voltage of the last step: the vector lies on q, the mover's flux near it
+        // (90 deg at no load), so its back-EMF lies on -d,
+        // u_d = Rs i_d - w_ol Lq i_q - w psi_f; the inverter's error lies along the
+        // current (q), so u_d is clean. The vector trails the open-loop angle by
+        // k (w - w_ol) with k from the spring's natural frequency (damping ratio 0.7).
+        let i = self.i_dq_measured;
+        let omega_mover = -(self.u_dq_last.d - k.rs * i.d + self.omega_ol * k.lq * i.q) * k.inv_psi_f;
+        let error_rad_s = (omega_mover - self.omega_ol).to_f32() * k.base.omega_rad_s;
+        if error_rad_s.is_finite() {
+            self.startup_speed_error_rad_s +=
+                k.startup_speed_filter_rate * (error_rad_s - self.startup_speed_error_rad_s);
+        }
+        let amplitude_a = self.i_dq_ref.q.abs().to_f32() * k.base.current_a;
+        let damping_s = k.startup_damping_s_sqrt_a / Scalar::sqrt(amplitude_a.max(1e-3));
+        let retard = (damping_s * self.startup_speed_error_rad_s).clamp(-0.5, 0.5);
+        let theta = self.theta_ol - retard.radians_to_angle();
         self.theta_ol = self.theta_ol + (self.omega_ol * k.dt).radians_to_angle();
         if self.omega_ol != target || self.omega_target == T::ZERO {
             return (theta, self.omega_ol);
@@ -936,10 +983,11 @@ impl<T: Scalar> Drive<T> {
         self.i_dq_ref = i_ref;
         self.omega_ref = estimate.omega_e;
         self.omega_filtered = estimate.omega_e;
-        // The start-up vector's q part in the estimated frame is mostly an artefact of
-        // the angle error (|I| sin e) and of the undamped I/f swing: the speed controller
-        // starts from zero and the d-axis current is ramped out.
-        self.pi_speed.reset();
+        // The speed controller starts from the start-up vector's thrust part in the
+        // estimated frame (|I| sin e, e the vector's lead on the mover: what was pulling
+        // the mover along, against friction and load), so the mover is not let go at
+        // the hand-over; the d-axis current is ramped out.
+        self.pi_speed.preset(i_ref.q, T::ZERO);
         self.state = DriveState::Running;
         self.counter = 0;
         self.speed_divider_count = 0;
