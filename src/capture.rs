@@ -113,7 +113,16 @@ impl CaptureSample {
             psi_alpha_hat: f(words[7]),
             psi_beta_hat: f(words[8]),
         };
-        let floats = [s.u_alpha, s.u_beta, s.i_alpha, s.i_beta, s.alpha_e_ref, s.v_hat, s.psi_alpha_hat, s.psi_beta_hat];
+        let floats = [
+            s.u_alpha,
+            s.u_beta,
+            s.i_alpha,
+            s.i_beta,
+            s.alpha_e_ref,
+            s.v_hat,
+            s.psi_alpha_hat,
+            s.psi_beta_hat,
+        ];
         floats.iter().all(|x| x.is_finite()).then_some(s)
     }
 }

@@ -367,7 +367,8 @@ mod tests {
         }
         let s = m.state();
         let e_kin = 0.5 * f64::from(mass * s.v_m_per_s * s.v_m_per_s);
-        let e_mag = 0.75 * f64::from(motor.ld_h * s.i_dq_a.d * s.i_dq_a.d + motor.lq_h * s.i_dq_a.q * s.i_dq_a.q);
+        let e_mag =
+            0.75 * f64::from(motor.ld_h * s.i_dq_a.d * s.i_dq_a.d + motor.lq_h * s.i_dq_a.q * s.i_dq_a.q);
         let out = e_cu + e_visc + e_kin + e_mag;
         assert!(s.v_m_per_s > 0.1, "the mover moved: {s:?}");
         assert!((e_in - out).abs() < 0.01 * e_in, "in {e_in} J, out {out} J (cu {e_cu}, kin {e_kin})");

@@ -375,7 +375,8 @@ mod tests {
             periods: 123_456,
         };
         assert_eq!(round_trip(t), t);
-        let s = CaptureSample { u_alpha: 3.0, theta_hat: Angle::from_bits(99), v_hat: 0.3, ..Default::default() };
+        let s =
+            CaptureSample { u_alpha: 3.0, theta_hat: Angle::from_bits(99), v_hat: 0.3, ..Default::default() };
         let mut samples = [CaptureSample::default(); CAPTURE_CHUNK_SAMPLES];
         samples[0] = s;
         samples[1] = s;
