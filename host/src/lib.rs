@@ -10,6 +10,7 @@ pub mod identify;
 pub mod motor_file;
 pub mod plant;
 pub mod plot;
+pub mod qemu;
 pub mod replay;
 pub mod scenario_file;
 pub mod sim;
