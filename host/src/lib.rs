@@ -3,6 +3,7 @@
 #![deny(missing_docs)]
 
 pub mod acquire;
+pub mod board;
 pub mod cli;
 pub mod faults;
 pub mod hil;
