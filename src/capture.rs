@@ -90,7 +90,7 @@ impl CaptureSample {
         ];
         let mut out = [0u8; Self::WIRE_LEN];
         for (chunk, w) in out.chunks_exact_mut(4).zip(words) {
-            chunk.copy_from_slice(&w.to_le_bytes());
+            chunk.iter_mut().zip(w.to_le_bytes()).for_each(|(d, s)| *d = s);
         }
         out
     }

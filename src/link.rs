@@ -599,7 +599,9 @@ impl<'a> Writer<'a> {
     fn bytes(&mut self, bytes: &[u8]) {
         let end = self.pos.saturating_add(bytes.len());
         match self.buf.get_mut(self.pos..end) {
-            Some(dst) => dst.copy_from_slice(bytes),
+            // Element by element: the lengths are equal, but `copy_from_slice`'s length
+            // check is a panic path the optimiser cannot always remove (`.ci/no-panic`).
+            Some(dst) => dst.iter_mut().zip(bytes).for_each(|(d, s)| *d = *s),
             None => self.fits = false,
         }
         self.pos = end;
