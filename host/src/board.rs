@@ -62,6 +62,8 @@ pub struct BoardLink<W: Write> {
     sequence: u16,
     /// Frames dropped: not a board-link answer (e.g. the image's banner), bad COBS or CRC.
     pub dropped_frames: u64,
+    /// Why the last frame was dropped.
+    pub last_drop: Option<LinkError>,
     /// Answers that came for another command than the one awaited (dropped).
     pub stale_answers: u64,
     /// Commands answered.
@@ -100,6 +102,7 @@ impl<W: Write> BoardLink<W> {
             frame: Vec::new(),
             sequence: 0,
             dropped_frames: 0,
+            last_drop: None,
             stale_answers: 0,
             round_trips: 0,
         }
@@ -151,11 +154,16 @@ impl<W: Write> BoardLink<W> {
                 }
             }
             if Instant::now() >= deadline {
+                let why = match self.last_drop {
+                    Some(e) => format!("; {} frames dropped, the last for: {e}", self.dropped_frames),
+                    None => {
+                        String::from("; nothing received (a drive image with the board link on this port?)")
+                    }
+                };
                 bail!(
-                    "board link: no answer to command {} within {} s ({} frames dropped)",
+                    "board link: no answer to command {} within {} s{why}",
                     command.sequence,
-                    ANSWER_TIMEOUT.as_secs(),
-                    self.dropped_frames
+                    ANSWER_TIMEOUT.as_secs()
                 );
             }
         }
@@ -176,7 +184,10 @@ impl<W: Write> BoardLink<W> {
             }
             match decode_answer(&mut frame) {
                 Ok(answer) => return Some(answer),
-                Err(_) => self.dropped_frames += 1,
+                Err(e) => {
+                    self.dropped_frames += 1;
+                    self.last_drop = Some(e);
+                }
             }
         }
         None
@@ -743,5 +754,42 @@ mod tests {
         assert_eq!(decode_answer(&mut wire[..n - 1].to_vec()), Ok(Answer::Telemetry(t)));
         let mut banner = b"dcfo-firmware qemu_drive".to_vec();
         assert!(decode_answer(&mut banner).is_err());
+    }
+
+    /// An image that answers only garbage: the error names the command, the wait and
+    /// why the last frame was dropped.
+    #[test]
+    fn no_answer_is_an_error_naming_the_last_bad_frame() {
+        let (ours, mut theirs) = std::os::unix::net::UnixStream::pair().unwrap();
+        let reader = ours.try_clone().unwrap();
+        let t = BoardTelemetry {
+            sequence: 1,
+            state: DriveState::Disabled,
+            faults: Faults::NONE,
+            bridge_enabled: false,
+            estimate: None,
+            i_ab_a: [0.0; 2],
+            vdc_v: 24.0,
+            speed_ref: 0.0,
+            capture: CaptureState::Idle,
+            capture_len: 0,
+            capture_capacity: 128,
+            periods: 0,
+        };
+        let mut wire = [0u8; 64];
+        let n = dcfo::link::encode(&t, &mut wire).unwrap();
+        // One bit of the payload flipped under a valid COBS encoding: the CRC fails.
+        let raw_len = dcfo::link::cobs::decode_in_place(&mut wire[..n - 1]).unwrap();
+        wire[5] ^= 0x01;
+        let mut corrupted = [0u8; 64];
+        let m = dcfo::link::cobs::encode(&wire[..raw_len], &mut corrupted).unwrap();
+        theirs.write_all(b"banner\0").unwrap();
+        theirs.write_all(&corrupted[..m]).unwrap();
+        theirs.write_all(&[0]).unwrap();
+        let mut board = Board::new(BoardLink::new(ours, reader));
+        let e = board.poll(false, false).unwrap_err().to_string();
+        assert!(e.contains("no answer to command 1 within 5 s"), "{e}");
+        assert!(e.contains("2 frames dropped, the last for: CRC mismatch"), "{e}");
+        drop(theirs);
     }
 }
