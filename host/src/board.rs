@@ -17,6 +17,7 @@
 use std::collections::VecDeque;
 use std::io::{BufRead, Read, Write};
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
@@ -42,6 +43,23 @@ pub const ANSWER_TIMEOUT: Duration = Duration::from_secs(5);
 pub const POLL_PERIOD: Duration = Duration::from_millis(50);
 /// The control period of the drive images, s (10 kHz).
 pub const CONTROL_PERIOD_S: f64 = 1e-4;
+
+/// Set by Ctrl-C (SIGINT, SIGTERM) once [`catch_interrupt`] has installed the handler.
+static INTERRUPTED: AtomicBool = AtomicBool::new(false);
+
+/// Makes Ctrl-C end `dcfo board` cleanly: the interactive mode and the demo see it at
+/// their next poll, disable the drive and exit. Without it the process would die at
+/// once and the image's watchdog would switch the bridge off 0.5 s later.
+///
+/// # Errors
+/// The handler could not be installed (e.g. one was already).
+pub fn catch_interrupt() -> anyhow::Result<()> {
+    ctrlc::set_handler(|| INTERRUPTED.store(true, Ordering::SeqCst)).context("installing the Ctrl-C handler")
+}
+
+fn interrupted() -> bool {
+    INTERRUPTED.load(Ordering::SeqCst)
+}
 
 /// One answer of the drive image.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -532,6 +550,14 @@ pub fn run_demo(
                 let _ = board.disable();
                 bail!("the drive tripped: {}", fault_names(t.faults));
             }
+            if interrupted() {
+                let t = board.disable()?;
+                bail!(
+                    "interrupted: drive {:?}, bridge {}",
+                    t.state,
+                    if t.bridge_enabled { "on" } else { "off" }
+                );
+            }
             std::thread::sleep(POLL_PERIOD);
             t = board.poll(false, false)?;
             if state_rank(t.state) > state_rank(best) {
@@ -653,7 +679,8 @@ pub fn parse_typed(line: &str) -> Result<Typed, String> {
 }
 
 /// `dcfo board` without `--demo`: live state on stderr at [`POLL_PERIOD`], commands read
-/// line by line from stdin; `q` or the end of the input disables the drive and exits.
+/// line by line from stdin; `q`, the end of the input or Ctrl-C (with
+/// [`catch_interrupt`]) disables the drive and exits.
 ///
 /// # Errors
 /// The link failed (the image's watchdog then disables the drive within 0.5 s).
@@ -689,6 +716,11 @@ pub fn run_interactive(target: &Target, record: Option<&Path>) -> anyhow::Result
                 downloaded = true;
             }
             std::thread::sleep(POLL_PERIOD);
+            if interrupted() {
+                let t = board.disable()?;
+                eprintln!("\r{}\x1b[K\ninterrupted: drive disabled", status_line(&t));
+                return Ok(());
+            }
             while let Ok(line) = typed.try_recv() {
                 if line.trim().is_empty() {
                     continue;

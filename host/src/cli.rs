@@ -696,6 +696,7 @@ pub fn run_board(args: &BoardArgs) -> anyhow::Result<()> {
     if !args.speed.is_finite() {
         bail!("--speed must be a finite number of m/s");
     }
+    crate::board::catch_interrupt()?;
     if !args.demo {
         return run_interactive(&target, args.record.as_deref());
     }

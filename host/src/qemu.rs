@@ -9,6 +9,7 @@
 
 use crate::sim::{Controller, SimError};
 use std::io::Write;
+use std::os::unix::process::CommandExt;
 use std::path::{Path, PathBuf};
 use std::process::{Child, ChildStdin, ChildStdout, Command, Stdio};
 
@@ -107,6 +108,9 @@ impl QemuSession {
             .stdin(Stdio::piped())
             .stdout(Stdio::piped())
             .stderr(Stdio::inherit())
+            // Its own process group: a Ctrl-C at the terminal goes to the host tool, which
+            // disables the drive through QEMU before it stops it (`dcfo board`).
+            .process_group(0)
             .spawn()
             .map_err(|e| {
                 SimError::Controller(format!(
