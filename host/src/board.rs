@@ -41,6 +41,9 @@ pub const RESEND_AFTER: Duration = Duration::from_millis(500);
 pub const ANSWER_TIMEOUT: Duration = Duration::from_secs(5);
 /// Telemetry poll period of the live display and the demo: 20 Hz.
 pub const POLL_PERIOD: Duration = Duration::from_millis(50);
+/// Capture chunks downloaded between two polls of the live display (about 0.1 s on
+/// QEMU).
+pub const DOWNLOAD_SLICE_CHUNKS: u32 = 40;
 /// The control period of the drive images, s (10 kHz).
 pub const CONTROL_PERIOD_S: f64 = 1e-4;
 
@@ -280,7 +283,25 @@ impl<W: Write> Board<W> {
     /// The link failed, the capture is not finished, or a chunk is not the one asked for.
     pub fn download_capture(&mut self, len: u32) -> anyhow::Result<Vec<CaptureSample>> {
         let mut samples = Vec::with_capacity(len as usize);
-        while (samples.len() as u32) < len {
+        self.download_more(&mut samples, len, u32::MAX)?;
+        Ok(samples)
+    }
+
+    /// Appends the finished capture's next samples to `samples`, at most `chunks`
+    /// commands' worth, up to `len` in all (for a live display that keeps polling
+    /// between slices of a download).
+    ///
+    /// # Errors
+    /// As [`Board::download_capture`].
+    pub fn download_more(
+        &mut self,
+        samples: &mut Vec<CaptureSample>,
+        len: u32,
+        chunks: u32,
+    ) -> anyhow::Result<()> {
+        let mut asked = 0;
+        while (samples.len() as u32) < len && asked < chunks {
+            asked += 1;
             let first = samples.len() as u32;
             match self.link.exchange(self.command(false, false, first))? {
                 Answer::Chunk(c) if c.first == first && c.count > 0 => samples.extend_from_slice(c.valid()),
@@ -297,7 +318,7 @@ impl<W: Write> Board<W> {
             }
         }
         samples.truncate(len as usize);
-        Ok(samples)
+        Ok(())
     }
 
     /// Disables the drive and waits (at most 2 s) until it reports so.
@@ -488,6 +509,13 @@ pub trait BoardOps {
     fn poll(&mut self, clear_faults: bool, arm_capture: bool) -> anyhow::Result<BoardTelemetry>;
     /// See [`Board::download_capture`].
     fn download_capture(&mut self, len: u32) -> anyhow::Result<Vec<CaptureSample>>;
+    /// See [`Board::download_more`].
+    fn download_more(
+        &mut self,
+        samples: &mut Vec<CaptureSample>,
+        len: u32,
+        chunks: u32,
+    ) -> anyhow::Result<()>;
     /// See [`Board::disable`].
     fn disable(&mut self) -> anyhow::Result<BoardTelemetry>;
     /// The wish sent with every command.
@@ -502,6 +530,14 @@ impl<W: Write> BoardOps for Board<W> {
     }
     fn download_capture(&mut self, len: u32) -> anyhow::Result<Vec<CaptureSample>> {
         Board::download_capture(self, len)
+    }
+    fn download_more(
+        &mut self,
+        samples: &mut Vec<CaptureSample>,
+        len: u32,
+        chunks: u32,
+    ) -> anyhow::Result<()> {
+        Board::download_more(self, samples, len, chunks)
     }
     fn disable(&mut self) -> anyhow::Result<BoardTelemetry> {
         Board::disable(self)
@@ -703,6 +739,7 @@ pub fn run_interactive(target: &Target, record: Option<&Path>) -> anyhow::Result
         let mut clear = false;
         let mut arm = record.is_some();
         let mut downloaded = false;
+        let mut samples = Vec::new();
         loop {
             let t = board.poll(std::mem::take(&mut clear), std::mem::take(&mut arm))?;
             eprint!("\r{}\x1b[K", status_line(&t));
@@ -710,10 +747,16 @@ pub fn run_interactive(target: &Target, record: Option<&Path>) -> anyhow::Result
                 && t.capture == CaptureState::Done
                 && !downloaded
             {
-                let samples = board.download_capture(t.capture_len)?;
-                write_capture_trace(path, &samples, CONTROL_PERIOD_S)?;
-                eprintln!("\ncapture: {} samples written to {}", samples.len(), path.display());
-                downloaded = true;
+                // A slice at a time (about 0.1 s), so that the display and the keys stay
+                // live while a long capture downloads.
+                board.download_more(&mut samples, t.capture_len, DOWNLOAD_SLICE_CHUNKS)?;
+                eprint!(" | download {}/{}", samples.len(), t.capture_len);
+                if samples.len() as u32 >= t.capture_len {
+                    write_capture_trace(path, &samples, CONTROL_PERIOD_S)?;
+                    eprintln!("\ncapture: {} samples written to {}", samples.len(), path.display());
+                    downloaded = true;
+                    samples.clear();
+                }
             }
             std::thread::sleep(POLL_PERIOD);
             if interrupted() {
@@ -733,6 +776,7 @@ pub fn run_interactive(target: &Target, record: Option<&Path>) -> anyhow::Result
                     Ok(Typed::Record) => {
                         arm = true;
                         downloaded = false;
+                        samples.clear();
                         if record.is_none() {
                             eprintln!("\n(no --record FILE: the capture will not be downloaded)");
                         }
