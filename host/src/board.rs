@@ -762,7 +762,7 @@ pub fn run_interactive(target: &Target, record: Option<&Path>) -> anyhow::Result
             if interrupted() {
                 let t = board.disable()?;
                 eprintln!("\r{}\x1b[K\ninterrupted: drive disabled", status_line(&t));
-                return Ok(());
+                return finish_download(board, record, &mut samples, &t);
             }
             while let Ok(line) = typed.try_recv() {
                 if line.trim().is_empty() {
@@ -784,13 +784,31 @@ pub fn run_interactive(target: &Target, record: Option<&Path>) -> anyhow::Result
                     Ok(Typed::Quit) => {
                         let t = board.disable()?;
                         eprintln!("\r{}\x1b[K\ndrive disabled", status_line(&t));
-                        return Ok(());
+                        return finish_download(board, record, &mut samples, &t);
                     }
                     Err(e) => eprintln!("\n{e}"),
                 }
             }
         }
     })
+}
+
+/// On the way out, with the drive already disabled: a capture download under way is
+/// completed and written (the samples of a finished capture do not change).
+fn finish_download(
+    board: &mut dyn BoardOps,
+    record: Option<&Path>,
+    samples: &mut Vec<CaptureSample>,
+    t: &BoardTelemetry,
+) -> anyhow::Result<()> {
+    let Some(path) = record else { return Ok(()) };
+    if samples.is_empty() || t.capture != CaptureState::Done {
+        return Ok(());
+    }
+    board.download_more(samples, t.capture_len, u32::MAX)?;
+    write_capture_trace(path, samples, CONTROL_PERIOD_S)?;
+    eprintln!("capture: {} samples written to {}", samples.len(), path.display());
+    Ok(())
 }
 
 #[cfg(test)]
