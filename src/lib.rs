@@ -21,6 +21,8 @@
 //! | [`estimator`] | §4–5 | observer + PLL as the drive and trace replay run them |
 //! | [`drive`] | §5 | the control step: FOC loop, I/f start-up, protection state machine |
 //! | [`link`] | — | hardware-in-the-loop serial protocol: sensor and actuation frames, COBS + CRC-16, receiver, watchdog |
+//! | [`capture`] | — | the drive's triggered full-rate capture (estimator inputs and estimates), replayable bit for bit |
+//! | [`virtual_motor`] | — | a PMSLM and an averaged inverter in `f32`, for a drive image to run closed loop on no hardware |
 //!
 //! ## Numbers
 //! Every algorithm is generic over [`num::Scalar`] and instantiated three times: `f32`
@@ -40,6 +42,7 @@
 #![forbid(unsafe_code)]
 #![deny(missing_docs)]
 
+pub mod capture;
 pub mod drive;
 pub mod estimator;
 pub mod fll;
@@ -54,3 +57,4 @@ pub mod pll;
 pub mod svpwm;
 pub mod transforms;
 pub mod units;
+pub mod virtual_motor;

@@ -7,10 +7,14 @@
 //!   triggers the injected ADC conversions of the three shunt currents and the bus
 //!   voltage at the carrier valley; the end of conversion raises `ADC1_2`, the control
 //!   interrupt. Pins and peripherals: `dcfo_firmware::board::b_g431b_esc1`.
-//! - USART2 (the ST-LINK virtual COM port, 921600 8N1) takes commands and carries
-//!   telemetry, both as `dcfo::link` frames: a `SensorFrame` from the host sets enable,
-//!   clear-faults and the speed reference (its measurement fields are ignored: the board
-//!   measures itself); an `ActuationFrame` goes out every 100 periods (100 Hz).
+//! - USART2 (the ST-LINK virtual COM port, 921600 8N1) speaks the board link
+//!   (`dcfo::link::board`, `dcfo board --port`): each `BoardCommand` from the host sets
+//!   enable, clear-faults and the speed reference, may arm the capture, and is answered
+//!   with a `BoardTelemetry` (state, faults, estimate, currents, bus) or, for a finished
+//!   capture, a `CaptureChunk`.
+//! - A capture of [`CAPTURE_SAMPLES`] full-rate samples (u_αβ, i_αβ, the estimates) from
+//!   the estimator's start, filled in the control interrupt (`dcfo::capture`): 12.8 ms,
+//!   what keeps the static RAM within the 8 KiB goal.
 //! - defmt over RTT logs state changes and faults (`probe-rs run` shows them).
 //! - Nothing in the image can panic (`.ci/no-panic`). An initialisation that cannot
 //!   complete, a HardFault (e.g. a stack overflow, which flip-link turns into one) and the
@@ -18,9 +22,9 @@
 //!
 //! | context | priority | work | budget |
 //! |---|---|---|---|
-//! | `ADC1_2` (end of injected conversions) | 0x00, highest | `ControlLoop::step`: sample, `Drive::step`, duties / bridge, telemetry record into the queue | one PWM period, 100 µs = 17,000 cycles at 170 MHz; the f32 step is about 1220 instructions on QEMU's Cortex-M4F (`bench_qemu`) |
+//! | `ADC1_2` (end of injected conversions) | 0x00, highest | `ControlLoop::period`: sample, `Drive::step`, duties / bridge; `Capture::record`, `DriveStatus::update` | one PWM period, 100 µs = 17,000 cycles at 170 MHz; the f32 step is about 1220 instructions on QEMU's Cortex-M4F (`bench_qemu`) |
 //! | SysTick, every 10 ms | 0x80 | stall check: control periods still counting, else bridge off | a load, a swap and a compare (not measured) |
-//! | thread | — | commands in, telemetry out, command watchdog, LED, defmt | — |
+//! | thread | — | board link (`BoardLinkServer`: commands in, one answer each), command watchdog, LED, defmt | — |
 //!
 //! Command watchdog: while enabled, if no valid command frame arrives for 0.5 s the
 //! drive is disabled (bridge off). Stall check: if the control interrupt stops coming for
@@ -46,8 +50,10 @@ mod firmware {
     use cortex_m::peripheral::scb::SystemHandler;
     use cortex_m::peripheral::syst::SystClkSource;
     use cortex_m_rt::{entry, exception};
+    use dcfo::capture::Capture;
     use dcfo::drive::{Drive, DriveConfig, DriveState};
-    use dcfo::link::{ActuationFrame, Receiver, SensorFrame, encode};
+    use dcfo::link::board::{BoardTelemetry, CaptureChunk};
+    use dcfo::link::encode;
     use dcfo::observer::ObserverKind;
     use dcfo::units::Base;
     use dcfo_firmware::board::b_g431b_esc1::{
@@ -55,8 +61,8 @@ mod firmware {
         Esc1Sensors, StatusLed,
     };
     use dcfo_firmware::board::{PhaseSample, PhaseSensors, PowerStage};
+    use dcfo_firmware::board_link::{BoardAnswer, BoardLinkServer, DriveStatus, answer};
     use dcfo_firmware::control::{ControlLoop, Setpoints};
-    use dcfo_firmware::queue::{Producer, Queue};
     use dcfo_firmware::stack;
     use embedded_hal::digital::OutputPin;
     use embedded_io::Write as _;
@@ -64,12 +70,11 @@ mod firmware {
 
     /// USART2 rate, bit/s (the host's `--baud` default).
     const BAUD: u32 = 921_600;
-    /// Control periods per telemetry record (100 Hz at 10 kHz).
-    const TELEMETRY_EVERY: u16 = 100;
+    /// Capture capacity, samples (36 B each: 4.6 KB), 12.8 ms at 10 kHz: what keeps the
+    /// image's static RAM within the board's 8 KiB goal (README, "Cost on the target").
+    pub const CAPTURE_SAMPLES: usize = 128;
     /// Control periods without a command frame after which a running drive is disabled.
     const COMMAND_TIMEOUT_PERIODS: u32 = DEFAULT_PWM_HZ / 2;
-    /// Telemetry records buffered between the interrupt and the thread.
-    const TELEMETRY_QUEUE: usize = 8;
     /// Rate of the stall check in SysTick (Hz): every 10 ms.
     const STALL_CHECK_HZ: u32 = 100;
     /// Stall checks in a row without a control period after which the bridge goes off for
@@ -111,10 +116,13 @@ mod firmware {
     struct Control {
         control: ControlLoop<f32>,
         bridge: Bridge,
-        telemetry: Producer<'static, ActuationFrame, TELEMETRY_QUEUE>,
     }
 
     static CONTROL: Mutex<RefCell<Option<Control>>> = Mutex::new(RefCell::new(None));
+    /// The capture and the last step's status, filled by the control interrupt, read by
+    /// the thread (both in critical sections); constant-initialised in place.
+    static CAPTURE: Mutex<RefCell<Capture<CAPTURE_SAMPLES>>> = Mutex::new(RefCell::new(Capture::new()));
+    static STATUS: Mutex<RefCell<DriveStatus>> = Mutex::new(RefCell::new(DriveStatus::new()));
     static SETPOINTS: Setpoints = Setpoints::new();
     /// Control periods run (the thread's time base).
     static PERIODS: AtomicU32 = AtomicU32::new(0);
@@ -189,17 +197,11 @@ mod firmware {
         defmt::info!("current offsets (counts): {}", sensors.current_offsets());
         defmt::info!("bus at rest: {} V", sensors.sample().vdc_v);
 
-        let Some(queue) = cortex_m::singleton!(: Queue<ActuationFrame, TELEMETRY_QUEUE> = Queue::new())
-        else {
-            halt(&mut led, "telemetry queue taken twice")
-        };
-        let (producer, mut consumer) = queue.split();
         let installed = free(|cs| match CONTROL.borrow(cs).try_borrow_mut() {
             Ok(mut slot) => {
                 *slot = Some(Control {
-                    control: ControlLoop::new(drive, TELEMETRY_EVERY),
+                    control: ControlLoop::new(drive, u16::MAX),
                     bridge: Bridge { sensors, power },
-                    telemetry: producer,
                 });
                 true
             }
@@ -225,35 +227,42 @@ mod firmware {
         cp.SYST.enable_interrupt();
         cp.SYST.enable_counter();
 
-        let mut commands = Receiver::<SensorFrame>::new();
-        let mut last_command = PERIODS.load(Ordering::Relaxed);
+        let mut server = BoardLinkServer::new(COMMAND_TIMEOUT_PERIODS);
         let mut last_state = DriveState::Disabled;
-        let mut wire = [0u8; ActuationFrame::WIRE_LEN];
+        let mut wire = [0u8; CaptureChunk::WIRE_LEN];
         loop {
-            // Commands: the frame's flags and speed reference.
+            // Commands in, one answer each (telemetry, or capture samples).
             while let Ok(Some(byte)) = uart.try_read_byte() {
-                if let Some(Ok(frame)) = commands.push(byte) {
-                    if frame.clear_faults {
-                        SETPOINTS.request_clear_faults();
-                    }
-                    SETPOINTS.set_enable(frame.enable);
-                    SETPOINTS.set_speed_m_per_s(frame.speed_ref);
-                    last_command = PERIODS.load(Ordering::Relaxed);
-                }
-            }
-            let now = PERIODS.load(Ordering::Relaxed);
-            if now.wrapping_sub(last_command) > COMMAND_TIMEOUT_PERIODS {
-                SETPOINTS.set_enable(false);
-            }
-            // Telemetry out, state changes logged.
-            while let Some(record) = consumer.dequeue() {
-                if record.state != last_state {
-                    defmt::info!("state {} -> {}, faults {}", last_state, record.state, record.faults);
-                    last_state = record.state;
-                }
-                if let Some(bytes) = encode(&record, &mut wire).ok().and_then(|n| wire.get(..n)) {
+                let periods = PERIODS.load(Ordering::Relaxed);
+                let Some(command) = server.on_byte(byte, &SETPOINTS, periods) else { continue };
+                let reply =
+                    free(|cs| match (CAPTURE.borrow(cs).try_borrow_mut(), STATUS.borrow(cs).try_borrow()) {
+                        (Ok(mut capture), Ok(status)) => {
+                            Some(answer(&command, &mut capture, &status, &SETPOINTS))
+                        }
+                        _ => None,
+                    });
+                let encoded = match reply {
+                    Some(BoardAnswer::Telemetry(t)) => encode::<BoardTelemetry>(&t, &mut wire),
+                    Some(BoardAnswer::Chunk(c)) => encode::<CaptureChunk>(&c, &mut wire),
+                    None => continue,
+                };
+                if let Some(bytes) = encoded.ok().and_then(|n| wire.get(..n)) {
                     let _ = uart.write_all(bytes);
                 }
+            }
+            server.watchdog(&SETPOINTS, PERIODS.load(Ordering::Relaxed));
+            // State changes logged.
+            let (state, faults) = free(|cs| {
+                STATUS
+                    .borrow(cs)
+                    .try_borrow()
+                    .map(|s| (s.state, s.faults))
+                    .unwrap_or((last_state, Default::default()))
+            });
+            if state != last_state {
+                defmt::info!("state {} -> {}, faults {}", last_state, state, faults);
+                last_state = state;
             }
             let _ = led.set_state((last_state == DriveState::Running).into());
             if STALLED.load(Ordering::Relaxed) {
@@ -286,7 +295,13 @@ mod firmware {
         let stepped = free(|cs| match CONTROL.borrow(cs).try_borrow_mut() {
             Ok(mut guard) => {
                 if let Some(c) = guard.as_mut() {
-                    c.control.step(&mut c.bridge, &SETPOINTS, &mut c.telemetry);
+                    let (out, sample) = c.control.period(&mut c.bridge, &SETPOINTS);
+                    if let (Ok(mut capture), Ok(mut status)) =
+                        (CAPTURE.borrow(cs).try_borrow_mut(), STATUS.borrow(cs).try_borrow_mut())
+                    {
+                        capture.record(&out, c.control.base());
+                        status.update(&out, &sample, c.control.base());
+                    }
                     PERIODS.fetch_add(1, Ordering::Relaxed);
                 }
                 true

@@ -16,13 +16,13 @@
 
 use core::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 
-use dcfo::drive::{Drive, DriveState, Faults, Measurements};
+use dcfo::drive::{Drive, DriveState, Faults, Measurements, StepOutput};
 use dcfo::link::{ActuationFrame, LinkStats};
 use dcfo::num::Scalar;
 use dcfo::transforms::Abc;
 use dcfo::units::Base;
 
-use crate::board::{PhaseSensors, PowerStage};
+use crate::board::{PhaseSample, PhaseSensors, PowerStage};
 use crate::queue::Producer;
 
 /// Commands from a lower-priority context to the control interrupt, lock-free.
@@ -121,6 +121,27 @@ impl<T: Scalar> ControlLoop<T> {
         setpoints: &Setpoints,
         telemetry: &mut Producer<'_, ActuationFrame, N>,
     ) -> DriveState {
+        let (out, _) = self.period(board, setpoints);
+        self.countdown = self.countdown.saturating_sub(1);
+        if self.countdown == 0 {
+            self.countdown = self.telemetry_every;
+            let record = ActuationFrame::from_step(self.sequence, &out, &self.base, LinkStats::default());
+            self.sequence = self.sequence.wrapping_add(1);
+            if telemetry.enqueue(record).is_err() {
+                self.telemetry_dropped = self.telemetry_dropped.saturating_add(1);
+            }
+        }
+        out.state
+    }
+
+    /// [`ControlLoop::step`] without the telemetry queue: one control period, returning
+    /// the drive's full output and the board's sample it was computed from (for a
+    /// capture, or telemetry of another form).
+    pub fn period<B: PhaseSensors + PowerStage>(
+        &mut self,
+        board: &mut B,
+        setpoints: &Setpoints,
+    ) -> (StepOutput<T>, PhaseSample) {
         self.apply(setpoints, board);
         let s = board.sample();
         // A trip of the power stage's own protection (on the ESC1 the over-current
@@ -148,16 +169,7 @@ impl<T: Scalar> ControlLoop<T> {
             board.disable_bridge();
             board.set_duties([0.5; 3]);
         }
-        self.countdown = self.countdown.saturating_sub(1);
-        if self.countdown == 0 {
-            self.countdown = self.telemetry_every;
-            let record = ActuationFrame::from_step(self.sequence, &out, &self.base, LinkStats::default());
-            self.sequence = self.sequence.wrapping_add(1);
-            if telemetry.enqueue(record).is_err() {
-                self.telemetry_dropped = self.telemetry_dropped.saturating_add(1);
-            }
-        }
-        out.state
+        (out, s)
     }
 
     fn apply<B: PowerStage>(&mut self, setpoints: &Setpoints, board: &mut B) {
@@ -191,12 +203,16 @@ impl<T: Scalar> ControlLoop<T> {
     pub fn drive(&self) -> &Drive<T> {
         &self.drive
     }
+
+    /// The drive's working-unit base.
+    pub fn base(&self) -> &Base {
+        &self.base
+    }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::board::PhaseSample;
     use crate::board::fake::{FakeBoard, InjectedFault};
     use crate::queue::Queue;
     use dcfo::drive::DriveConfig;

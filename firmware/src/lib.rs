@@ -5,6 +5,8 @@
 //!   the only code here that touches registers.
 //! - [`control`]: the control interrupt's work on a power stage, with lock-free setpoints
 //!   and telemetry.
+//! - [`board_link`]: the drive image's side of the board link (`dcfo board`): commands,
+//!   telemetry, the capture and the command watchdog.
 //! - [`hil`]: the lock-step HIL link's firmware side on any board (the library's
 //!   [`dcfo::link::LinkServer`], a transmit queue and the watchdog).
 //! - [`queue`]: the fixed-capacity queue between an interrupt and the thread, with no
@@ -20,6 +22,7 @@
 #![deny(missing_docs)]
 
 pub mod board;
+pub mod board_link;
 pub mod control;
 pub mod hil;
 pub mod queue;

@@ -1,5 +1,6 @@
-//! The link's receive path fed arbitrary bytes: both frame receivers, and the
-//! controller's `LinkServer` with a drive behind it. Contract: no panic; every frame a
+//! The link's receive path fed arbitrary bytes: both frame receivers, the board link's
+//! command receiver and answer decoders (`dcfo board`), and the controller's
+//! `LinkServer` with a drive behind it. Contract: no panic; every frame a
 //! receiver accepts encodes back to a frame that decodes to itself; every answer the
 //! server sends is a valid actuation frame (duties in [0, 1]).
 //!
@@ -10,6 +11,7 @@
 #![no_main]
 
 use dcfo::drive::{Drive, DriveConfig};
+use dcfo::link::board::{BoardCommand, BoardTelemetry, CaptureChunk};
 use dcfo::link::{self, ActuationFrame, LinkServer, Receiver, SensorFrame};
 use dcfo::motor::MotorParams;
 use dcfo::observer::ObserverKind;
@@ -17,7 +19,7 @@ use dcfo::units::Base;
 use libfuzzer_sys::fuzz_target;
 
 fn round_trips<F: link::Frame + PartialEq + core::fmt::Debug>(frame: &F) {
-    let mut wire = [0u8; 64];
+    let mut wire = [0u8; 256];
     let n = link::encode(frame, &mut wire).expect("an accepted frame encodes");
     let decoded = link::decode_in_place::<F>(&mut wire[..n - 1]).expect("and decodes");
     assert_eq!(&decoded, frame);
@@ -47,7 +49,24 @@ fuzz_target!(|data: &[u8]| {
     let data = &stream(data)[..];
     let mut sensor_rx = Receiver::<SensorFrame>::new();
     let mut actuation_rx = Receiver::<ActuationFrame>::new();
+    let mut command_rx = Receiver::<BoardCommand>::new();
+    // The host's answer decoding (`dcfo_host::board::decode_answer`): by length.
+    for encoded in data.split(|&b| b == 0) {
+        let mut encoded = encoded.to_vec();
+        if let Some(n) = link::cobs::decode_in_place(&mut encoded) {
+            let raw = &encoded[..n];
+            if let Ok(f) = link::decode_raw::<BoardTelemetry>(raw) {
+                round_trips(&f);
+            }
+            if let Ok(f) = link::decode_raw::<CaptureChunk>(raw) {
+                round_trips(&f);
+            }
+        }
+    }
     for &b in data {
+        if let Some(Ok(f)) = command_rx.push(b) {
+            round_trips(&f);
+        }
         if let Some(Ok(f)) = sensor_rx.push(b) {
             round_trips(&f);
         }

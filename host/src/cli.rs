@@ -57,6 +57,10 @@ pub enum Command {
     /// Hardware-in-the-loop: run a scenario with the drive on a target (QEMU or a board
     /// on a serial port) in lock-step with the simulated plant.
     Hil(HilArgs),
+    /// Operate a drive image: a board on a serial port, or the virtual-motor image on QEMU.
+    /// Live state, commands (enable, disable, clear faults, speed), capture download to a
+    /// trace (`--record`); `--demo` runs the whole path once, non-interactively.
+    Board(BoardArgs),
     /// Acquisition benchmark: cold starts of the estimator on a mover already moving,
     /// 12 speeds x 2 directions x 8 positions x 3 input offsets, f32 and Q8.24.
     Acquire(AcquireArgs),
@@ -74,6 +78,43 @@ pub enum Command {
     /// error on the simulated plant of a motor (`--sim`), prints identified against true
     /// values and writes the identified motor file (`-o`).
     Identify(IdentifyArgs),
+}
+
+/// Arguments of `dcfo board`.
+#[derive(Debug, Clone, Args)]
+pub struct BoardArgs {
+    /// Run the drive image with the virtual motor (`examples/qemu_drive`) on QEMU (board:
+    /// --cpu); it is built with cargo unless --elf is given. Needs qemu-system-arm.
+    #[arg(long, conflicts_with = "port", required_unless_present = "port")]
+    pub qemu: bool,
+    /// A drive image on this serial port (e.g. /dev/ttyACM0).
+    #[arg(long, value_name = "DEVICE")]
+    pub port: Option<String>,
+    /// Serial bit rate [bit/s] (--port).
+    #[arg(long, value_name = "N", default_value_t = 921_600)]
+    pub baud: u32,
+    /// QEMU board: m4f (mps2-an386, f32) or m3 (mps2-an385, Q8.24).
+    #[arg(long, value_enum, default_value = "m4f")]
+    pub cpu: crate::qemu::QemuCpu,
+    /// The QEMU image to run instead of building examples/qemu_drive.
+    #[arg(long, value_name = "FILE")]
+    pub elf: Option<PathBuf>,
+    /// Download the capture into this trace (CSV, shared trace format: t [s], u_alpha and
+    /// u_beta [V], i_alpha and i_beta [A], alpha_e_ref [rad/s^2]) once it is over; the
+    /// capture is armed on connect and starts at the drive's next start.
+    #[arg(long, value_name = "FILE.csv")]
+    pub record: Option<PathBuf>,
+    /// Non-interactive: connect, arm the capture, enable at --speed, wait until the drive
+    /// runs and the capture is over, download it, replay it, disable.
+    #[arg(long)]
+    pub demo: bool,
+    /// Speed reference of --demo [m/s].
+    #[arg(long, value_name = "M/S", default_value_t = 0.3, allow_negative_numbers = true)]
+    pub speed: f32,
+    /// With --demo: print one JSON object on the last line of stdout (keys state_reached,
+    /// capture_samples, replay_identical, ...).
+    #[arg(long, requires = "demo")]
+    pub json: bool,
 }
 
 /// Arguments of `dcfo identify`.
@@ -367,6 +408,10 @@ fn parse_settle(text: &str) -> Result<f64, String> {
 /// Runs the parsed command; the exit status on success (errors are returned).
 pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
     match cli.command {
+        Command::Board(args) => {
+            run_board(&args)?;
+            Ok(ExitCode::SUCCESS)
+        }
         Command::Replay(args) => {
             run_replay(&args)?;
             Ok(ExitCode::SUCCESS)
@@ -639,6 +684,38 @@ pub fn run_sim(args: &SimArgs) -> ExitCode {
             ExitCode::FAILURE
         }
     }
+}
+
+/// `dcfo board`: see [`BoardArgs`] and [`crate::board`].
+pub fn run_board(args: &BoardArgs) -> anyhow::Result<()> {
+    use crate::board::{Target, run_demo, run_interactive};
+    let target = match &args.port {
+        Some(device) => Target::Port { device: device.clone(), baud: args.baud },
+        None => Target::Qemu { cpu: args.cpu, elf: args.elf.clone() },
+    };
+    if !args.speed.is_finite() {
+        bail!("--speed must be a finite number of m/s");
+    }
+    crate::board::catch_interrupt()?;
+    if !args.demo {
+        return run_interactive(&target, args.record.as_deref());
+    }
+    let report = run_demo(&target, args.speed, args.record.as_deref(), Duration::from_secs(60))?;
+    if args.json {
+        println!("{}", serde_json::to_string(&report)?);
+    } else {
+        println!(
+            "drive reached {}; captured {} samples; replay {} ({} differ); download {:.1} s at {:.0} round trips/s",
+            report.state_reached,
+            report.capture_samples,
+            if report.replay_identical { "identical bit for bit" } else { "DIFFERS" },
+            report.replay_differing,
+            report.download_s,
+            report.round_trips_per_s
+        );
+    }
+    anyhow::ensure!(report.replay_identical, "the replay of the capture differs from the drive's estimates");
+    Ok(())
 }
 
 /// `dcfo replay`: read, replay, summarise, then write the output trace and print the

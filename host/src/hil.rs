@@ -16,7 +16,12 @@ use dcfo::link::{ActuationFrame, Receiver, SensorFrame, encode};
 use std::collections::VecDeque;
 use std::io::{Read, Write};
 use std::path::{Path, PathBuf};
-use std::process::{Child, ChildStdin, Command, Stdio};
+
+pub use crate::qemu::{
+    MPS2_RAM_ORIGIN, QemuCpu, QemuSession, STACK_GUARD_BYTES, STACK_PAINT, STACK_SCAN_BYTES,
+    build_qemu_example, qemu_example_elf,
+};
+use std::process::ChildStdin;
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
@@ -166,179 +171,23 @@ impl<W: Write> Controller for SerialController<W> {
     }
 }
 
-/// The QEMU board of a HIL run, and with it the firmware's numeric type.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
-#[serde(rename_all = "lowercase")]
-pub enum QemuCpu {
-    /// Cortex-M4F on `mps2-an386`: `Drive<f32>`, SI units.
-    M4f,
-    /// Cortex-M3 (no FPU) on `mps2-an385`: `Drive<Q24>`, the motor's per-unit base.
-    M3,
-}
-
-impl QemuCpu {
-    /// Rust target triple of the firmware.
-    pub fn target(self) -> &'static str {
-        match self {
-            QemuCpu::M4f => "thumbv7em-none-eabihf",
-            QemuCpu::M3 => "thumbv7m-none-eabi",
-        }
-    }
-
-    /// QEMU machine (`-M`) and CPU (`-cpu`).
-    pub fn machine_and_cpu(self) -> (&'static str, &'static str) {
-        match self {
-            QemuCpu::M4f => ("mps2-an386", "cortex-m4"),
-            QemuCpu::M3 => ("mps2-an385", "cortex-m3"),
-        }
-    }
-
-    /// The in-process drive the firmware's results must equal: same code, same numeric
-    /// type, same units.
-    pub fn local_drive(self, setup: &crate::sim::Setup) -> Result<Box<dyn Controller>, SimError> {
-        Ok(match self {
-            QemuCpu::M4f => Box::new(crate::sim::LocalDrive::new(setup)?),
-            QemuCpu::M3 => Box::new(crate::sim::LocalDrive::fixed_point(setup)?),
-        })
+impl QemuSession {
+    /// Starts `qemu-system-arm` on `cpu`'s board with the HIL firmware `elf`; returns the
+    /// session and a lock-step controller talking to its UART0.
+    pub fn start(elf: &Path, cpu: QemuCpu) -> Result<(QemuSession, SerialController<ChildStdin>), SimError> {
+        let (session, stdin, stdout) = QemuSession::spawn(elf, cpu)?;
+        Ok((session, SerialController::new(stdin, stdout)))
     }
 }
 
 /// The HIL firmware ELF for `cpu`, in the workspace's target directory.
 pub fn default_qemu_elf(workspace: &Path, cpu: QemuCpu) -> PathBuf {
-    workspace.join("target").join(cpu.target()).join("release/examples/qemu_hil")
+    qemu_example_elf(workspace, cpu, "qemu_hil")
 }
 
-/// Builds the QEMU HIL firmware for `cpu` with cargo (release).
+/// Builds the QEMU HIL firmware (`examples/qemu_hil`) for `cpu` with cargo (release).
 pub fn build_qemu_firmware(workspace: &Path, cpu: QemuCpu) -> Result<PathBuf, SimError> {
-    let status = Command::new(std::env::var("CARGO").unwrap_or_else(|_| "cargo".into()))
-        .current_dir(workspace)
-        .args(["build", "--release", "-p", "dcfo-firmware", "--features", "mps2", "--example", "qemu_hil"])
-        .args(["--target", cpu.target()])
-        .status()
-        .map_err(|e| SimError::Controller(format!("cannot run cargo to build the firmware: {e}")))?;
-    if !status.success() {
-        return Err(SimError::Controller(format!("building the QEMU firmware failed ({status})")));
-    }
-    Ok(default_qemu_elf(workspace, cpu))
-}
-
-/// QEMU running the firmware, its UART0 on QEMU's standard input and output, its
-/// monitor (QMP) on a socket for reading the target's memory.
-pub struct QemuSession {
-    child: Child,
-    qmp_socket: PathBuf,
-    /// Holds the socket's directory until QEMU is gone.
-    _dir: tempfile::TempDir,
-}
-
-/// The pattern `dcfo_firmware::stack::paint` fills the free stack with at boot.
-pub const STACK_PAINT: u32 = 0xA5C3_5A3C;
-/// Start of RAM on the MPS2 boards: with flip-link, the stack's lowest address.
-pub const MPS2_RAM_ORIGIN: u32 = 0x2000_0000;
-/// `dcfo_firmware::stack::GUARD_BYTES`: the MPU guard at the bottom of the stack, never
-/// painted and never readable by the firmware.
-pub const STACK_GUARD_BYTES: u32 = 256;
-/// How far below the top of the stack [`QemuSession::stack_high_water`] looks (bytes).
-pub const STACK_SCAN_BYTES: u32 = 64 * 1024;
-
-impl QemuSession {
-    /// Starts `qemu-system-arm` on `cpu`'s board with `elf`; returns the session and a
-    /// controller talking to its UART0.
-    pub fn start(elf: &Path, cpu: QemuCpu) -> Result<(QemuSession, SerialController<ChildStdin>), SimError> {
-        let (machine, core) = cpu.machine_and_cpu();
-        let dir =
-            tempfile::tempdir().map_err(|e| SimError::Controller(format!("temporary directory: {e}")))?;
-        let qmp_socket = dir.path().join("qmp.sock");
-        let mut child = Command::new("qemu-system-arm")
-            .args(["-M", machine, "-cpu", core, "-display", "none", "-monitor", "none"])
-            .arg("-qmp")
-            .arg(format!("unix:{},server=on,wait=off", qmp_socket.display()))
-            .args(["-semihosting-config", "enable=on,target=native", "-serial", "stdio", "-kernel"])
-            .arg(elf)
-            .stdin(Stdio::piped())
-            .stdout(Stdio::piped())
-            .stderr(Stdio::inherit())
-            .spawn()
-            .map_err(|e| {
-                SimError::Controller(format!(
-                    "cannot start qemu-system-arm ({e}); install it with apt-get install qemu-system-arm"
-                ))
-            })?;
-        let (Some(stdin), Some(stdout)) = (child.stdin.take(), child.stdout.take()) else {
-            let _ = child.kill();
-            return Err(SimError::Controller("qemu's standard I/O is not available".into()));
-        };
-        Ok((QemuSession { child, qmp_socket, _dir: dir }, SerialController::new(stdin, stdout)))
-    }
-
-    /// Reads `count` 32-bit words of the target's memory from `addr`, through QEMU's
-    /// monitor (QMP `human-monitor-command` with `xp`). The target keeps running.
-    pub fn read_words(&self, addr: u32, count: u32) -> Result<Vec<u32>, SimError> {
-        use std::io::BufRead;
-        let err = |what: &str| SimError::Controller(format!("QEMU monitor: {what}"));
-        let socket = std::os::unix::net::UnixStream::connect(&self.qmp_socket)
-            .map_err(|e| err(&format!("connecting to {}: {e}", self.qmp_socket.display())))?;
-        socket.set_read_timeout(Some(ANSWER_TIMEOUT)).map_err(|e| err(&e.to_string()))?;
-        let mut writer = socket.try_clone().map_err(|e| err(&e.to_string()))?;
-        let mut lines = std::io::BufReader::new(socket).lines();
-        // The greeting, then one answer per command (events in between are skipped).
-        let mut answer = |command: serde_json::Value| -> Result<serde_json::Value, SimError> {
-            writeln!(writer, "{command}").map_err(|e| err(&e.to_string()))?;
-            loop {
-                let line = lines.next().ok_or_else(|| err("closed"))?.map_err(|e| err(&e.to_string()))?;
-                let v: serde_json::Value = serde_json::from_str(&line).map_err(|e| err(&e.to_string()))?;
-                if let Some(r) = v.get("return") {
-                    return Ok(r.clone());
-                }
-                if let Some(e) = v.get("error") {
-                    return Err(err(&e.to_string()));
-                }
-            }
-        };
-        answer(serde_json::json!({ "execute": "qmp_capabilities" }))?;
-        let text = answer(serde_json::json!({
-            "execute": "human-monitor-command",
-            "arguments": { "command-line": format!("xp /{count}wx {addr:#x}") },
-        }))?;
-        let text = text.as_str().ok_or_else(|| err("xp answered no text"))?;
-        // Lines `<address>: 0x<word> 0x<word> ...`.
-        let words: Vec<u32> = text
-            .lines()
-            .filter_map(|l| l.split_once(':'))
-            .flat_map(|(_, w)| w.split_whitespace())
-            .filter_map(|w| u32::from_str_radix(w.trim_start_matches("0x"), 16).ok())
-            .collect();
-        if words.len() != count as usize {
-            return Err(err(&format!("xp gave {} words, not {count}", words.len())));
-        }
-        Ok(words)
-    }
-
-    /// The firmware's deepest stack use since boot, in bytes below the top of the stack:
-    /// the image paints its free stack with [`STACK_PAINT`] at boot
-    /// (`dcfo_firmware::stack::paint`), and the lowest word that no longer holds it is
-    /// the high-water mark. The top is the initial stack pointer (word 0 of the vector
-    /// table at address 0). `Err` when the stack was used deeper than
-    /// [`STACK_SCAN_BYTES`] (or not painted).
-    pub fn stack_high_water(&self) -> Result<u32, SimError> {
-        let top = *self.read_words(0, 1)?.first().unwrap_or(&0);
-        let lowest = (MPS2_RAM_ORIGIN + STACK_GUARD_BYTES).max(top.saturating_sub(STACK_SCAN_BYTES));
-        let words = self.read_words(lowest, (top - lowest) / 4)?;
-        match words.iter().position(|&w| w != STACK_PAINT) {
-            Some(0) => Err(SimError::Controller(format!(
-                "the stack below {lowest:#x} is not painted, or used deeper than {STACK_SCAN_BYTES} bytes"
-            ))),
-            Some(i) => Ok(top - (lowest + 4 * i as u32)),
-            None => Ok(0),
-        }
-    }
-}
-
-impl Drop for QemuSession {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-    }
+    build_qemu_example(workspace, cpu, "qemu_hil")
 }
 
 /// What a HIL run measured.

@@ -3,6 +3,7 @@
 #![deny(missing_docs)]
 
 pub mod acquire;
+pub mod board;
 pub mod cli;
 pub mod faults;
 pub mod hil;
@@ -10,6 +11,7 @@ pub mod identify;
 pub mod motor_file;
 pub mod plant;
 pub mod plot;
+pub mod qemu;
 pub mod replay;
 pub mod scenario_file;
 pub mod sim;

@@ -6,11 +6,14 @@
 //!   embedded-io); a status LED is an `embedded_hal::digital::OutputPin`.
 //!
 //! Boards: [`fake::FakeBoard`] (all targets; a scripted sensor source and a recorder of
-//! what the control step commanded, with fault injection, for host tests) and, on Arm
+//! what the control step commanded, with fault injection, for host tests),
+//! [`virtual_motor::VirtualBoard`] (all targets; the library's virtual motor in place of
+//! a power stage, for a drive image with no hardware) and, on Arm
 //! only, `mps2` (QEMU's MPS2 AN385/AN386 UART) and `b_g431b_esc1` (ST's drive board). The
 //! Arm modules are the only code in the firmware that touches registers.
 
 pub mod fake;
+pub mod virtual_motor;
 
 #[cfg(target_arch = "arm")]
 #[allow(unsafe_code)]

@@ -40,17 +40,28 @@ const STEP_REGION: &str = "step";
 /// The baseline region.
 const EMPTY_REGION: &str = "empty";
 
-/// One benchmark image and the QEMU board it runs on.
+/// One benchmark image and the QEMU board it runs on (target, machine and CPU from
+/// `dcfo_host::qemu::QemuCpu`, shared with `dcfo hil` and `dcfo board`).
 struct Board {
     label: &'static str,
-    target: &'static str,
-    machine: &'static str,
-    cpu: &'static str,
+    qemu: dcfo_host::qemu::QemuCpu,
+}
+
+impl Board {
+    fn target(&self) -> &'static str {
+        self.qemu.target()
+    }
+    fn machine(&self) -> &'static str {
+        self.qemu.machine_and_cpu().0
+    }
+    fn cpu(&self) -> &'static str {
+        self.qemu.machine_and_cpu().1
+    }
 }
 
 const BOARDS: [Board; 2] = [
-    Board { label: "Cortex-M4F", target: "thumbv7em-none-eabihf", machine: "mps2-an386", cpu: "cortex-m4" },
-    Board { label: "Cortex-M3", target: "thumbv7m-none-eabi", machine: "mps2-an385", cpu: "cortex-m3" },
+    Board { label: "Cortex-M4F", qemu: dcfo_host::qemu::QemuCpu::M4f },
+    Board { label: "Cortex-M3", qemu: dcfo_host::qemu::QemuCpu::M3 },
 ];
 
 /// What one run measured: per numeric type, the regions' instruction counts (in
@@ -84,19 +95,19 @@ fn run() -> Result<()> {
         .to_path_buf();
     let target_dir = std::env::var_os("CARGO_TARGET_DIR").map_or_else(|| root.join("target"), PathBuf::from);
     for board in &BOARDS {
-        build(&root, board.target, "bench")?;
-        build(&root, board.target, "qemu_hil")?;
+        build(&root, board.target(), "bench")?;
+        build(&root, board.target(), "qemu_hil")?;
     }
 
     let mut runs = Vec::new();
     for board in &BOARDS {
-        let elf = target_dir.join(board.target).join("release/examples/bench");
+        let elf = target_dir.join(board.target()).join("release/examples/bench");
         let started = Instant::now();
         let run = run_traced(board, &elf)?;
         eprintln!(
             "bench_qemu: {} ({}) traced in {:.1} s",
             board.label,
-            board.machine,
+            board.machine(),
             started.elapsed().as_secs_f64()
         );
         runs.push((board, run));
@@ -161,8 +172,8 @@ fn run() -> Result<()> {
     for board in &BOARDS {
         for example in ["qemu_hil", "bench"] {
             images.push((
-                format!("{example} ({}, {})", board.label, board.target),
-                target_dir.join(board.target).join("release/examples").join(example),
+                format!("{example} ({}, {})", board.label, board.target()),
+                target_dir.join(board.target()).join("release/examples").join(example),
             ));
         }
     }
@@ -269,13 +280,13 @@ fn run_traced(board: &Board, elf: &Path) -> Result<Run> {
     let trace = match std::env::var_os("BENCH_QEMU_TRACE_DIR") {
         Some(keep) => {
             std::fs::create_dir_all(&keep)?;
-            PathBuf::from(keep).join(format!("{}.log", board.target))
+            PathBuf::from(keep).join(format!("{}.log", board.target()))
         }
         None => dir.path().join("trace.log"),
     };
     let qmp = dir.path().join("qmp.sock");
     let mut child = Command::new("qemu-system-arm")
-        .args(["-M", board.machine, "-cpu", board.cpu])
+        .args(["-M", board.machine(), "-cpu", board.cpu()])
         .args(["-display", "none", "-monitor", "none", "-serial", "stdio"])
         .args(["-semihosting-config", "enable=on,target=native"])
         .args(["-singlestep", "-d", "nochain", "-D"])
@@ -309,7 +320,7 @@ fn run_traced(board: &Board, elf: &Path) -> Result<Run> {
     }
     let status = child.wait()?;
     if !status.success() {
-        bail!("{} exited with {status}; output:\n{}", board.machine, lines.join("\n"));
+        bail!("{} exited with {status}; output:\n{}", board.machine(), lines.join("\n"));
     }
     if !gate_opened {
         bail!("the firmware never reached READY; output:\n{}", lines.join("\n"));

@@ -1,0 +1,186 @@
+//! The ESC1 drive image with the virtual motor in place of the power stage: the drive of
+//! the motor image (or, without one, the paper motor) runs closed loop on
+//! `dcfo::virtual_motor` inside the STM32G431 while the bridge stays off (TIM1 MOE is
+//! never set), operated from the host over the board link on USART2 (`dcfo board --port`),
+//! as `qemu_drive` on QEMU. **Not tried on hardware** (none here); it builds in CI.
+//!
+//! The virtual axis carries the paper axis's 10 kg carriage (`PAPER_AXIS_PAYLOAD_KG`)
+//! besides the motor's own mass (a bare mover trips after the I/f hand-over: README,
+//! "Other motors"); the drive runs `DriveConfig::for_motor` without inverter
+//! compensation, at the motor image's bus voltage.
+//!
+//! | context | priority | work | budget |
+//! |---|---|---|---|
+//! | SysTick, 10 kHz | 0x00, highest | `ControlLoop::period` on the `VirtualBoard`, `Capture::record`, `DriveStatus::update` | 100 µs = 17,000 cycles at 170 MHz; the f32 step is about 1,450 instructions on QEMU's Cortex-M4F, the virtual motor eight sub-steps of a few dozen (not measured on the G4) |
+//! | thread | — | board link on USART2, command watchdog (0.5 s), defmt | — |
+//!
+//! ```sh
+//! cargo run -p dcfo-firmware --release --features esc1 --example b_g431b_esc1_virtual --target thumbv7em-none-eabihf
+//! cargo run --release -p dcfo-host -- board --port /dev/ttyACM0 --demo --json
+//! ```
+//! (The demo asks for a finished capture with the drive `Running`; the 128 samples here
+//! end long before the hand-over, so the demo's wait holds until the drive runs.)
+#![cfg_attr(target_arch = "arm", no_std)]
+#![cfg_attr(target_arch = "arm", no_main)]
+
+#[cfg(not(target_arch = "arm"))]
+fn main() {
+    eprintln!("b_g431b_esc1_virtual is firmware: build it with `--target thumbv7em-none-eabihf`");
+}
+
+#[cfg(target_arch = "arm")]
+mod firmware {
+    use core::cell::RefCell;
+
+    use cortex_m::interrupt::{self, Mutex};
+    use cortex_m::peripheral::scb::SystemHandler;
+    use cortex_m::peripheral::syst::SystClkSource;
+    use cortex_m_rt::{entry, exception};
+    use dcfo::capture::Capture;
+    use dcfo::drive::{Drive, DriveConfig, PAPER_AXIS_BUS_V, PAPER_AXIS_PAYLOAD_KG};
+    use dcfo::link::board::{BoardTelemetry, CaptureChunk};
+    use dcfo::link::encode;
+    use dcfo::motor::MotorParams;
+    use dcfo::observer::ObserverKind;
+    use dcfo::units::Base;
+    use dcfo::virtual_motor::{VirtualAxis, VirtualMotor};
+    use dcfo_firmware::board::b_g431b_esc1::{self as esc1, DEFAULT_PWM_HZ, Esc1Config, SYSCLK_HZ};
+    use dcfo_firmware::board::virtual_motor::VirtualBoard;
+    use dcfo_firmware::board_link::{BoardAnswer, BoardLinkServer, DriveStatus, answer};
+    use dcfo_firmware::control::{ControlLoop, Setpoints};
+    use dcfo_firmware::stack;
+    use embedded_io::Write as _;
+    use stm32g4::stm32g431 as pac;
+
+    const BAUD: u32 = 921_600;
+    /// Capture capacity, samples (4.6 KB), as the ESC1 drive image.
+    const CAPTURE_SAMPLES: usize = 128;
+    /// Control periods without a command after which the drive is disabled (0.5 s).
+    const COMMAND_TIMEOUT_PERIODS: u32 = DEFAULT_PWM_HZ / 2;
+
+    struct Control {
+        control: ControlLoop<f32>,
+        board: VirtualBoard,
+    }
+
+    static CONTROL: Mutex<RefCell<Option<Control>>> = Mutex::new(RefCell::new(None));
+    static CAPTURE: Mutex<RefCell<Capture<CAPTURE_SAMPLES>>> = Mutex::new(RefCell::new(Capture::new()));
+    static STATUS: Mutex<RefCell<DriveStatus>> = Mutex::new(RefCell::new(DriveStatus::new()));
+    static SETPOINTS: Setpoints = Setpoints::new();
+
+    #[entry]
+    fn main() -> ! {
+        let Some(dp) = pac::Peripherals::take() else { stop("device peripherals taken twice") };
+        let Some(mut cp) = cortex_m::Peripherals::take() else { stop("core peripherals taken twice") };
+        stack::paint();
+        let guarded = stack::guard(&mut cp.MPU);
+        // The bridge stays off: init leaves MOE clear and nothing here enables it (the
+        // virtual board has no register).
+        let board = esc1::init(dp, &Esc1Config { baud: BAUD, ..Esc1Config::default() });
+        let mut uart = board.uart;
+        let (motor, bus_v) = match esc1::motor_image() {
+            Ok(image) => (image.motor, image.bus_v),
+            Err(_) => (MotorParams::paper(), PAPER_AXIS_BUS_V),
+        };
+        let mut config = DriveConfig::for_motor(&motor, bus_v, ObserverKind::Dcfo);
+        config.control_period_s = 1.0 / DEFAULT_PWM_HZ as f32;
+        config.moving_mass_kg = motor.mass_kg + PAPER_AXIS_PAYLOAD_KG;
+        config.dead_time_compensation = None;
+        let drive = match Drive::<f32>::new(&motor, &config, &Base::SI) {
+            Ok(d) => d,
+            Err(e) => stop(e.field),
+        };
+        let axis = VirtualAxis {
+            payload_kg: PAPER_AXIS_PAYLOAD_KG,
+            load_n: 0.0,
+            bus_v,
+            period_s: config.control_period_s,
+        };
+        let Ok(virtual_motor) = VirtualMotor::new(&motor, &axis) else {
+            stop("virtual motor settings refused")
+        };
+        let installed = interrupt::free(|cs| match CONTROL.borrow(cs).try_borrow_mut() {
+            Ok(mut slot) => {
+                *slot = Some(Control {
+                    control: ControlLoop::new(drive, u16::MAX),
+                    board: VirtualBoard::new(virtual_motor),
+                });
+                true
+            }
+            Err(_) => false,
+        });
+        if !installed {
+            stop("control state busy at start-up");
+        }
+        // SAFETY: set before SysTick is enabled; critical sections use PRIMASK.
+        unsafe { cp.SCB.set_priority(SystemHandler::SysTick, 0x00) };
+        cp.SYST.set_clock_source(SystClkSource::External); // HCLK / 8
+        cp.SYST.set_reload(SYSCLK_HZ / 8 / DEFAULT_PWM_HZ - 1);
+        cp.SYST.clear_current();
+        cp.SYST.enable_interrupt();
+        cp.SYST.enable_counter();
+        defmt::info!(
+            "B-G431B-ESC1 virtual motor, bridge off; stack {} bytes, MPU guard {}",
+            stack::bounds().1 - stack::bounds().0,
+            guarded
+        );
+
+        let mut server = BoardLinkServer::new(COMMAND_TIMEOUT_PERIODS);
+        let mut wire = [0u8; CaptureChunk::WIRE_LEN];
+        loop {
+            let periods =
+                interrupt::free(|cs| STATUS.borrow(cs).try_borrow().map(|s| s.periods).unwrap_or(0));
+            while let Ok(Some(byte)) = uart.try_read_byte() {
+                let Some(command) = server.on_byte(byte, &SETPOINTS, periods) else { continue };
+                let reply = interrupt::free(|cs| {
+                    match (CAPTURE.borrow(cs).try_borrow_mut(), STATUS.borrow(cs).try_borrow()) {
+                        (Ok(mut capture), Ok(status)) => {
+                            Some(answer(&command, &mut capture, &status, &SETPOINTS))
+                        }
+                        _ => None,
+                    }
+                });
+                let encoded = match reply {
+                    Some(BoardAnswer::Telemetry(t)) => encode::<BoardTelemetry>(&t, &mut wire),
+                    Some(BoardAnswer::Chunk(c)) => encode::<CaptureChunk>(&c, &mut wire),
+                    None => continue,
+                };
+                if let Some(bytes) = encoded.ok().and_then(|n| wire.get(..n)) {
+                    let _ = uart.write_all(bytes);
+                }
+            }
+            server.watchdog(&SETPOINTS, periods);
+        }
+    }
+
+    /// The control period on the virtual board; the state is borrowed only in critical
+    /// sections that never nest: were it busy, the period is skipped (no panic).
+    #[exception]
+    fn SysTick() {
+        interrupt::free(|cs| {
+            let (Ok(mut control), Ok(mut capture), Ok(mut status)) = (
+                CONTROL.borrow(cs).try_borrow_mut(),
+                CAPTURE.borrow(cs).try_borrow_mut(),
+                STATUS.borrow(cs).try_borrow_mut(),
+            ) else {
+                return;
+            };
+            let Some(c) = control.as_mut() else { return };
+            let (out, sample) = c.control.period(&mut c.board, &SETPOINTS);
+            capture.record(&out, c.control.base());
+            status.update(&out, &sample, c.control.base());
+        });
+    }
+
+    dcfo_firmware::esc1_fault_handlers!();
+
+    /// Cannot run: bridge off (it was never switched on here), the reason over defmt,
+    /// stop.
+    fn stop(why: &str) -> ! {
+        esc1::safe_state_and_stop();
+        defmt::error!("cannot run: {}", why);
+        loop {
+            cortex_m::asm::wfi();
+        }
+    }
+}

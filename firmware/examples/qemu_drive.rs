@@ -1,0 +1,244 @@
+//! A drive image on QEMU's MPS2 boards with the virtual motor in place of the power
+//! stage: the drive runs closed loop in its control interrupt with no plant outside it,
+//! operated from the host over UART0 with the board link (`dcfo board --qemu`).
+//! - `thumbv7em-none-eabihf` on `mps2-an386` (Cortex-M4F): `Drive<f32>` in SI units, as
+//!   the ESC1 drive image; its capture replays bit for bit on the host (`dcfo replay`).
+//! - `thumbv7m-none-eabi` on `mps2-an385` (Cortex-M3): `Drive<Q24>` in the motor's
+//!   per-unit base (the capture is then in SI converted from Q8.24: not bit-replayable
+//!   by the f32 replay).
+//!
+//! The motor is the paper's, on the paper axis's carriage (`PAPER_AXIS_PAYLOAD_KG`),
+//! the drive `DriveConfig::for_motor` without inverter compensation (the virtual
+//! inverter is ideal). The virtual motor (`dcfo::virtual_motor`) derives everything from
+//! the same `MotorParams`.
+//!
+//! | context | priority | work | budget |
+//! |---|---|---|---|
+//! | SysTick, 10 kHz (the PWM period) | 0x00, highest | `ControlLoop::period` on the `VirtualBoard` (virtual motor: 8 sub-steps), `Capture::record`, `DriveStatus::update` | one period: 2,500 cycles at 25 MHz are not enough in real time; QEMU runs it as fast as it can and the simulated time is the count of periods, not the wall clock |
+//! | thread | — | UART0 polled: `BoardLinkServer` commands, one answer per command, command watchdog | — |
+//!
+//! Command watchdog: no command for 5,000 control periods (0.5 s of simulated time)
+//! disables the drive. Every other interrupt vector lands in `DefaultHandler`, which
+//! masks it and disables the drive. Nothing in the image can panic (`.ci/no-panic`).
+//!
+//! ```sh
+//! cargo build -p dcfo-firmware --release --features mps2 --example qemu_drive --target thumbv7em-none-eabihf
+//! dcfo board --qemu --demo --json      # or interactively: dcfo board --qemu
+//! ```
+//!
+//! On the host this file builds to an empty `main`.
+#![cfg_attr(target_arch = "arm", no_std)]
+#![cfg_attr(target_arch = "arm", no_main)]
+
+#[cfg(not(target_arch = "arm"))]
+fn main() {
+    eprintln!(
+        "qemu_drive is firmware: build it with `--target thumbv7em-none-eabihf` or `thumbv7m-none-eabi`"
+    );
+}
+
+#[cfg(target_arch = "arm")]
+mod firmware {
+    use core::cell::RefCell;
+
+    use cortex_m::interrupt::{self, Mutex};
+    use cortex_m::peripheral::scb::SystemHandler;
+    use cortex_m::peripheral::syst::SystClkSource;
+    use cortex_m_rt::{entry, exception};
+    use dcfo::capture::Capture;
+    use dcfo::drive::{Drive, DriveConfig, PAPER_AXIS_BUS_V, PAPER_AXIS_PAYLOAD_KG};
+    use dcfo::link::board::{BoardTelemetry, CaptureChunk};
+    use dcfo::link::encode;
+    use dcfo::motor::MotorParams;
+    use dcfo::observer::ObserverKind;
+    use dcfo::units::Base;
+    use dcfo::virtual_motor::{VirtualAxis, VirtualMotor};
+    use dcfo_firmware::board::mps2::{CmsdkUart, SYSCLK_HZ};
+    use dcfo_firmware::board::virtual_motor::VirtualBoard;
+    use dcfo_firmware::board_link::{BoardAnswer, BoardLinkServer, DriveStatus, answer};
+    use dcfo_firmware::control::{ControlLoop, Setpoints};
+    use dcfo_firmware::stack;
+    use embedded_io::Write as _;
+
+    /// The numeric type of the control code: f32 with an FPU, Q8.24 without.
+    #[cfg(target_abi = "eabihf")]
+    type Work = f32;
+    #[cfg(not(target_abi = "eabihf"))]
+    type Work = dcfo::num::Q24;
+
+    /// Working units: SI for f32, per-unit of the motor for fixed point.
+    fn working_base(motor: &MotorParams) -> Base {
+        if cfg!(target_abi = "eabihf") { Base::SI } else { Base::for_motor(motor) }
+    }
+
+    /// Capture capacity, samples: 2.4 s at 10 kHz (864 KB of the board's 4 MiB), enough
+    /// to hold the start-up and the hand-over to `Running` of the paper axis at 0.3 m/s
+    /// (about 1.8 s after enable on the virtual motor).
+    const CAPTURE_SAMPLES: usize = 24_000;
+    /// Control (PWM) rate, Hz.
+    const CONTROL_HZ: u32 = 10_000;
+    /// Control periods without a command after which the drive is disabled (0.5 s).
+    const COMMAND_TIMEOUT_PERIODS: u32 = CONTROL_HZ / 2;
+
+    /// What the control interrupt owns.
+    struct Control {
+        control: ControlLoop<Work>,
+        board: VirtualBoard,
+    }
+
+    static CONTROL: Mutex<RefCell<Option<Control>>> = Mutex::new(RefCell::new(None));
+    /// The capture and the last step's status: filled by the control interrupt, read by
+    /// the thread (both in critical sections). Constant-initialised in place: the
+    /// capture never passes through the stack.
+    static CAPTURE: Mutex<RefCell<Capture<CAPTURE_SAMPLES>>> = Mutex::new(RefCell::new(Capture::new()));
+    static STATUS: Mutex<RefCell<DriveStatus>> = Mutex::new(RefCell::new(DriveStatus::new()));
+    static SETPOINTS: Setpoints = Setpoints::new();
+
+    #[entry]
+    fn main() -> ! {
+        let Some(mut uart) = CmsdkUart::take_uart0() else { halt("UART0 already taken") };
+        uart.init(115_200);
+        let Some(mut cp) = cortex_m::Peripherals::take() else { halt("core peripherals taken twice") };
+        stack::paint();
+        if !stack::guard(&mut cp.MPU) {
+            halt("no MPU guard for the stack");
+        }
+
+        let motor = MotorParams::paper();
+        let mut config = DriveConfig::for_motor(&motor, PAPER_AXIS_BUS_V, ObserverKind::Dcfo);
+        config.moving_mass_kg = motor.mass_kg + PAPER_AXIS_PAYLOAD_KG;
+        config.control_period_s = 1.0 / CONTROL_HZ as f32;
+        config.dead_time_compensation = None;
+        let base = working_base(&motor);
+        let drive = match Drive::<Work>::new(&motor, &config, &base) {
+            Ok(d) => d,
+            Err(e) => halt(e.field),
+        };
+        let axis = VirtualAxis {
+            payload_kg: PAPER_AXIS_PAYLOAD_KG,
+            load_n: 0.0,
+            bus_v: PAPER_AXIS_BUS_V,
+            period_s: config.control_period_s,
+        };
+        let virtual_motor = match VirtualMotor::new(&motor, &axis) {
+            Ok(m) => m,
+            Err(_) => halt("virtual motor settings refused"),
+        };
+        // The 0x00 after the banner is a frame delimiter: the host drops the banner as one
+        // bad frame.
+        let _ =
+            write!(uart, "dcfo-firmware qemu_drive: virtual motor, capture {CAPTURE_SAMPLES} samples\r\n\0");
+
+        let installed = interrupt::free(|cs| match CONTROL.borrow(cs).try_borrow_mut() {
+            Ok(mut slot) => {
+                *slot = Some(Control {
+                    control: ControlLoop::new(drive, u16::MAX),
+                    board: VirtualBoard::new(virtual_motor),
+                });
+                true
+            }
+            Err(_) => false,
+        });
+        if !installed {
+            halt("control state busy at start-up");
+        }
+        // SAFETY: set before SysTick is enabled; critical sections use PRIMASK.
+        unsafe { cp.SCB.set_priority(SystemHandler::SysTick, 0x00) };
+        cp.SYST.set_clock_source(SystClkSource::Core);
+        cp.SYST.set_reload(SYSCLK_HZ / CONTROL_HZ - 1);
+        cp.SYST.clear_current();
+        cp.SYST.enable_interrupt();
+        cp.SYST.enable_counter();
+
+        let mut server = BoardLinkServer::new(COMMAND_TIMEOUT_PERIODS);
+        let mut wire = [0u8; CaptureChunk::WIRE_LEN];
+        loop {
+            let periods =
+                interrupt::free(|cs| STATUS.borrow(cs).try_borrow().map(|s| s.periods).unwrap_or(0));
+            while let Some(byte) = uart.try_read_byte() {
+                let Some(command) = server.on_byte(byte, &SETPOINTS, periods) else { continue };
+                let reply = interrupt::free(|cs| {
+                    let capture = CAPTURE.borrow(cs).try_borrow_mut();
+                    let status = STATUS.borrow(cs).try_borrow();
+                    match (capture, status) {
+                        (Ok(mut capture), Ok(status)) => {
+                            Some(answer(&command, &mut capture, &status, &SETPOINTS))
+                        }
+                        _ => None,
+                    }
+                });
+                let encoded = match reply {
+                    Some(BoardAnswer::Telemetry(t)) => encode::<BoardTelemetry>(&t, &mut wire),
+                    Some(BoardAnswer::Chunk(c)) => encode::<CaptureChunk>(&c, &mut wire),
+                    None => continue,
+                };
+                if let Some(bytes) = encoded.ok().and_then(|n| wire.get(..n)) {
+                    for &b in bytes {
+                        uart.write_byte(b);
+                    }
+                }
+            }
+            server.watchdog(&SETPOINTS, periods);
+            // SysTick wakes the core every period; a byte that arrives meanwhile waits in
+            // the UART (the host sends one command and waits for its answer).
+            cortex_m::asm::wfi();
+        }
+    }
+
+    /// The control period: the virtual board, one drive step, the capture and the status.
+    /// The state is borrowed only in critical sections that never nest; were it busy the
+    /// period is skipped (no panic), which the status's period count shows.
+    #[exception]
+    fn SysTick() {
+        interrupt::free(|cs| {
+            let (Ok(mut control), Ok(mut capture), Ok(mut status)) = (
+                CONTROL.borrow(cs).try_borrow_mut(),
+                CAPTURE.borrow(cs).try_borrow_mut(),
+                STATUS.borrow(cs).try_borrow_mut(),
+            ) else {
+                return;
+            };
+            let Some(c) = control.as_mut() else { return };
+            let (out, sample) = c.control.period(&mut c.board, &SETPOINTS);
+            capture.record(&out, c.control.base());
+            status.update(&out, &sample, c.control.base());
+        });
+    }
+
+    // SAFETY: cortex-m-rt requires the default handler to be declared `unsafe`; it only
+    // masks the interrupt that has no handler and disables the drive.
+    #[exception]
+    unsafe fn DefaultHandler(irqn: i16) {
+        dcfo_firmware::board::mps2::mask_irq(irqn);
+        SETPOINTS.set_enable(false);
+    }
+
+    /// Cannot run: the reason on UART0, then sleep for good with interrupts off.
+    fn halt(why: &str) -> ! {
+        stop(format_args!("HALT: {why}"))
+    }
+
+    fn stop(what: core::fmt::Arguments<'_>) -> ! {
+        cortex_m::interrupt::disable();
+        // SAFETY: interrupts are off and this never returns, so no other user of UART0
+        // runs again; a byte the thread was writing is at worst cut short.
+        let mut uart = unsafe { CmsdkUart::steal_uart0() };
+        let _ = write!(uart, "\r\n{what}\r\n");
+        loop {
+            cortex_m::asm::wfi();
+        }
+    }
+
+    /// HardFault (a stack overflow among others), on a fresh stack: stops the core.
+    extern "C" fn on_hard_fault() -> ! {
+        stop(format_args!("HARDFAULT"))
+    }
+
+    dcfo_firmware::hard_fault_entry!(on_hard_fault);
+
+    /// Not linked while nothing can panic (`.ci/no-panic`).
+    #[panic_handler]
+    fn panic(info: &core::panic::PanicInfo) -> ! {
+        stop(format_args!("PANIC: {info}"))
+    }
+}

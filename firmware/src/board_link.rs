@@ -1,0 +1,307 @@
+//! The drive image's side of the board link (`dcfo::link::board`): commands from the
+//! host in, one answer per command out (telemetry, or capture samples), the capture
+//! filled in the control interrupt, and the command watchdog. Board-independent and
+//! tested on the host; `examples/qemu_drive.rs` runs it on QEMU with the virtual motor.
+//!
+//! ```text
+//!  thread                                           control interrupt (highest priority)
+//!  ------                                           -----------------------------------
+//!  BoardLinkServer::on_byte -> Setpoints (atomics)  ControlLoop::period(board, setpoints)
+//!    in a critical section: arm / read the capture  Capture::record(output)   (O(1))
+//!    and the last step's status                     DriveStatus::update(output, sample)
+//!  BoardLinkServer::watchdog(periods)
+//! ```
+//!
+//! The thread touches the capture and the status only inside short critical sections
+//! (arming, copying [`CAPTURE_CHUNK_SAMPLES`] samples, copying the status), so the
+//! control interrupt waits at most that long and never for the UART. Samples are read
+//! only once the capture is [`CaptureState::Done`], when the interrupt no longer writes
+//! them.
+
+use dcfo::capture::{Capture, CaptureSample, CaptureState};
+use dcfo::drive::{DriveState, Faults, StepOutput};
+use dcfo::link::board::{BoardCommand, BoardTelemetry, CAPTURE_CHUNK_SAMPLES, CaptureChunk, NO_CAPTURE_READ};
+use dcfo::link::{LinkStats, Receiver};
+use dcfo::num::Scalar;
+use dcfo::units::Base;
+
+use crate::board::PhaseSample;
+use crate::control::Setpoints;
+
+/// What the last control step left for telemetry, SI units.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DriveStatus {
+    /// Drive state.
+    pub state: DriveState,
+    /// Latched faults.
+    pub faults: Faults,
+    /// The bridge is switching.
+    pub bridge_enabled: bool,
+    /// θ̂ (electrical rad) and speed (m/s), `None` without an estimate.
+    pub estimate: Option<(f32, f32)>,
+    /// Measured i_α, i_β, A (offsets removed).
+    pub i_ab_a: [f32; 2],
+    /// DC-bus voltage, V.
+    pub vdc_v: f32,
+    /// Control periods run (wrapping).
+    pub periods: u32,
+}
+
+impl DriveStatus {
+    /// Power-on: disabled, nothing measured.
+    pub const fn new() -> Self {
+        DriveStatus {
+            state: DriveState::Disabled,
+            faults: Faults::NONE,
+            bridge_enabled: false,
+            estimate: None,
+            i_ab_a: [0.0; 2],
+            vdc_v: 0.0,
+            periods: 0,
+        }
+    }
+
+    /// Takes one step's output (call from the control interrupt, every period).
+    pub fn update<T: Scalar>(&mut self, out: &StepOutput<T>, sample: &PhaseSample, base: &Base) {
+        let finite = |x: f32| if x.is_finite() { x } else { 0.0 };
+        self.state = out.state;
+        self.faults = out.faults;
+        self.bridge_enabled = out.bridge_enabled;
+        self.estimate =
+            out.estimate.map(|e| (e.theta_e.to_radians::<f32>(), finite(e.speed_m_per_s.to_f32())));
+        self.i_ab_a = [finite(base.to_amperes(out.i_ab.alpha)), finite(base.to_amperes(out.i_ab.beta))];
+        self.vdc_v = finite(sample.vdc_v);
+        self.periods = self.periods.wrapping_add(1);
+    }
+}
+
+impl Default for DriveStatus {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+/// One answer of the drive image.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum BoardAnswer {
+    /// The drive's state.
+    Telemetry(BoardTelemetry),
+    /// Capture samples.
+    Chunk(CaptureChunk),
+}
+
+/// The answer to `command`: arms the capture if asked; capture samples if asked and the
+/// capture is over, else telemetry. Call inside the critical section that guards
+/// `capture` and `status`; bounded: at most [`CAPTURE_CHUNK_SAMPLES`] samples copied.
+pub fn answer<const N: usize>(
+    command: &BoardCommand,
+    capture: &mut Capture<N>,
+    status: &DriveStatus,
+    setpoints: &Setpoints,
+) -> BoardAnswer {
+    if command.arm_capture {
+        capture.arm();
+    }
+    if command.capture_read != NO_CAPTURE_READ && capture.state() == CaptureState::Done {
+        let mut samples = [CaptureSample::default(); CAPTURE_CHUNK_SAMPLES];
+        let mut count = 0u8;
+        let first = command.capture_read as usize;
+        for (k, slot) in samples.iter_mut().enumerate() {
+            match capture.sample(first.saturating_add(k)) {
+                Some(s) => {
+                    *slot = *s;
+                    count += 1;
+                }
+                None => break,
+            }
+        }
+        return BoardAnswer::Chunk(CaptureChunk {
+            sequence: command.sequence,
+            first: command.capture_read,
+            count,
+            samples,
+        });
+    }
+    BoardAnswer::Telemetry(BoardTelemetry {
+        sequence: command.sequence,
+        state: status.state,
+        faults: status.faults,
+        bridge_enabled: status.bridge_enabled,
+        estimate: status.estimate,
+        i_ab_a: status.i_ab_a,
+        vdc_v: status.vdc_v,
+        speed_ref: setpoints.speed_m_per_s(),
+        capture: capture.state(),
+        capture_len: capture.len() as u32,
+        capture_capacity: capture.capacity() as u32,
+        periods: status.periods,
+    })
+}
+
+/// The thread's side: decodes commands, applies them to the setpoints, keeps the
+/// command watchdog.
+#[derive(Clone, Debug)]
+pub struct BoardLinkServer {
+    rx: Receiver<BoardCommand>,
+    /// Control periods at the last command.
+    last_command_periods: u32,
+    timeout_periods: u32,
+}
+
+impl BoardLinkServer {
+    /// A server whose watchdog disables the drive after `timeout_periods` control
+    /// periods without a command.
+    pub const fn new(timeout_periods: u32) -> Self {
+        BoardLinkServer { rx: Receiver::new(), last_command_periods: 0, timeout_periods }
+    }
+
+    /// One received byte; a complete valid command is applied to `setpoints` (clear
+    /// faults, enable, speed) and returned, for the caller to [`answer`]. `periods` is
+    /// the control periods run so far (the watchdog's clock).
+    pub fn on_byte(&mut self, byte: u8, setpoints: &Setpoints, periods: u32) -> Option<BoardCommand> {
+        let command = self.rx.push(byte)?.ok()?;
+        if command.clear_faults {
+            setpoints.request_clear_faults();
+        }
+        setpoints.set_enable(command.enable);
+        setpoints.set_speed_m_per_s(command.speed_ref);
+        self.last_command_periods = periods;
+        Some(command)
+    }
+
+    /// The command watchdog: with no command for more than the timeout, disables the
+    /// drive (bridge off) and returns `true`. A host that comes back enables it again
+    /// with its next command.
+    pub fn watchdog(&mut self, setpoints: &Setpoints, periods: u32) -> bool {
+        let silent = periods.wrapping_sub(self.last_command_periods) > self.timeout_periods;
+        if silent {
+            setpoints.set_enable(false);
+        }
+        silent
+    }
+
+    /// Frames dropped (malformed, bad CRC).
+    pub fn stats(&self) -> LinkStats {
+        self.rx.stats()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::board::virtual_motor::VirtualBoard;
+    use crate::control::ControlLoop;
+    use dcfo::drive::{Drive, DriveConfig, PAPER_AXIS_PAYLOAD_KG};
+    use dcfo::link::encode;
+    use dcfo::motor::MotorParams;
+    use dcfo::observer::ObserverKind;
+    use dcfo::virtual_motor::{VirtualAxis, VirtualMotor};
+
+    const BUS_V: f32 = 311.0;
+
+    fn command(sequence: u16, enable: bool, arm: bool, read: u32) -> BoardCommand {
+        BoardCommand {
+            sequence,
+            speed_ref: 0.3,
+            enable,
+            clear_faults: false,
+            arm_capture: arm,
+            capture_read: read,
+        }
+    }
+
+    fn feed(
+        server: &mut BoardLinkServer,
+        c: &BoardCommand,
+        sp: &Setpoints,
+        periods: u32,
+    ) -> Option<BoardCommand> {
+        let mut wire = [0u8; BoardCommand::WIRE_LEN];
+        let n = encode(c, &mut wire).unwrap();
+        wire[..n].iter().filter_map(|&b| server.on_byte(b, sp, periods)).last()
+    }
+
+    /// The drive image on the virtual motor, commanded as `dcfo board` does: armed and
+    /// enabled at 0.3 m/s, it reaches `Running`, the capture fills from the estimator's
+    /// start, and reading it back chunk by chunk gives every sample once; telemetry
+    /// reports the state; silence disables the drive.
+    #[test]
+    fn commands_run_the_virtual_motor_and_the_capture_reads_back() {
+        let motor = MotorParams::paper();
+        let mut config = DriveConfig::for_motor(&motor, BUS_V, ObserverKind::Dcfo);
+        config.moving_mass_kg = motor.mass_kg + PAPER_AXIS_PAYLOAD_KG;
+        let drive = Drive::<f32>::new(&motor, &config, &Base::SI).unwrap();
+        let axis = VirtualAxis {
+            payload_kg: PAPER_AXIS_PAYLOAD_KG,
+            load_n: 0.0,
+            bus_v: BUS_V,
+            period_s: config.control_period_s,
+        };
+        let mut board = VirtualBoard::new(VirtualMotor::new(&motor, &axis).unwrap());
+        let mut control = ControlLoop::new(drive, 1);
+        let mut capture = Capture::<2000>::new();
+        let mut status = DriveStatus::new();
+        let sp = Setpoints::new();
+        let mut server = BoardLinkServer::new(5000);
+        let c = feed(&mut server, &command(1, true, true, NO_CAPTURE_READ), &sp, 0).unwrap();
+        assert!(
+            matches!(answer(&c, &mut capture, &status, &sp), BoardAnswer::Telemetry(t) if t.capture == CaptureState::Armed)
+        );
+        let mut running_at = None;
+        for k in 0..40_000u32 {
+            let (out, sample) = control.period(&mut board, &sp);
+            capture.record(&out, control.base());
+            status.update(&out, &sample, control.base());
+            if k % 1000 == 0 {
+                assert!(
+                    feed(
+                        &mut server,
+                        &command(2 + (k / 1000) as u16, true, false, NO_CAPTURE_READ),
+                        &sp,
+                        status.periods
+                    )
+                    .is_some()
+                );
+            }
+            if out.state == DriveState::Running && running_at.is_none() {
+                running_at = Some(k);
+            }
+        }
+        let running_at = running_at.expect("the drive reaches Running on the virtual motor");
+        assert_eq!(status.state, DriveState::Running, "faults {:?}", status.faults);
+        let v = board.motor().state().v_m_per_s;
+        assert!(
+            (v - 0.3).abs() < 0.03,
+            "the mover runs at the reference: {v} m/s (Running from step {running_at})"
+        );
+        assert_eq!((capture.state(), capture.len()), (CaptureState::Done, 2000));
+        // Read it back as the host does.
+        let mut read = 0usize;
+        while read < 2000 {
+            let c = command(100, true, false, read as u32);
+            match answer(&c, &mut capture, &status, &sp) {
+                BoardAnswer::Chunk(chunk) => {
+                    assert_eq!(chunk.first as usize, read);
+                    for (k, s) in chunk.valid().iter().enumerate() {
+                        assert_eq!(Some(s), capture.sample(read + k));
+                    }
+                    assert!(chunk.count > 0);
+                    read += usize::from(chunk.count);
+                }
+                BoardAnswer::Telemetry(t) => panic!("telemetry instead of samples: {t:?}"),
+            }
+        }
+        assert_eq!(read, 2000);
+        let past = answer(&command(101, true, false, 2000), &mut capture, &status, &sp);
+        assert!(matches!(past, BoardAnswer::Chunk(c) if c.count == 0));
+        // Silence: the watchdog disables the drive.
+        let now = status.periods;
+        assert!(!server.watchdog(&sp, now));
+        assert!(server.watchdog(&sp, now.wrapping_add(5001)));
+        for _ in 0..2 {
+            let (out, sample) = control.period(&mut board, &sp);
+            status.update(&out, &sample, control.base());
+        }
+        assert_eq!(status.state, DriveState::Disabled);
+    }
+}

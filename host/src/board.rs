@@ -1,0 +1,889 @@
+//! `dcfo board`: operate a drive image from the host over the board link
+//! ([`dcfo::link::board`]): a board on a serial port, or the virtual-motor image
+//! (`firmware/examples/qemu_drive.rs`) on QEMU.
+//!
+//! One command, one answer: every [`BoardCommand`] carries the whole wish (enable,
+//! speed, and once each: clear faults, arm the capture) and is answered with telemetry or,
+//! when it asks for samples of a finished capture, with a [`CaptureChunk`]. The host
+//! sends one at least every [`POLL_PERIOD`]; the image disables the drive after 0.5 s
+//! without one, so a host that dies or hangs leaves the drive off.
+//!
+//! A downloaded capture becomes a trace in the shared format (`t`, `u_alpha`, `u_beta`,
+//! `i_alpha`, `i_beta` and the commanded acceleration `alpha_e_ref`, see
+//! [`crate::trace::COMMANDED_ACCEL_COLUMN`]) starting at the estimator's reset, so that
+//! `dcfo replay` reproduces the drive's own estimates, which [`replay_matches`] checks
+//! bit for bit.
+
+use std::collections::VecDeque;
+use std::io::{BufRead, Read, Write};
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::mpsc;
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, bail};
+use dcfo::capture::{CaptureSample, CaptureState};
+use dcfo::drive::DriveState;
+use dcfo::link::board::{BoardCommand, BoardTelemetry, CaptureChunk, NO_CAPTURE_READ};
+use dcfo::link::{LinkError, decode_raw};
+use dcfo::motor::MotorParams;
+use dcfo::observer::ObserverKind;
+
+use crate::qemu::{QemuCpu, QemuSession, build_qemu_example};
+use crate::replay::replay_trace;
+use crate::sim::report::fault_names;
+use crate::trace::{COMMANDED_ACCEL_COLUMN, GroundTruth, InputTrace, InputTraceWriter, TraceRow};
+
+/// How long to wait for an answer before sending the command again (a booting QEMU can
+/// lose the first bytes).
+pub const RESEND_AFTER: Duration = Duration::from_millis(500);
+/// How long to wait for an answer at all.
+pub const ANSWER_TIMEOUT: Duration = Duration::from_secs(5);
+/// Telemetry poll period of the live display and the demo: 20 Hz.
+pub const POLL_PERIOD: Duration = Duration::from_millis(50);
+/// Capture chunks downloaded between two polls of the live display (about 0.1 s on
+/// QEMU).
+pub const DOWNLOAD_SLICE_CHUNKS: u32 = 40;
+/// The control period of the drive images, s (10 kHz).
+pub const CONTROL_PERIOD_S: f64 = 1e-4;
+
+/// Set by Ctrl-C (SIGINT, SIGTERM) once [`catch_interrupt`] has installed the handler.
+static INTERRUPTED: AtomicBool = AtomicBool::new(false);
+
+/// Makes Ctrl-C end `dcfo board` cleanly: the interactive mode and the demo see it at
+/// their next poll, disable the drive and exit. Without it the process would die at
+/// once and the image's watchdog would switch the bridge off 0.5 s later.
+///
+/// # Errors
+/// The handler could not be installed (e.g. one was already).
+pub fn catch_interrupt() -> anyhow::Result<()> {
+    ctrlc::set_handler(|| INTERRUPTED.store(true, Ordering::SeqCst)).context("installing the Ctrl-C handler")
+}
+
+fn interrupted() -> bool {
+    INTERRUPTED.load(Ordering::SeqCst)
+}
+
+/// One answer of the drive image.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Answer {
+    /// The drive's state.
+    Telemetry(BoardTelemetry),
+    /// Capture samples.
+    Chunk(CaptureChunk),
+}
+
+/// The host's end of the board link: commands out through `writer`, bytes in from a
+/// reader thread, frames told apart by their length.
+pub struct BoardLink<W: Write> {
+    writer: W,
+    incoming: mpsc::Receiver<std::io::Result<Vec<u8>>>,
+    pending: VecDeque<u8>,
+    frame: Vec<u8>,
+    sequence: u16,
+    /// Frames dropped: not a board-link answer (e.g. the image's banner), bad COBS or CRC.
+    pub dropped_frames: u64,
+    /// Why the last frame was dropped.
+    pub last_drop: Option<LinkError>,
+    /// Answers that came for another command than the one awaited (dropped).
+    pub stale_answers: u64,
+    /// Commands answered.
+    pub round_trips: u64,
+}
+
+impl<W: Write> BoardLink<W> {
+    /// A link writing to `writer` and reading from `reader` (moved to a thread).
+    pub fn new(writer: W, mut reader: impl Read + Send + 'static) -> Self {
+        let (tx, incoming) = mpsc::channel();
+        std::thread::spawn(move || {
+            let mut buf = [0u8; 1024];
+            loop {
+                match reader.read(&mut buf) {
+                    Ok(0) => {
+                        let _ = tx
+                            .send(Err(std::io::Error::new(std::io::ErrorKind::UnexpectedEof, "link closed")));
+                        return;
+                    }
+                    Ok(n) => {
+                        if tx.send(Ok(buf[..n].to_vec())).is_err() {
+                            return;
+                        }
+                    }
+                    Err(e) => {
+                        let _ = tx.send(Err(e));
+                        return;
+                    }
+                }
+            }
+        });
+        BoardLink {
+            writer,
+            incoming,
+            pending: VecDeque::new(),
+            frame: Vec::new(),
+            sequence: 0,
+            dropped_frames: 0,
+            last_drop: None,
+            stale_answers: 0,
+            round_trips: 0,
+        }
+    }
+
+    /// Sends `command` (its sequence number is set here) and waits for its answer,
+    /// sending it again every [`RESEND_AFTER`] (the image applies a repeated command
+    /// again, which changes nothing: commands are states, not steps).
+    ///
+    /// # Errors
+    /// No answer within [`ANSWER_TIMEOUT`], the link closed, or a write failed.
+    pub fn exchange(&mut self, mut command: BoardCommand) -> anyhow::Result<Answer> {
+        self.sequence = self.sequence.wrapping_add(1);
+        command.sequence = self.sequence;
+        let mut wire = [0u8; BoardCommand::WIRE_LEN];
+        let n = dcfo::link::encode(&command, &mut wire)
+            .map_err(|e| anyhow::anyhow!("encoding a command: {e}"))?;
+        let deadline = Instant::now() + ANSWER_TIMEOUT;
+        loop {
+            // A 0x00 first ends any garbage on the line before the frame.
+            self.writer
+                .write_all(&[0])
+                .and_then(|_| self.writer.write_all(&wire[..n]))
+                .and_then(|_| self.writer.flush())
+                .context("board link: write failed")?;
+            let resend_at = (Instant::now() + RESEND_AFTER).min(deadline);
+            loop {
+                if let Some(answer) = self.next_answer() {
+                    let sequence = match answer {
+                        Answer::Telemetry(t) => t.sequence,
+                        Answer::Chunk(c) => c.sequence,
+                    };
+                    if sequence == command.sequence {
+                        self.round_trips += 1;
+                        return Ok(answer);
+                    }
+                    self.stale_answers += 1;
+                    continue;
+                }
+                let now = Instant::now();
+                if now >= resend_at {
+                    break;
+                }
+                match self.incoming.recv_timeout(resend_at - now) {
+                    Ok(Ok(bytes)) => self.pending.extend(bytes),
+                    Ok(Err(e)) => bail!("board link: read failed: {e}"),
+                    Err(mpsc::RecvTimeoutError::Timeout) => break,
+                    Err(mpsc::RecvTimeoutError::Disconnected) => bail!("board link: closed"),
+                }
+            }
+            if Instant::now() >= deadline {
+                let why = match self.last_drop {
+                    Some(e) => format!("; {} frames dropped, the last for: {e}", self.dropped_frames),
+                    None => {
+                        String::from("; nothing received (a drive image with the board link on this port?)")
+                    }
+                };
+                bail!(
+                    "board link: no answer to command {} within {} s{why}",
+                    command.sequence,
+                    ANSWER_TIMEOUT.as_secs()
+                );
+            }
+        }
+    }
+
+    /// The next complete answer in the bytes received so far.
+    fn next_answer(&mut self) -> Option<Answer> {
+        while let Some(byte) = self.pending.pop_front() {
+            if byte != 0 {
+                if self.frame.len() < 1024 {
+                    self.frame.push(byte);
+                }
+                continue;
+            }
+            let mut frame = std::mem::take(&mut self.frame);
+            if frame.is_empty() {
+                continue;
+            }
+            match decode_answer(&mut frame) {
+                Ok(answer) => return Some(answer),
+                Err(e) => {
+                    self.dropped_frames += 1;
+                    self.last_drop = Some(e);
+                }
+            }
+        }
+        None
+    }
+}
+
+/// Decodes one COBS-encoded frame (without its delimiter) as a board-link answer: a
+/// [`BoardTelemetry`] or a [`CaptureChunk`], by its length.
+///
+/// # Errors
+/// The frame's [`LinkError`] (COBS, length, CRC, version, flags, value).
+pub fn decode_answer(encoded: &mut [u8]) -> Result<Answer, LinkError> {
+    let n = dcfo::link::cobs::decode_in_place(encoded).ok_or(LinkError::Cobs)?;
+    let raw = encoded.get(..n).ok_or(LinkError::Cobs)?;
+    match raw.len() {
+        BoardTelemetry::RAW_LEN => decode_raw::<BoardTelemetry>(raw).map(Answer::Telemetry),
+        CaptureChunk::RAW_LEN => decode_raw::<CaptureChunk>(raw).map(Answer::Chunk),
+        _ => Err(LinkError::Length),
+    }
+}
+
+/// What the host wants of the drive; sent whole in every command.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Wish {
+    /// Run the drive.
+    pub enable: bool,
+    /// Speed reference, m/s.
+    pub speed_m_per_s: f32,
+}
+
+/// A drive image behind a [`BoardLink`], with the host's wish.
+pub struct Board<W: Write> {
+    /// The link.
+    pub link: BoardLink<W>,
+    /// Sent with every command.
+    pub wish: Wish,
+}
+
+impl<W: Write> Board<W> {
+    /// A board behind `link`, wished disabled at 0 m/s.
+    pub fn new(link: BoardLink<W>) -> Self {
+        Board { link, wish: Wish { enable: false, speed_m_per_s: 0.0 } }
+    }
+
+    fn command(&self, clear_faults: bool, arm_capture: bool, capture_read: u32) -> BoardCommand {
+        BoardCommand {
+            sequence: 0,
+            speed_ref: self.wish.speed_m_per_s,
+            enable: self.wish.enable,
+            clear_faults,
+            arm_capture,
+            capture_read,
+        }
+    }
+
+    /// Sends the wish (with the one-off requests) and returns the telemetry.
+    ///
+    /// # Errors
+    /// The link failed, or the image answered with samples to a telemetry request.
+    pub fn poll(&mut self, clear_faults: bool, arm_capture: bool) -> anyhow::Result<BoardTelemetry> {
+        match self.link.exchange(self.command(clear_faults, arm_capture, NO_CAPTURE_READ))? {
+            Answer::Telemetry(t) => Ok(t),
+            Answer::Chunk(c) => {
+                bail!("board link: capture samples (from {}) answered a telemetry request", c.first)
+            }
+        }
+    }
+
+    /// Downloads the finished capture's `len` samples.
+    ///
+    /// # Errors
+    /// The link failed, the capture is not finished, or a chunk is not the one asked for.
+    pub fn download_capture(&mut self, len: u32) -> anyhow::Result<Vec<CaptureSample>> {
+        let mut samples = Vec::with_capacity(len as usize);
+        self.download_more(&mut samples, len, u32::MAX)?;
+        Ok(samples)
+    }
+
+    /// Appends the finished capture's next samples to `samples`, at most `chunks`
+    /// commands' worth, up to `len` in all (for a live display that keeps polling
+    /// between slices of a download).
+    ///
+    /// # Errors
+    /// As [`Board::download_capture`].
+    pub fn download_more(
+        &mut self,
+        samples: &mut Vec<CaptureSample>,
+        len: u32,
+        chunks: u32,
+    ) -> anyhow::Result<()> {
+        let mut asked = 0;
+        while (samples.len() as u32) < len && asked < chunks {
+            asked += 1;
+            let first = samples.len() as u32;
+            match self.link.exchange(self.command(false, false, first))? {
+                Answer::Chunk(c) if c.first == first && c.count > 0 => samples.extend_from_slice(c.valid()),
+                Answer::Chunk(c) => bail!(
+                    "board link: capture chunk from sample {} with {} samples, asked for sample {first} of {len}",
+                    c.first,
+                    c.count
+                ),
+                Answer::Telemetry(t) => bail!(
+                    "board link: telemetry instead of capture samples (capture {:?}, {} samples)",
+                    t.capture,
+                    t.capture_len
+                ),
+            }
+        }
+        samples.truncate(len as usize);
+        Ok(())
+    }
+
+    /// Disables the drive and waits (at most 2 s) until it reports so.
+    ///
+    /// # Errors
+    /// The link failed, or the drive still runs after 2 s.
+    pub fn disable(&mut self) -> anyhow::Result<BoardTelemetry> {
+        self.wish.enable = false;
+        let deadline = Instant::now() + Duration::from_secs(2);
+        loop {
+            let t = self.poll(false, false)?;
+            if matches!(t.state, DriveState::Disabled | DriveState::Fault) && !t.bridge_enabled {
+                return Ok(t);
+            }
+            if Instant::now() > deadline {
+                bail!("the drive still reports {:?} 2 s after the disable command", t.state);
+            }
+            std::thread::sleep(Duration::from_millis(10));
+        }
+    }
+}
+
+/// The capture as a trace in the shared format: row `k` at `t = k Ts` (the estimator's
+/// first step is `t = 0`), with the commanded acceleration column.
+///
+/// # Errors
+/// Fewer than two samples, or a value the trace format refuses.
+pub fn capture_trace(samples: &[CaptureSample], period_s: f64) -> anyhow::Result<InputTrace> {
+    let rows = samples.iter().enumerate().map(|(k, s)| capture_row(k, s, period_s)).collect();
+    let accel = samples.iter().map(|s| f64::from(s.alpha_e_ref)).collect();
+    Ok(InputTrace::from_rows(rows, "capture")?.with_commanded_acceleration(accel, "capture")?)
+}
+
+fn capture_row(k: usize, s: &CaptureSample, period_s: f64) -> TraceRow {
+    TraceRow {
+        t: k as f64 * period_s,
+        u_alpha: f64::from(s.u_alpha),
+        u_beta: f64::from(s.u_beta),
+        i_alpha: f64::from(s.i_alpha),
+        i_beta: f64::from(s.i_beta),
+        theta: None,
+        v: None,
+        x: None,
+    }
+}
+
+/// Writes the capture to `path` as a trace (see [`capture_trace`]), atomically.
+///
+/// # Errors
+/// As [`InputTraceWriter`]: the file, the line and the column.
+pub fn write_capture_trace(path: &Path, samples: &[CaptureSample], period_s: f64) -> anyhow::Result<()> {
+    let mut w = InputTraceWriter::create(path, GroundTruth::NONE, &[COMMANDED_ACCEL_COLUMN])?;
+    for (k, s) in samples.iter().enumerate() {
+        w.write(&capture_row(k, s, period_s), &[f64::from(s.alpha_e_ref)])?;
+    }
+    w.finish()?;
+    Ok(())
+}
+
+/// Replays `trace` through the estimator of `motor` (DCFO, f32: what `dcfo replay` runs)
+/// and counts the samples whose angle, speed or flux estimate differs in any bit from
+/// what the drive estimated on the target.
+///
+/// # Errors
+/// The replay refused the trace.
+pub fn replay_matches(
+    trace: &InputTrace,
+    motor: &MotorParams,
+    samples: &[CaptureSample],
+) -> anyhow::Result<usize> {
+    let replayed = replay_trace(trace, motor, ObserverKind::Dcfo)?;
+    anyhow::ensure!(
+        replayed.len() == samples.len(),
+        "replay gave {} rows for {} samples",
+        replayed.len(),
+        samples.len()
+    );
+    Ok(replayed
+        .iter()
+        .zip(samples)
+        .filter(|(r, s)| {
+            r.theta_hat.to_bits() != s.theta_hat.to_radians::<f64>().to_bits()
+                || r.v_hat.to_bits() != f64::from(s.v_hat).to_bits()
+                || r.psi_alpha_hat.to_bits() != f64::from(s.psi_alpha_hat).to_bits()
+                || r.psi_beta_hat.to_bits() != f64::from(s.psi_beta_hat).to_bits()
+        })
+        .count())
+}
+
+/// The motor the QEMU drive image runs (`examples/qemu_drive.rs`): the paper motor, its
+/// drive tuned by `DriveConfig::for_motor` for the paper axis's bus; the replay needs
+/// only the motor (its estimator is `EstimatorConfig::for_motor`, as the drive's).
+pub fn qemu_drive_motor() -> MotorParams {
+    MotorParams::paper()
+}
+
+/// Where `dcfo board` connects.
+pub enum Target {
+    /// QEMU running the virtual-motor drive image.
+    Qemu {
+        /// The board (and numeric type).
+        cpu: QemuCpu,
+        /// The image; built with cargo when `None`.
+        elf: Option<PathBuf>,
+    },
+    /// A board on a serial port.
+    Port {
+        /// The device, e.g. `/dev/ttyACM0`.
+        device: String,
+        /// Bit rate.
+        baud: u32,
+    },
+}
+
+/// What `dcfo board --demo` did (its JSON line).
+#[derive(Debug, serde::Serialize)]
+pub struct DemoReport {
+    /// The most advanced state the drive reported (`Running` when it ran sensorless).
+    pub state_reached: String,
+    /// The state when the demo disabled it.
+    pub state_before_disable: String,
+    /// Faults latched before the disable (`none`).
+    pub faults: String,
+    /// Speed estimate when the capture was downloaded, m/s.
+    pub speed_m_per_s: Option<f32>,
+    /// Samples captured and downloaded (full rate, from the estimator's start).
+    pub capture_samples: usize,
+    /// Every replayed estimate equals the drive's own, bit for bit.
+    pub replay_identical: bool,
+    /// Replayed samples that differ.
+    pub replay_differing: usize,
+    /// Time to download the capture, s.
+    pub download_s: f64,
+    /// Commands answered per second during the download.
+    pub round_trips_per_s: f64,
+    /// Control periods the image ran, as simulated time, s.
+    pub simulated_s: f64,
+    /// Wall-clock time from connecting to the disable, s.
+    pub wall_s: f64,
+    /// The trace written (`--record`).
+    pub trace: Option<PathBuf>,
+}
+
+fn state_rank(s: DriveState) -> u8 {
+    match s {
+        DriveState::Fault => 0,
+        DriveState::Disabled => 1,
+        DriveState::Calibrating => 2,
+        DriveState::Commissioning => 2,
+        DriveState::Starting => 3,
+        DriveState::Reacquiring => 4,
+        DriveState::LowSpeed => 5,
+        DriveState::Running => 6,
+    }
+}
+
+/// Connects to `target`, then runs `f` with the board; QEMU is stopped afterwards.
+fn with_board<T>(
+    target: &Target,
+    f: impl FnOnce(&mut dyn BoardOps) -> anyhow::Result<T>,
+) -> anyhow::Result<T> {
+    match target {
+        Target::Qemu { cpu, elf } => {
+            let workspace = Path::new(env!("CARGO_MANIFEST_DIR")).parent().unwrap_or(Path::new("."));
+            let elf = match elf {
+                Some(e) => e.clone(),
+                None => build_qemu_example(workspace, *cpu, "qemu_drive")?,
+            };
+            let (_session, stdin, stdout) = QemuSession::spawn(&elf, *cpu)?;
+            let mut board = Board::new(BoardLink::new(stdin, stdout));
+            f(&mut board)
+        }
+        Target::Port { device, baud } => {
+            let serial = serialport::new(device, *baud)
+                .timeout(ANSWER_TIMEOUT)
+                .open()
+                .with_context(|| format!("opening {device} at {baud} bit/s"))?;
+            let reader = serial.try_clone().with_context(|| format!("{device}: second handle"))?;
+            let mut board = Board::new(BoardLink::new(serial, reader));
+            f(&mut board)
+        }
+    }
+}
+
+/// [`Board`] without its writer type, for [`with_board`].
+pub trait BoardOps {
+    /// See [`Board::poll`].
+    fn poll(&mut self, clear_faults: bool, arm_capture: bool) -> anyhow::Result<BoardTelemetry>;
+    /// See [`Board::download_capture`].
+    fn download_capture(&mut self, len: u32) -> anyhow::Result<Vec<CaptureSample>>;
+    /// See [`Board::download_more`].
+    fn download_more(
+        &mut self,
+        samples: &mut Vec<CaptureSample>,
+        len: u32,
+        chunks: u32,
+    ) -> anyhow::Result<()>;
+    /// See [`Board::disable`].
+    fn disable(&mut self) -> anyhow::Result<BoardTelemetry>;
+    /// The wish sent with every command.
+    fn wish_mut(&mut self) -> &mut Wish;
+    /// Commands answered so far.
+    fn round_trips(&self) -> u64;
+}
+
+impl<W: Write> BoardOps for Board<W> {
+    fn poll(&mut self, clear_faults: bool, arm_capture: bool) -> anyhow::Result<BoardTelemetry> {
+        Board::poll(self, clear_faults, arm_capture)
+    }
+    fn download_capture(&mut self, len: u32) -> anyhow::Result<Vec<CaptureSample>> {
+        Board::download_capture(self, len)
+    }
+    fn download_more(
+        &mut self,
+        samples: &mut Vec<CaptureSample>,
+        len: u32,
+        chunks: u32,
+    ) -> anyhow::Result<()> {
+        Board::download_more(self, samples, len, chunks)
+    }
+    fn disable(&mut self) -> anyhow::Result<BoardTelemetry> {
+        Board::disable(self)
+    }
+    fn wish_mut(&mut self) -> &mut Wish {
+        &mut self.wish
+    }
+    fn round_trips(&self) -> u64 {
+        self.link.round_trips
+    }
+}
+
+/// `dcfo board --demo`: connect, arm the capture, enable at `speed` m/s, wait for the
+/// capture to finish (the drive reaching `Running` on the way), download it, replay it,
+/// disable. `record`: also write the capture as a trace there.
+///
+/// # Errors
+/// The link failed, or the capture did not finish within `timeout`.
+pub fn run_demo(
+    target: &Target,
+    speed: f32,
+    record: Option<&Path>,
+    timeout: Duration,
+) -> anyhow::Result<DemoReport> {
+    let started = Instant::now();
+    with_board(target, |board| {
+        let first = board.poll(false, false)?;
+        eprintln!("connected: drive {:?}, capture capacity {} samples", first.state, first.capture_capacity);
+        *board.wish_mut() = Wish { enable: true, speed_m_per_s: speed };
+        let mut t = board.poll(true, true)?;
+        let mut best = t.state;
+        let deadline = Instant::now() + timeout;
+        while !(t.capture == CaptureState::Done && t.state == DriveState::Running) {
+            if Instant::now() > deadline {
+                let _ = board.disable();
+                bail!(
+                    "no finished capture with the drive running within {} s: drive {:?} (faults {}), capture {:?} with {} samples",
+                    timeout.as_secs(),
+                    t.state,
+                    fault_names(t.faults),
+                    t.capture,
+                    t.capture_len
+                );
+            }
+            if t.state == DriveState::Fault {
+                let _ = board.disable();
+                bail!("the drive tripped: {}", fault_names(t.faults));
+            }
+            if interrupted() {
+                let t = board.disable()?;
+                bail!(
+                    "interrupted: drive {:?}, bridge {}",
+                    t.state,
+                    if t.bridge_enabled { "on" } else { "off" }
+                );
+            }
+            std::thread::sleep(POLL_PERIOD);
+            t = board.poll(false, false)?;
+            if state_rank(t.state) > state_rank(best) {
+                best = t.state;
+                eprintln!(
+                    "drive {:?} after {:.2} s simulated",
+                    t.state,
+                    f64::from(t.periods) * CONTROL_PERIOD_S
+                );
+            }
+        }
+        let (state_before, faults, speed_now) = (t.state, t.faults, t.estimate.map(|e| e.1));
+        let trips_before = board.round_trips();
+        let download_started = Instant::now();
+        let samples = board.download_capture(t.capture_len)?;
+        let download_s = download_started.elapsed().as_secs_f64();
+        let round_trips_per_s = (board.round_trips() - trips_before) as f64 / download_s.max(1e-9);
+        let last = board.disable()?;
+        eprintln!(
+            "downloaded {} samples in {download_s:.1} s ({round_trips_per_s:.0} round trips/s); drive {:?}",
+            samples.len(),
+            last.state
+        );
+        // Through the file, as `dcfo replay` reads it.
+        let dir = tempfile::tempdir().context("temporary directory")?;
+        let path = match record {
+            Some(p) => p.to_path_buf(),
+            None => dir.path().join("capture.csv"),
+        };
+        write_capture_trace(&path, &samples, CONTROL_PERIOD_S)?;
+        let trace = InputTrace::read_path(&path)?;
+        let differing = replay_matches(&trace, &qemu_drive_motor(), &samples)?;
+        Ok(DemoReport {
+            state_reached: format!("{best:?}"),
+            state_before_disable: format!("{state_before:?}"),
+            faults: fault_names(faults),
+            speed_m_per_s: speed_now,
+            capture_samples: samples.len(),
+            replay_identical: differing == 0 && !samples.is_empty(),
+            replay_differing: differing,
+            download_s,
+            round_trips_per_s,
+            simulated_s: f64::from(last.periods) * CONTROL_PERIOD_S,
+            wall_s: started.elapsed().as_secs_f64(),
+            trace: record.map(Path::to_path_buf),
+        })
+    })
+}
+
+/// One line of live state: drive state, faults, speed, currents, bus, angle, capture.
+pub fn status_line(t: &BoardTelemetry) -> String {
+    let (theta, v) = match t.estimate {
+        Some((theta, v)) => (format!("{:+7.1} deg", theta.to_degrees()), format!("{v:+.3} m/s")),
+        None => ("    --".into(), "--".into()),
+    };
+    format!(
+        "{:<12} faults {:<10} v {v:<11} ref {:+.3} m/s  i_ab [{:+6.2} {:+6.2}] A  bus {:6.1} V  theta {theta}  bridge {}  capture {:?} {}/{}",
+        format!("{:?}", t.state),
+        fault_names(t.faults),
+        t.speed_ref,
+        t.i_ab_a[0],
+        t.i_ab_a[1],
+        t.vdc_v,
+        if t.bridge_enabled { "on " } else { "off" },
+        t.capture,
+        t.capture_len,
+        t.capture_capacity
+    )
+}
+
+/// A line typed in the interactive mode.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Typed {
+    /// `e`: enable.
+    Enable,
+    /// `d`: disable.
+    Disable,
+    /// `c`: clear faults.
+    Clear,
+    /// `s <m/s>`: speed reference.
+    Speed(f32),
+    /// `r`: arm the capture (downloaded to `--record FILE` when it is over).
+    Record,
+    /// `q`, or the end of the input: disable and quit.
+    Quit,
+}
+
+/// Parses one typed line.
+///
+/// # Errors
+/// What is wrong with the line, naming it.
+pub fn parse_typed(line: &str) -> Result<Typed, String> {
+    let mut words = line.split_whitespace();
+    let cmd = words.next().unwrap_or("");
+    let typed = match cmd {
+        "e" | "enable" => Typed::Enable,
+        "d" | "disable" => Typed::Disable,
+        "c" | "clear" => Typed::Clear,
+        "r" | "record" => Typed::Record,
+        "q" | "quit" => Typed::Quit,
+        "s" | "speed" => {
+            let arg = words.next().ok_or_else(|| format!("`{line}`: `s` needs a speed in m/s"))?;
+            let v: f32 = arg.parse().map_err(|_| format!("`{line}`: `{arg}` is not a speed in m/s"))?;
+            if !v.is_finite() {
+                return Err(format!("`{line}`: the speed must be a finite number of m/s"));
+            }
+            Typed::Speed(v)
+        }
+        _ => {
+            return Err(format!(
+                "`{line}`: commands are e(nable), d(isable), c(lear), s(peed) <m/s>, r(ecord), q(uit)"
+            ));
+        }
+    };
+    if let Some(extra) = words.next() {
+        return Err(format!("`{line}`: unexpected `{extra}`"));
+    }
+    Ok(typed)
+}
+
+/// `dcfo board` without `--demo`: live state on stderr at [`POLL_PERIOD`], commands read
+/// line by line from stdin; `q`, the end of the input or Ctrl-C (with
+/// [`catch_interrupt`]) disables the drive and exits.
+///
+/// # Errors
+/// The link failed (the image's watchdog then disables the drive within 0.5 s).
+pub fn run_interactive(target: &Target, record: Option<&Path>) -> anyhow::Result<()> {
+    let (tx, typed) = mpsc::channel::<String>();
+    std::thread::spawn(move || {
+        let stdin = std::io::stdin();
+        for line in stdin.lock().lines() {
+            let Ok(line) = line else { break };
+            if tx.send(line).is_err() {
+                return;
+            }
+        }
+        let _ = tx.send("q".into());
+    });
+    eprintln!(
+        "commands: e(nable), d(isable), c(lear faults), s(peed) <m/s>, r(ecord: arm the capture), q(uit)"
+    );
+    with_board(target, |board| {
+        let mut clear = false;
+        let mut arm = record.is_some();
+        let mut downloaded = false;
+        let mut samples = Vec::new();
+        loop {
+            let t = board.poll(std::mem::take(&mut clear), std::mem::take(&mut arm))?;
+            eprint!("\r{}\x1b[K", status_line(&t));
+            if let Some(path) = record
+                && t.capture == CaptureState::Done
+                && !downloaded
+            {
+                // A slice at a time (about 0.1 s), so that the display and the keys stay
+                // live while a long capture downloads.
+                board.download_more(&mut samples, t.capture_len, DOWNLOAD_SLICE_CHUNKS)?;
+                eprint!(" | download {}/{}", samples.len(), t.capture_len);
+                if samples.len() as u32 >= t.capture_len {
+                    write_capture_trace(path, &samples, CONTROL_PERIOD_S)?;
+                    eprintln!("\ncapture: {} samples written to {}", samples.len(), path.display());
+                    downloaded = true;
+                    samples.clear();
+                }
+            }
+            std::thread::sleep(POLL_PERIOD);
+            if interrupted() {
+                let t = board.disable()?;
+                eprintln!("\r{}\x1b[K\ninterrupted: drive disabled", status_line(&t));
+                return finish_download(board, record, &mut samples, &t);
+            }
+            while let Ok(line) = typed.try_recv() {
+                if line.trim().is_empty() {
+                    continue;
+                }
+                match parse_typed(&line) {
+                    Ok(Typed::Enable) => board.wish_mut().enable = true,
+                    Ok(Typed::Disable) => board.wish_mut().enable = false,
+                    Ok(Typed::Clear) => clear = true,
+                    Ok(Typed::Speed(v)) => board.wish_mut().speed_m_per_s = v,
+                    Ok(Typed::Record) => {
+                        arm = true;
+                        downloaded = false;
+                        samples.clear();
+                        if record.is_none() {
+                            eprintln!("\n(no --record FILE: the capture will not be downloaded)");
+                        }
+                    }
+                    Ok(Typed::Quit) => {
+                        let t = board.disable()?;
+                        eprintln!("\r{}\x1b[K\ndrive disabled", status_line(&t));
+                        return finish_download(board, record, &mut samples, &t);
+                    }
+                    Err(e) => eprintln!("\n{e}"),
+                }
+            }
+        }
+    })
+}
+
+/// On the way out, with the drive already disabled: a capture download under way is
+/// completed and written (the samples of a finished capture do not change).
+fn finish_download(
+    board: &mut dyn BoardOps,
+    record: Option<&Path>,
+    samples: &mut Vec<CaptureSample>,
+    t: &BoardTelemetry,
+) -> anyhow::Result<()> {
+    let Some(path) = record else { return Ok(()) };
+    if samples.is_empty() || t.capture != CaptureState::Done {
+        return Ok(());
+    }
+    board.download_more(samples, t.capture_len, u32::MAX)?;
+    write_capture_trace(path, samples, CONTROL_PERIOD_S)?;
+    eprintln!("capture: {} samples written to {}", samples.len(), path.display());
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use dcfo::drive::Faults;
+
+    #[test]
+    fn typed_commands_parse_and_bad_ones_are_named() {
+        assert_eq!(parse_typed("e"), Ok(Typed::Enable));
+        assert_eq!(parse_typed(" s -0.25 "), Ok(Typed::Speed(-0.25)));
+        assert!(parse_typed("s fast").unwrap_err().contains("`fast` is not a speed"));
+        assert!(parse_typed("s").unwrap_err().contains("needs a speed"));
+        assert!(parse_typed("x").unwrap_err().contains("commands are"));
+        assert!(parse_typed("e now").unwrap_err().contains("unexpected `now`"));
+        assert!(parse_typed("s inf").is_err());
+    }
+
+    #[test]
+    fn answers_are_told_apart_by_length_and_garbage_is_refused() {
+        let t = BoardTelemetry {
+            sequence: 3,
+            state: DriveState::Running,
+            faults: Faults::NONE,
+            bridge_enabled: true,
+            estimate: Some((0.5, 0.3)),
+            i_ab_a: [1.0, 2.0],
+            vdc_v: 311.0,
+            speed_ref: 0.3,
+            capture: CaptureState::Done,
+            capture_len: 5,
+            capture_capacity: 10,
+            periods: 9,
+        };
+        let mut wire = [0u8; 300];
+        let n = dcfo::link::encode(&t, &mut wire).unwrap();
+        assert_eq!(decode_answer(&mut wire[..n - 1].to_vec()), Ok(Answer::Telemetry(t)));
+        let mut banner = b"dcfo-firmware qemu_drive".to_vec();
+        assert!(decode_answer(&mut banner).is_err());
+    }
+
+    /// An image that answers only garbage: the error names the command, the wait and
+    /// why the last frame was dropped.
+    #[test]
+    fn no_answer_is_an_error_naming_the_last_bad_frame() {
+        let (ours, mut theirs) = std::os::unix::net::UnixStream::pair().unwrap();
+        let reader = ours.try_clone().unwrap();
+        let t = BoardTelemetry {
+            sequence: 1,
+            state: DriveState::Disabled,
+            faults: Faults::NONE,
+            bridge_enabled: false,
+            estimate: None,
+            i_ab_a: [0.0; 2],
+            vdc_v: 24.0,
+            speed_ref: 0.0,
+            capture: CaptureState::Idle,
+            capture_len: 0,
+            capture_capacity: 128,
+            periods: 0,
+        };
+        let mut wire = [0u8; 64];
+        let n = dcfo::link::encode(&t, &mut wire).unwrap();
+        // One bit of the payload flipped under a valid COBS encoding: the CRC fails.
+        let raw_len = dcfo::link::cobs::decode_in_place(&mut wire[..n - 1]).unwrap();
+        wire[5] ^= 0x01;
+        let mut corrupted = [0u8; 64];
+        let m = dcfo::link::cobs::encode(&wire[..raw_len], &mut corrupted).unwrap();
+        theirs.write_all(b"banner\0").unwrap();
+        theirs.write_all(&corrupted[..m]).unwrap();
+        theirs.write_all(&[0]).unwrap();
+        let mut board = Board::new(BoardLink::new(ours, reader));
+        let e = board.poll(false, false).unwrap_err().to_string();
+        assert!(e.contains("no answer to command 1 within 5 s"), "{e}");
+        assert!(e.contains("2 frames dropped, the last for: CRC mismatch"), "{e}");
+        drop(theirs);
+    }
+}

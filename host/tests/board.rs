@@ -1,0 +1,222 @@
+//! The virtual motor and the board path (issue 12, items 2 to 5).
+//!
+//! - The firmware's virtual motor (`dcfo::virtual_motor`, f32, averaged inverter) agrees
+//!   with the host's f64 plant (switched ideal inverter, RK4) on the same duties.
+//! - The drive on the virtual motor, captured as the drive image captures it, replays
+//!   through `dcfo replay`'s code bit for bit (in process, no QEMU).
+//! - `dcfo board --qemu --demo --json` on the virtual-motor image: Running at 0.3 m/s,
+//!   at least 1000 samples captured, the replay identical; and the image's command
+//!   watchdog disables the drive when the host goes silent.
+//!
+//! The QEMU tests skip with a message when `qemu-system-arm` or the thumb target is
+//! missing, unless `DCFO_REQUIRE_QEMU=1` (CI sets it), as `qemu_hil.rs` does.
+
+use dcfo::capture::{Capture, CaptureState};
+use dcfo::drive::{Drive, DriveConfig, DriveState, Measurements, PAPER_AXIS_BUS_V, PAPER_AXIS_PAYLOAD_KG};
+use dcfo::motor::MotorParams;
+use dcfo::observer::ObserverKind;
+use dcfo::svpwm::svpwm;
+use dcfo::transforms::{Abc, AlphaBeta};
+use dcfo::units::Base;
+use dcfo::virtual_motor::{VirtualAxis, VirtualMotor};
+use dcfo_host::board::{Board, BoardLink, capture_trace, replay_matches};
+use dcfo_host::plant::{Plant, SimParams};
+use dcfo_host::qemu::{QemuCpu, QemuSession, build_qemu_example};
+use std::path::Path;
+use std::process::Command;
+use std::time::{Duration, Instant};
+
+/// The same duties into the virtual motor and into the host's plant (ideal inverter and
+/// sensors, the same motor and mass): a voltage vector turning at 4 Hz that drags the
+/// mover along. Currents and speed must agree at every sample within 2 % of their peaks
+/// (the host plant switches the bridge and carries the current ripple; the virtual
+/// motor averages it).
+#[test]
+fn virtual_motor_agrees_with_the_host_plant() {
+    let motor = MotorParams::paper();
+    let mut params = SimParams::ideal_from_motor(&motor);
+    params.plant.mass_kg += f64::from(PAPER_AXIS_PAYLOAD_KG);
+    let bus = params.inverter.dc_bus_v;
+    let ts = params.inverter.pwm_period_s;
+    let mut plant = Plant::new(&params).expect("plant");
+    let axis = VirtualAxis {
+        payload_kg: PAPER_AXIS_PAYLOAD_KG,
+        load_n: 0.0,
+        bus_v: bus as f32,
+        period_s: ts as f32,
+    };
+    let mut vm = VirtualMotor::new(&motor, &axis).expect("virtual motor");
+    let (mut i_peak, mut v_peak, mut i_err, mut v_err) = (0.0f64, 0.0f64, 0.0f64, 0.0f64);
+    for k in 0..5000 {
+        let t = k as f64 * ts;
+        let angle = 2.0 * std::f64::consts::PI * 4.0 * t * (t / 0.5).min(1.0);
+        let u = AlphaBeta::new((30.0 * angle.cos()) as f32, (30.0 * angle.sin()) as f32);
+        let m = svpwm(u, bus as f32).expect("modulates");
+        let d = [m.duties.a, m.duties.b, m.duties.c];
+        plant.step(d.map(f64::from), 0.0);
+        vm.step(d, true);
+        let host = plant.state();
+        let virt = vm.state();
+        let i_host = [host.i_alpha_a, host.i_beta_a];
+        let i_virt = [f64::from(virt.i_ab_a.alpha), f64::from(virt.i_ab_a.beta)];
+        for (a, b) in i_host.iter().zip(i_virt) {
+            i_peak = i_peak.max(a.abs());
+            i_err = i_err.max((a - b).abs());
+        }
+        v_peak = v_peak.max(host.v_m_per_s.abs());
+        v_err = v_err.max((host.v_m_per_s - f64::from(virt.v_m_per_s)).abs());
+    }
+    println!("peaks: {i_peak:.3} A, {v_peak:.4} m/s; largest differences {i_err:.4} A, {v_err:.5} m/s");
+    assert!(v_peak > 0.05 && i_peak > 1.0, "the mover was dragged along");
+    assert!(i_err < 0.02 * i_peak, "current: {i_err} A of {i_peak} A");
+    assert!(v_err < 0.02 * v_peak, "speed: {v_err} m/s of {v_peak} m/s");
+}
+
+/// The drive of the QEMU image (`examples/qemu_drive.rs`: paper motor, paper axis's
+/// carriage, no inverter compensation) on the virtual motor with the board's one-period
+/// delay, captured from the estimator's start as the image captures it: it reaches
+/// `Running` at 0.3 m/s, and the capture, as a trace, replays to the drive's own
+/// estimates bit for bit.
+#[test]
+fn captured_drive_on_the_virtual_motor_replays_bit_for_bit() {
+    let motor = MotorParams::paper();
+    let mut config = DriveConfig::for_motor(&motor, PAPER_AXIS_BUS_V, ObserverKind::Dcfo);
+    config.moving_mass_kg = motor.mass_kg + PAPER_AXIS_PAYLOAD_KG;
+    config.dead_time_compensation = None;
+    let mut drive = Drive::<f32>::new(&motor, &config, &Base::SI).expect("drive");
+    let axis = VirtualAxis {
+        payload_kg: PAPER_AXIS_PAYLOAD_KG,
+        load_n: 0.0,
+        bus_v: PAPER_AXIS_BUS_V,
+        period_s: config.control_period_s,
+    };
+    let mut vm = VirtualMotor::new(&motor, &axis).expect("virtual motor");
+    let mut capture = Box::new(Capture::<24_000>::new());
+    capture.arm();
+    drive.enable();
+    drive.set_speed_reference(drive.omega_from_speed(0.3));
+    let mut pending = ([0.5f32; 3], false);
+    let mut running = false;
+    // The current calibration on enable (about 0.1 s), then the 2.4 s capture.
+    for _ in 0..26_000 {
+        vm.step(pending.0, pending.1);
+        let i = vm.phase_currents_a();
+        let out = drive.step(&Measurements { i_abc: Abc { a: i[0], b: i[1], c: i[2] }, vdc: vm.bus_v() });
+        capture.record(&out, &Base::SI);
+        pending = ([out.duties.a, out.duties.b, out.duties.c], out.bridge_enabled);
+        running |= out.state == DriveState::Running;
+    }
+    assert!(running && drive.state() == DriveState::Running, "faults {:?}", drive.faults());
+    let v = vm.state().v_m_per_s;
+    assert!((v - 0.3).abs() < 0.02, "mover at {v} m/s");
+    assert_eq!((capture.state(), capture.len()), (CaptureState::Done, 24_000));
+    let samples: Vec<_> = (0..capture.len()).map(|k| *capture.sample(k).expect("sample")).collect();
+    let trace = capture_trace(&samples, f64::from(config.control_period_s)).expect("trace");
+    assert_eq!(replay_matches(&trace, &motor, &samples).expect("replay"), 0);
+    // And the check can fail: one current 1 mA off changes the estimates from there on.
+    let mut altered = samples.clone();
+    altered[100].i_alpha += 1e-3;
+    let trace = capture_trace(&altered, f64::from(config.control_period_s)).expect("trace");
+    assert!(replay_matches(&trace, &motor, &samples).expect("replay") > 0);
+}
+
+/// Why QEMU cannot run here, if it cannot (as `qemu_hil.rs`).
+fn missing_tools(cpu: QemuCpu) -> Option<String> {
+    if Command::new("qemu-system-arm").arg("--version").output().is_err() {
+        return Some("qemu-system-arm is not installed (apt-get install qemu-system-arm)".into());
+    }
+    let rustc = std::env::var_os("RUSTC").unwrap_or_else(|| "rustc".into());
+    let libdir = Command::new(rustc).args(["--print", "target-libdir", "--target", cpu.target()]).output();
+    let installed = libdir.is_ok_and(|o| {
+        o.status.success()
+            && std::fs::read_dir(String::from_utf8_lossy(&o.stdout).trim())
+                .is_ok_and(|d| d.flatten().any(|e| e.file_name().to_string_lossy().starts_with("libcore-")))
+    });
+    (!installed).then(|| format!("the {} target is not installed", cpu.target()))
+}
+
+/// The drive image for `cpu`, or `None` (after saying why) when the test must skip.
+fn drive_image(cpu: QemuCpu) -> Option<std::path::PathBuf> {
+    if let Some(why) = missing_tools(cpu) {
+        assert!(std::env::var("DCFO_REQUIRE_QEMU").as_deref() != Ok("1"), "QEMU required: {why}");
+        println!("skipped: {why}");
+        return None;
+    }
+    let workspace = Path::new(env!("CARGO_MANIFEST_DIR")).parent().expect("workspace root");
+    Some(build_qemu_example(workspace, cpu, "qemu_drive").expect("the drive image builds"))
+}
+
+/// `dcfo board --qemu --demo --json`: the whole path from the command line.
+#[test]
+fn board_demo_on_qemu_runs_captures_and_replays_identically() {
+    let Some(elf) = drive_image(QemuCpu::M4f) else { return };
+    let dir = tempfile::tempdir().expect("temp dir");
+    let trace = dir.path().join("capture.csv");
+    let out = Command::new(env!("CARGO_BIN_EXE_dcfo"))
+        .args(["board", "--qemu", "--demo", "--json", "--elf"])
+        .arg(&elf)
+        .arg("--record")
+        .arg(&trace)
+        .output()
+        .expect("dcfo board runs");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    println!("{}\n{stdout}", String::from_utf8_lossy(&out.stderr));
+    assert!(out.status.success(), "exit status {}", out.status);
+    let last = stdout.lines().last().expect("a JSON line");
+    let report: serde_json::Value = serde_json::from_str(last).expect("the last line is JSON");
+    assert_eq!(report["state_reached"], "Running");
+    assert_eq!(report["faults"], "none");
+    assert!(report["capture_samples"].as_u64().expect("count") >= 1000);
+    assert_eq!(report["replay_identical"], true);
+    let speed = report["speed_m_per_s"].as_f64().expect("speed");
+    assert!((speed - 0.3).abs() < 0.03, "speed estimate {speed} m/s");
+    // The recorded file is a trace `dcfo replay` takes.
+    let replayed = dir.path().join("replayed.csv");
+    let status = Command::new(env!("CARGO_BIN_EXE_dcfo"))
+        .args(["replay", "--motor", "paper", "--observer", "dcfo"])
+        .arg(&trace)
+        .arg("-o")
+        .arg(&replayed)
+        .status()
+        .expect("dcfo replay runs");
+    assert!(status.success());
+    let rows = std::fs::read_to_string(&replayed).expect("replayed").lines().count();
+    assert_eq!(rows as u64, report["capture_samples"].as_u64().expect("count") + 1);
+}
+
+/// The image's command watchdog: a running drive whose host goes silent for 1 s is
+/// disabled (bridge off); commands again enable it.
+#[test]
+fn a_silent_host_disables_the_drive_image() {
+    let cpu = QemuCpu::M4f;
+    let Some(elf) = drive_image(cpu) else { return };
+    let (_session, stdin, stdout) = QemuSession::spawn(&elf, cpu).expect("qemu starts");
+    let mut board = Board::new(BoardLink::new(stdin, stdout));
+    board.wish.enable = true;
+    board.wish.speed_m_per_s = 0.3;
+    let start = Instant::now();
+    let mut t = board.poll(false, false).expect("telemetry");
+    while !t.bridge_enabled && start.elapsed() < Duration::from_secs(20) {
+        std::thread::sleep(Duration::from_millis(50));
+        t = board.poll(false, false).expect("telemetry");
+    }
+    assert!(t.bridge_enabled, "the drive switched its bridge on: {t:?}");
+    let before = t.periods;
+    std::thread::sleep(Duration::from_millis(1000));
+    // The command that ends the silence wishes it enabled: its answer shows what the
+    // watchdog did before it (the image answers right after applying the command; at
+    // most one control period can run in between, which takes a disabled drive to
+    // `Calibrating`, bridge still off).
+    let t = board.poll(false, false).expect("telemetry");
+    println!(
+        "after 1 s of silence ({} periods): {:?}, bridge {}",
+        t.periods - before,
+        t.state,
+        t.bridge_enabled
+    );
+    assert!(t.periods - before > 5000, "the image ran on meanwhile");
+    assert!(matches!(t.state, DriveState::Disabled | DriveState::Calibrating), "{:?}", t.state);
+    assert!(!t.bridge_enabled);
+    let t = board.disable().expect("disabled");
+    assert_eq!(t.state, DriveState::Disabled);
+}

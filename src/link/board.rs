@@ -1,0 +1,426 @@
+//! The board link: a drive image that runs its own control loop (a board's ADC
+//! interrupt, or the virtual motor) operated from the host (`dcfo board`). Same framing
+//! as the lock-step link (COBS, CRC-16/IBM-3740, little-endian, protocol version in byte
+//! 0); the frame type is told by its length, which is distinct for every frame of
+//! [`crate::link`].
+//!
+//! Request and answer: the host sends a [`BoardCommand`] (at least every
+//! 0.5 s: the drive image disables the drive when commands stop); the image answers each
+//! with one [`BoardTelemetry`], or, when the command asks for capture samples and the
+//! capture is over, with one [`CaptureChunk`].
+//!
+//! [`BoardCommand`] payload (12 B):
+//!
+//! | offset | type | field |
+//! |---|---|---|
+//! | 0 | u8 | protocol version |
+//! | 1 | u16 | sequence number |
+//! | 3 | f32 | speed reference (m/s) |
+//! | 7 | u8 | flags ([`BOARD_FLAG_ENABLE`], [`BOARD_FLAG_CLEAR_FAULTS`], [`BOARD_FLAG_ARM_CAPTURE`]) |
+//! | 8 | u32 | capture read: index of the first sample wanted, [`NO_CAPTURE_READ`] for telemetry |
+//!
+//! [`BoardTelemetry`] payload (44 B):
+//!
+//! | offset | type | field |
+//! |---|---|---|
+//! | 0 | u8 | protocol version |
+//! | 1 | u16 | sequence number of the command answered |
+//! | 3 | u8 | drive state ([`DriveState::code`]) |
+//! | 4 | u16 | fault bits ([`Faults::bits`]) |
+//! | 6 | u8 | flags ([`ACTUATION_FLAG_BRIDGE_ENABLED`], [`ACTUATION_FLAG_ESTIMATE_VALID`]) |
+//! | 7, 11 | f32 | θ̂ (electrical rad), speed estimate (m/s); zero without an estimate |
+//! | 15, 19 | f32 | measured i_α, i_β (A) |
+//! | 23 | f32 | DC-bus voltage (V) |
+//! | 27 | f32 | speed reference in force (m/s) |
+//! | 31 | u8 | capture state ([`CaptureState::code`]) |
+//! | 32, 36 | u32 | capture: samples held, capacity |
+//! | 40 | u32 | control periods run since boot (wrapping) |
+//!
+//! [`CaptureChunk`] payload (224 B):
+//!
+//! | offset | type | field |
+//! |---|---|---|
+//! | 0 | u8 | protocol version |
+//! | 1 | u16 | sequence number of the command answered |
+//! | 3 | u32 | index of the first sample |
+//! | 7 | u8 | samples in this chunk, 0 to [`CAPTURE_CHUNK_SAMPLES`] (0: past the end) |
+//! | 8 | 6 × 36 B | [`CaptureSample::to_le_bytes`]; unused slots zero |
+
+use super::{
+    ACTUATION_FLAG_BRIDGE_ENABLED, ACTUATION_FLAG_ESTIMATE_VALID, CRC_LEN, EncodeError, Frame, LinkError,
+    PROTOCOL_VERSION, Reader, Writer, state_from_code, wire_len,
+};
+use crate::capture::{CaptureSample, CaptureState};
+use crate::drive::{DriveState, Faults};
+
+/// [`BoardCommand`] flag: the drive should run (clear: disable).
+pub const BOARD_FLAG_ENABLE: u8 = 1 << 0;
+/// [`BoardCommand`] flag: clear latched faults (send it in one command).
+pub const BOARD_FLAG_CLEAR_FAULTS: u8 = 1 << 1;
+/// [`BoardCommand`] flag: arm the capture (it starts at the estimator's next start).
+pub const BOARD_FLAG_ARM_CAPTURE: u8 = 1 << 2;
+const BOARD_FLAGS_KNOWN: u8 = BOARD_FLAG_ENABLE | BOARD_FLAG_CLEAR_FAULTS | BOARD_FLAG_ARM_CAPTURE;
+
+/// [`BoardCommand::capture_read`] for "no samples, answer with telemetry".
+pub const NO_CAPTURE_READ: u32 = u32::MAX;
+
+/// Capture samples per [`CaptureChunk`] (the most that keep the raw frame under COBS's
+/// 254-byte block).
+pub const CAPTURE_CHUNK_SAMPLES: usize = 6;
+
+/// Host → drive image: the commands, and a keep-alive.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct BoardCommand {
+    /// Sequence number, incremented (wrapping) by the host per command.
+    pub sequence: u16,
+    /// Speed reference, m/s (finite).
+    pub speed_ref: f32,
+    /// The drive should run; clear: disable.
+    pub enable: bool,
+    /// Clear latched faults.
+    pub clear_faults: bool,
+    /// Arm the capture.
+    pub arm_capture: bool,
+    /// Index of the first capture sample wanted, or [`NO_CAPTURE_READ`].
+    pub capture_read: u32,
+}
+
+impl BoardCommand {
+    /// Payload length (bytes).
+    pub const PAYLOAD_LEN: usize = 12;
+    /// Raw length (bytes): payload and CRC.
+    pub const RAW_LEN: usize = Self::PAYLOAD_LEN + CRC_LEN;
+    /// Length on the wire (bytes).
+    pub const WIRE_LEN: usize = wire_len(Self::RAW_LEN);
+}
+
+impl Frame for BoardCommand {
+    const PAYLOAD_LEN: usize = BoardCommand::PAYLOAD_LEN;
+
+    fn write_payload(&self, payload: &mut [u8]) -> Result<(), EncodeError> {
+        if !self.speed_ref.is_finite() {
+            return Err(EncodeError::InvalidValue);
+        }
+        let mut flags = 0;
+        for (on, bit) in [
+            (self.enable, BOARD_FLAG_ENABLE),
+            (self.clear_faults, BOARD_FLAG_CLEAR_FAULTS),
+            (self.arm_capture, BOARD_FLAG_ARM_CAPTURE),
+        ] {
+            if on {
+                flags |= bit;
+            }
+        }
+        let mut w = Writer::new(payload);
+        w.u8(PROTOCOL_VERSION);
+        w.u16(self.sequence);
+        w.f32(self.speed_ref);
+        w.u8(flags);
+        w.u32(self.capture_read);
+        w.finish(Self::PAYLOAD_LEN)
+    }
+
+    fn read_payload(payload: &[u8]) -> Result<Self, LinkError> {
+        let mut r = Reader::new(payload, Self::PAYLOAD_LEN)?;
+        r.version()?;
+        let sequence = r.u16();
+        let speed_ref = r.finite_f32()?;
+        let flags = r.u8();
+        if flags & !BOARD_FLAGS_KNOWN != 0 {
+            return Err(LinkError::Flags);
+        }
+        Ok(BoardCommand {
+            sequence,
+            speed_ref,
+            enable: flags & BOARD_FLAG_ENABLE != 0,
+            clear_faults: flags & BOARD_FLAG_CLEAR_FAULTS != 0,
+            arm_capture: flags & BOARD_FLAG_ARM_CAPTURE != 0,
+            capture_read: r.u32(),
+        })
+    }
+}
+
+/// Drive image → host: the drive's state, SI units.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct BoardTelemetry {
+    /// Sequence number of the command answered.
+    pub sequence: u16,
+    /// Drive state.
+    pub state: DriveState,
+    /// Latched faults.
+    pub faults: Faults,
+    /// The bridge is switching.
+    pub bridge_enabled: bool,
+    /// Estimated angle θ̂ (electrical rad) and speed (m/s), `None` without an estimate.
+    pub estimate: Option<(f32, f32)>,
+    /// Measured stator current, α and β, A.
+    pub i_ab_a: [f32; 2],
+    /// DC-bus voltage, V.
+    pub vdc_v: f32,
+    /// Speed reference in force, m/s.
+    pub speed_ref: f32,
+    /// Capture state.
+    pub capture: CaptureState,
+    /// Capture samples held.
+    pub capture_len: u32,
+    /// Capture capacity, samples.
+    pub capture_capacity: u32,
+    /// Control periods run since boot (wrapping).
+    pub periods: u32,
+}
+
+impl BoardTelemetry {
+    /// Payload length (bytes).
+    pub const PAYLOAD_LEN: usize = 44;
+    /// Raw length (bytes): payload and CRC.
+    pub const RAW_LEN: usize = Self::PAYLOAD_LEN + CRC_LEN;
+    /// Length on the wire (bytes).
+    pub const WIRE_LEN: usize = wire_len(Self::RAW_LEN);
+}
+
+impl Frame for BoardTelemetry {
+    const PAYLOAD_LEN: usize = BoardTelemetry::PAYLOAD_LEN;
+
+    fn write_payload(&self, payload: &mut [u8]) -> Result<(), EncodeError> {
+        let (theta, speed) = self.estimate.unwrap_or((0.0, 0.0));
+        let floats = [theta, speed, self.i_ab_a[0], self.i_ab_a[1], self.vdc_v, self.speed_ref];
+        if !floats.iter().all(|x| x.is_finite()) {
+            return Err(EncodeError::InvalidValue);
+        }
+        let mut flags = 0;
+        if self.bridge_enabled {
+            flags |= ACTUATION_FLAG_BRIDGE_ENABLED;
+        }
+        if self.estimate.is_some() {
+            flags |= ACTUATION_FLAG_ESTIMATE_VALID;
+        }
+        let mut w = Writer::new(payload);
+        w.u8(PROTOCOL_VERSION);
+        w.u16(self.sequence);
+        w.u8(self.state.code());
+        w.u16(self.faults.bits());
+        w.u8(flags);
+        for x in floats {
+            w.f32(x);
+        }
+        w.u8(self.capture.code());
+        w.u32(self.capture_len);
+        w.u32(self.capture_capacity);
+        w.u32(self.periods);
+        w.finish(Self::PAYLOAD_LEN)
+    }
+
+    fn read_payload(payload: &[u8]) -> Result<Self, LinkError> {
+        let mut r = Reader::new(payload, Self::PAYLOAD_LEN)?;
+        r.version()?;
+        let sequence = r.u16();
+        let state = state_from_code(r.u8()).ok_or(LinkError::Value)?;
+        let faults = Faults::from_bits(r.u16());
+        let flags = r.u8();
+        if flags & !(ACTUATION_FLAG_BRIDGE_ENABLED | ACTUATION_FLAG_ESTIMATE_VALID) != 0 {
+            return Err(LinkError::Flags);
+        }
+        let theta = r.finite_f32()?;
+        let speed = r.finite_f32()?;
+        let estimate = if flags & ACTUATION_FLAG_ESTIMATE_VALID != 0 {
+            Some((theta, speed))
+        } else if theta != 0.0 || speed != 0.0 {
+            return Err(LinkError::Value);
+        } else {
+            None
+        };
+        let i_ab_a = [r.finite_f32()?, r.finite_f32()?];
+        let vdc_v = r.finite_f32()?;
+        let speed_ref = r.finite_f32()?;
+        let capture = CaptureState::from_code(r.u8()).ok_or(LinkError::Value)?;
+        let capture_len = r.u32();
+        let capture_capacity = r.u32();
+        if capture_len > capture_capacity {
+            return Err(LinkError::Value);
+        }
+        Ok(BoardTelemetry {
+            sequence,
+            state,
+            faults,
+            bridge_enabled: flags & ACTUATION_FLAG_BRIDGE_ENABLED != 0,
+            estimate,
+            i_ab_a,
+            vdc_v,
+            speed_ref,
+            capture,
+            capture_len,
+            capture_capacity,
+            periods: r.u32(),
+        })
+    }
+}
+
+/// Drive image → host: up to [`CAPTURE_CHUNK_SAMPLES`] consecutive capture samples.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct CaptureChunk {
+    /// Sequence number of the command answered.
+    pub sequence: u16,
+    /// Index of `samples[0]` in the capture.
+    pub first: u32,
+    /// Valid samples, `0..=CAPTURE_CHUNK_SAMPLES` (0: `first` is past the end).
+    pub count: u8,
+    /// The samples; those from `count` on are unused (zero).
+    pub samples: [CaptureSample; CAPTURE_CHUNK_SAMPLES],
+}
+
+impl CaptureChunk {
+    /// Payload length (bytes).
+    pub const PAYLOAD_LEN: usize = 8 + CAPTURE_CHUNK_SAMPLES * CaptureSample::WIRE_LEN;
+    /// Raw length (bytes): payload and CRC.
+    pub const RAW_LEN: usize = Self::PAYLOAD_LEN + CRC_LEN;
+    /// Length on the wire (bytes).
+    pub const WIRE_LEN: usize = wire_len(Self::RAW_LEN);
+
+    /// The valid samples.
+    pub fn valid(&self) -> &[CaptureSample] {
+        self.samples.get(..usize::from(self.count)).unwrap_or(&[])
+    }
+}
+
+impl Frame for CaptureChunk {
+    const PAYLOAD_LEN: usize = CaptureChunk::PAYLOAD_LEN;
+
+    fn write_payload(&self, payload: &mut [u8]) -> Result<(), EncodeError> {
+        if usize::from(self.count) > CAPTURE_CHUNK_SAMPLES {
+            return Err(EncodeError::InvalidValue);
+        }
+        let mut w = Writer::new(payload);
+        w.u8(PROTOCOL_VERSION);
+        w.u16(self.sequence);
+        w.u32(self.first);
+        w.u8(self.count);
+        for (k, s) in self.samples.iter().enumerate() {
+            if k < usize::from(self.count) {
+                if CaptureSample::from_le_bytes(&s.to_le_bytes()).is_none() {
+                    return Err(EncodeError::InvalidValue);
+                }
+                w.bytes(&s.to_le_bytes());
+            } else {
+                w.bytes(&[0; CaptureSample::WIRE_LEN]);
+            }
+        }
+        w.finish(Self::PAYLOAD_LEN)
+    }
+
+    fn read_payload(payload: &[u8]) -> Result<Self, LinkError> {
+        let mut r = Reader::new(payload, Self::PAYLOAD_LEN)?;
+        r.version()?;
+        let sequence = r.u16();
+        let first = r.u32();
+        let count = r.u8();
+        if usize::from(count) > CAPTURE_CHUNK_SAMPLES {
+            return Err(LinkError::Value);
+        }
+        let mut samples = [CaptureSample::default(); CAPTURE_CHUNK_SAMPLES];
+        for (k, slot) in samples.iter_mut().enumerate() {
+            let bytes = r.bytes::<{ CaptureSample::WIRE_LEN }>();
+            if k < usize::from(count) {
+                *slot = CaptureSample::from_le_bytes(&bytes).ok_or(LinkError::Value)?;
+            } else if bytes.iter().any(|&b| b != 0) {
+                return Err(LinkError::Value);
+            }
+        }
+        Ok(CaptureChunk { sequence, first, count, samples })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::link::{Receiver, decode_raw, encode};
+    use crate::num::Angle;
+
+    fn round_trip<F: Frame + PartialEq + core::fmt::Debug + Copy>(f: F) -> F {
+        let mut wire = [0u8; 256];
+        let n = encode(&f, &mut wire).unwrap();
+        assert_eq!(n, F::WIRE_LEN);
+        assert_eq!(wire[n - 1], 0);
+        let mut raw = [0u8; 256];
+        raw[..n - 1].copy_from_slice(&wire[..n - 1]);
+        let m = super::super::cobs::decode_in_place(&mut raw[..n - 1]).unwrap();
+        decode_raw::<F>(&raw[..m]).unwrap()
+    }
+
+    #[test]
+    fn frames_round_trip_and_their_lengths_tell_them_apart() {
+        let c = BoardCommand {
+            sequence: 65_535,
+            speed_ref: -0.3,
+            enable: true,
+            clear_faults: false,
+            arm_capture: true,
+            capture_read: 1234,
+        };
+        assert_eq!(round_trip(c), c);
+        let t = BoardTelemetry {
+            sequence: 7,
+            state: DriveState::Running,
+            faults: Faults::LOCK_LOST,
+            bridge_enabled: true,
+            estimate: Some((1.5, 0.29)),
+            i_ab_a: [0.1, -0.2],
+            vdc_v: 311.0,
+            speed_ref: 0.3,
+            capture: CaptureState::Recording,
+            capture_len: 10,
+            capture_capacity: 20,
+            periods: 123_456,
+        };
+        assert_eq!(round_trip(t), t);
+        let s =
+            CaptureSample { u_alpha: 3.0, theta_hat: Angle::from_bits(99), v_hat: 0.3, ..Default::default() };
+        let mut samples = [CaptureSample::default(); CAPTURE_CHUNK_SAMPLES];
+        samples[0] = s;
+        samples[1] = s;
+        let k = CaptureChunk { sequence: 3, first: 600, count: 2, samples };
+        assert_eq!(round_trip(k), k);
+        assert_eq!(k.valid(), &[s, s]);
+        let lengths = [
+            super::super::SensorFrame::RAW_LEN,
+            super::super::ActuationFrame::RAW_LEN,
+            BoardCommand::RAW_LEN,
+            BoardTelemetry::RAW_LEN,
+            CaptureChunk::RAW_LEN,
+        ];
+        for (i, a) in lengths.iter().enumerate() {
+            assert!(lengths[i + 1..].iter().all(|b| b != a), "{lengths:?}");
+        }
+        // The drive image's receiver takes commands.
+        let mut wire = [0u8; BoardCommand::WIRE_LEN];
+        let n = encode(&c, &mut wire).unwrap();
+        let mut rx = Receiver::<BoardCommand>::new();
+        let got: Option<_> = wire[..n].iter().filter_map(|&b| rx.push(b)).next();
+        assert_eq!(got, Some(Ok(c)));
+    }
+
+    #[test]
+    fn bad_content_is_refused() {
+        let mut samples = [CaptureSample::default(); CAPTURE_CHUNK_SAMPLES];
+        samples[0].v_hat = f32::NAN;
+        let k = CaptureChunk { sequence: 0, first: 0, count: 1, samples };
+        assert_eq!(encode(&k, &mut [0u8; 256]), Err(EncodeError::InvalidValue));
+        let k = CaptureChunk { count: 7, samples: [CaptureSample::default(); 6], ..k };
+        assert_eq!(encode(&k, &mut [0u8; 256]), Err(EncodeError::InvalidValue));
+        // A command with an unknown flag bit: payload byte 7.
+        let c = BoardCommand {
+            sequence: 1,
+            speed_ref: 0.0,
+            enable: false,
+            clear_faults: false,
+            arm_capture: false,
+            capture_read: NO_CAPTURE_READ,
+        };
+        let mut payload = [0u8; BoardCommand::PAYLOAD_LEN];
+        c.write_payload(&mut payload).unwrap();
+        payload[7] |= 1 << 6;
+        assert_eq!(BoardCommand::read_payload(&payload), Err(LinkError::Flags));
+    }
+}
