@@ -12,8 +12,8 @@
 //!   two current samples; two consecutive responses of opposite sign cancel the
 //!   fundamental's change exactly to first order (its slope), and the mean of two samples
 //!   is the fundamental current the current loops see (the triangle's mean). No band-pass,
-//!   no low-pass, no phase lag beyond the sampling: the tracking loop can be fast
-//!   (`f_pwm / 100`), which a sinusoidal injection at `f_pwm / 10` with its filters cannot.
+//!   no low-pass, no phase lag beyond the sampling: the tracking loop's bandwidth is set
+//!   by the sensor noise (below), not by demodulation filters.
 //! - **Along d^**: the injection produces almost no thrust (`d^` is the flux axis once
 //!   converged), and on d it also reads the magnet's polarity by saturation (below).
 //!   A rotating injection would put the HF on q as well (thrust ripple, noise).
@@ -50,9 +50,9 @@
 //!
 //! The signal's size is `U_h T D = U_h T (L_q - L_d) / (2 L_d L_q)` ampere per unit of
 //! `sin 2 dth`: proportional to the injection voltage, to `1 / f_h`, and to the
-//! saliency. With the default `U_h = 0.15 I_pk L_d / T` (the d current swings by 15 % of
-//! the rated peak current `I_pk` each period) it is `0.075 I_pk (1 - L_d/L_q)`: 0.11 A per
-//! unit on `motors/salient.toml` (`I_pk` 4.24 A, `L_q/L_d` 1.5). An error in `L_d`, `L_q`
+//! saliency. With the default `U_h = 0.25 I_pk L_d / T` (the d current swings by 25 % of
+//! the rated peak current `I_pk` each period) it is `0.125 I_pk (1 - L_d/L_q)`: 0.18 A per
+//! unit on `motors/salient.toml` (`I_pk` 4.24 A, `L_q/L_d` 1.5, `U_h` 63.6 V). An error in `L_d`, `L_q`
 //! changes the loop gain, not the zero of `e`: the equilibrium is the true d axis
 //! whatever the motor file says. `e` is pi-periodic: the loop settles on the magnet's
 //! axis, north or south, which the polarity test decides.
@@ -62,18 +62,25 @@
 //! periods and cancels in the demodulation; a phase whose current crosses zero with the
 //! HF (its fundamental below the HF swing) loses up to `V_dt = V_bus t_dead / T` of its
 //! HF voltage, which tilts the injected vector and biases `e` (measured in the plant
-//! tests). Hence `U_h` several times `V_dt`: 38 V against 5.7 V on the salient motor.
+//! tests: 9-11 % of the response at 38 V). Hence `U_h` many times `V_dt`: 63.6 V against
+//! 5.7 V on the salient motor; it may take up to 40 % of the linear voltage range, as
+//! at standstill and low speed the fundamental needs little (`R I` and a small back-EMF).
 //!
 //! ## Tracking loop
 //! A PI on `e` drives the estimate: `omega^ = kp e + ki sum(e T)`, `theta^ += omega^ T`.
 //! With `e ~ 2 dth` the closed loop is `s^2 + 2 kp s + 2 ki`: `kp = zeta w_n`,
-//! `ki = w_n^2 / 2`. Default `w_n = 2 pi f_pwm / 100` (628 rad/s, 100 Hz at 10 kHz),
-//! `zeta = 1`: the measurement's delay (2.5 periods) costs `2.5 T` of phase at the
-//! crossover, 18 degrees at `2 w_n`. The injection is advanced by `1.5 T omega^` (to the
-//! middle of its application window), so a moving mover is tracked without a lag.
-//! Sensor noise `sigma` per sample reaches the angle as about
-//! `1.2 sigma / (2 U_h T D) sqrt(2 B_L T)` (`B_L = 0.625 w_n / (2 pi)` Hz, the loop's
-//! noise bandwidth): 0.4 degrees for 10 mA on the salient motor.
+//! `ki = w_n^2 / 2`. The injection is advanced by `1.5 T omega^` (to the middle of its
+//! application window), so a moving mover is tracked without a lag. The bandwidth is a
+//! trade against sensor noise: white noise `sigma` per current sample enters `e` as
+//! `s_k (n_k - 2 n_{k-1} + n_{k-2}) / 2`, which at low frequency is white noise of
+//! `2 sigma` (the sign alternates), i.e. `2 sigma / (U_h T D)` of `e` or
+//! `sigma / (U_h T D)` of angle, filtered by the loop's noise bandwidth
+//! `B_L = (w_n / 2)(zeta + 1 / 4 zeta)` Hz: angle RMS `sigma / (U_h T D) sqrt(2 B_L T)`.
+//! Default `w_n = 2 pi f_pwm / 200` (314 rad/s, 50 Hz at 10 kHz), `zeta = 1`
+//! (`B_L` = 196 Hz): 1.3 degrees RMS for the 20 mA of the simulated sensors on the
+//! salient motor (at `f_pwm / 100` and `U_h` = 38 V it was 3 degrees RMS, 10 degrees
+//! peak: measured). The measurement's delay (2.5 periods) costs 9 degrees of phase at
+//! `2 w_n`.
 //!
 //! ## Polarity at standstill: d-axis saturation
 //! Once the loop has converged (held [`HfiConfig::settle_s`] and locked), two voltage
@@ -125,7 +132,7 @@ pub struct HfiConfig {
     pub max_omega_rad_s: f32,
     /// Time the loop tracks before the polarity test, s (>= 0).
     pub settle_s: f32,
-    /// Lock: filtered `|sin 2 dth|` below this (dimensionless, in (0, 1)).
+    /// Lock: `|e|` low-passed (`e = sin 2 dth`) below this (dimensionless, in (0, 1)).
     pub lock_threshold: f32,
     /// Lock detector's filter time constant, s (> 0).
     pub lock_filter_s: f32,
@@ -156,13 +163,14 @@ pub enum HfiConfigError {
 impl HfiConfig {
     /// The default tuning for `motor` on an inverter with PWM period `pwm_period_s` (s)
     /// and DC bus `bus_v` (V), from those alone (module docs):
-    /// - `U_h = 0.15 I_pk L_d / T` (d current swing 15 % of the rated peak current),
-    ///   at most a quarter of the linear range `V_bus / sqrt 3`;
-    /// - `w_n = 2 pi / (100 T)`, `zeta = 1`, speed limit `w_n`;
+    /// - `U_h = 0.25 I_pk L_d / T` (d current swing 25 % of the rated peak current),
+    ///   at most 40 % of the linear range `V_bus / sqrt 3`;
+    /// - `w_n = 2 pi / (200 T)`, `zeta = 1`, speed limit `w_n`;
     /// - settle `30 / w_n`; lock below `sin(2 * 5 deg)` filtered over `5 / w_n`;
     /// - `U_p = 2 U_h` (at most half the linear range), `N = L_d I_pk / (U_p T)` rounded
     ///   (2..=1000), rest `M = 5 L_d / (R T)` (five time constants, 10..=20000);
     ///   polarity margin 1 %.
+    /// The lock is the angle-error signal `e` low-passed, `|e_f| < sin 10 deg`.
     ///
     /// `Err(NotSalient)` for `L_q / L_d < 1.15`.
     pub fn for_motor(motor: &MotorParams, pwm_period_s: f32, bus_v: f32) -> Result<Self, HfiConfigError> {
@@ -172,8 +180,8 @@ impl HfiConfig {
         }
         let i_pk = motor.rated_current_a * core::f32::consts::SQRT_2;
         let u_linear = bus_v * 0.577_350_26;
-        let u_hf_v = (0.15 * i_pk * motor.ld_h / t).min(0.25 * u_linear);
-        let bandwidth_rad_s = 2.0 * core::f32::consts::PI / (100.0 * t);
+        let u_hf_v = (0.25 * i_pk * motor.ld_h / t).min(0.4 * u_linear);
+        let bandwidth_rad_s = 2.0 * core::f32::consts::PI / (200.0 * t);
         let pulse_v = (2.0 * u_hf_v).min(0.5 * u_linear);
         let pulse_periods = libm::roundf(motor.ld_h * i_pk / (pulse_v * t)).clamp(2.0, 1000.0) as u16;
         let rest_periods = libm::roundf(5.0 * motor.ld_h / (motor.rs_ohm * t)).clamp(10.0, 20000.0) as u16;
@@ -269,7 +277,7 @@ pub struct HfiOutput<T> {
     pub response_q_a: T,
     /// Phase of the sequence.
     pub phase: HfiPhase,
-    /// Filtered `|e|` below the lock threshold.
+    /// The low-passed error signal below the lock threshold.
     pub locked: bool,
     /// The polarity is decided and `theta_e` is the mover's angle.
     pub polarity_known: bool,
@@ -437,11 +445,11 @@ impl<T: Scalar> Hfi<T> {
                     self.integral =
                         (self.integral + self.ki_dt * error).clamp_to(-self.max_omega, self.max_omega);
                     self.omega = self.integral + self.kp * error;
-                    self.lock_metric = self.lock_metric + self.lock_rate * (error.abs() - self.lock_metric);
+                    self.lock_metric = self.lock_metric + self.lock_rate * (error - self.lock_metric);
                 }
                 if self.phase == HfiPhase::Converging {
                     self.counter = self.counter.saturating_add(1);
-                    if self.counter >= self.settle_samples && self.lock_metric < self.lock_threshold {
+                    if self.counter >= self.settle_samples && self.lock_metric.abs() < self.lock_threshold {
                         self.phase = HfiPhase::Polarity;
                         self.counter = 0;
                         self.tries = 0;
@@ -477,7 +485,7 @@ impl<T: Scalar> Hfi<T> {
             response_d_a: response.d,
             response_q_a: response.q,
             phase: self.phase,
-            locked: self.lock_metric < self.lock_threshold,
+            locked: self.lock_metric.abs() < self.lock_threshold,
             polarity_known: self.polarity_known,
             polarity_margin: self.margin,
         })
@@ -628,10 +636,13 @@ mod tests {
     fn tuning_follows_the_motor_and_refuses_a_round_motor() {
         let m = salient();
         let cfg = HfiConfig::for_motor(&m, 100e-6, 283.0).unwrap();
-        // U_h = 0.15 * 4.243 A * 6 mH / 100 us = 38.2 V; w_n = 2 pi 100 Hz.
-        assert!((cfg.u_hf_v - 38.18).abs() < 0.05, "{}", cfg.u_hf_v);
-        assert!((cfg.bandwidth_rad_s - 628.3).abs() < 0.1);
-        // N = 6 mH * 4.243 A / (76.4 V * 100 us) = 3.3 -> 3; M = 5 * 3 ms / 100 us.
+        // U_h = 0.25 * 4.243 A * 6 mH / 100 us = 63.6 V (below 0.4 * 283 / sqrt 3 = 65.4);
+        // w_n = 2 pi 50 Hz.
+        assert!((cfg.u_hf_v - 63.64).abs() < 0.05, "{}", cfg.u_hf_v);
+        assert!((cfg.bandwidth_rad_s - 314.16).abs() < 0.1);
+        // U_p = min(127, 0.5 * 163.4) = 81.7 V; N = 6 mH * 4.243 A / (81.7 V * 100 us)
+        // = 3.1 -> 3; M = 5 * 3 ms / 100 us.
+        assert!((cfg.pulse_v - 81.69).abs() < 0.05, "{}", cfg.pulse_v);
         assert_eq!(cfg.pulse_periods, 3);
         assert_eq!(cfg.rest_periods, 150);
         let round = MotorParams::paper();

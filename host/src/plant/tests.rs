@@ -759,7 +759,7 @@ fn hf_square_wave_response_matches_the_analysis() {
     let m = salient_motor();
     let p = SimParams::ideal_from_motor(&m);
     let ts = p.inverter.pwm_period_s;
-    let u_hf = 38.18; // dcfo::hfi's default for this motor
+    let u_hf = 38.18; // V; the response is linear in it (dcfo::hfi injects 63.6 V here)
     let (rs, ld, lq) = (p.plant.rs_ohm, p.plant.ld_h, p.plant.lq_h);
     let scale = u_hf * ts * 0.5 * (1.0 / ld + 1.0 / lq);
     for dth_deg in [0.0f64, 15.0, 45.0, -30.0, 80.0] {
