@@ -170,6 +170,7 @@ impl HfiConfig {
     /// - `U_p = 2 U_h` (at most half the linear range), `N = L_d I_pk / (U_p T)` rounded
     ///   (2..=1000), rest `M = 5 L_d / (R T)` (five time constants, 10..=20000);
     ///   polarity margin 1 %.
+    ///
     /// The lock is the angle-error signal `e` low-passed, `|e_f| < sin 10 deg`.
     ///
     /// `Err(NotSalient)` for `L_q / L_d < 1.15`.
@@ -263,8 +264,12 @@ pub enum HfiFault {
 pub struct HfiOutput<T> {
     /// Estimated electrical angle at this sample (modulo pi until the polarity is known).
     pub theta_e: Angle,
-    /// Estimated electrical speed, rad/s.
+    /// Estimated electrical speed, rad/s (the loop's integrator plus its proportional
+    /// correction: what advances the angle).
     pub omega_e: T,
+    /// The tracking loop's integrator alone, rad/s: the speed estimate without the
+    /// proportional path's share of the sensor noise (for a speed loop).
+    pub omega_integral_e: T,
     /// Voltage to add to this step's command (applied from the next period), V, alpha-beta.
     pub u_inject_ab: AlphaBeta<T>,
     /// The fundamental current (the mean of the last two samples while injecting), A.
@@ -479,6 +484,7 @@ impl<T: Scalar> Hfi<T> {
         Ok(HfiOutput {
             theta_e: theta_now,
             omega_e: self.omega,
+            omega_integral_e: self.integral,
             u_inject_ab: u,
             i_fundamental_ab: i_fundamental,
             error,

@@ -23,7 +23,7 @@ fn salient() -> MotorParams {
 fn axis(m: &MotorParams, x0_m: f64, seed: u64) -> Plant {
     let mut p: SimParams = plant_for(m);
     let i_pk = f64::from(m.rated_current_a) * 2f64.sqrt();
-    p.plant.ld_saturation_per_a = PlantParams::d_saturation_for(0.1, i_pk);
+    assert_eq!(p.plant.ld_saturation_per_a, PlantParams::d_saturation_for(0.1, i_pk));
     p.seed = seed;
     if std::env::var("HFI_IDEAL_SENSORS").is_ok() {
         p.sensors = dcfo_host::plant::SensorParams::ideal();

@@ -56,6 +56,7 @@
 
 use super::{Drive, DriveState};
 use crate::estimator::Estimate;
+use crate::hfi::Hfi;
 use crate::motion::{MotionError, Move, Profile, Setpoint};
 use crate::num::{Angle, Scalar};
 use crate::transforms::{AlphaBeta, Dq};
@@ -120,6 +121,25 @@ pub(super) struct Positioning<T> {
     pub(super) mover_filter_rate: f32,
     /// The alignment on enable is complete (the profile may move).
     pub(super) aligned: bool,
+    /// High-frequency injection (salient motors): the low-speed mode's estimator.
+    pub(super) hfi: Option<Hfi<T>>,
+    /// Rate per period of the filter on HFI's speed estimate (the drive's speed filter).
+    pub(super) hfi_speed_filter_rate: T,
+    /// `60 / tau` (1/m): at rest with HFI, the friction feed-forward is full beyond
+    /// `tau / 60` of position error and proportional within.
+    pub(super) rest_band_inv_m: f32,
+}
+
+/// What HFI contributes to one step of the low-speed mode (working units).
+#[derive(Clone, Copy, Debug)]
+pub(super) struct HfiStep<T> {
+    /// Voltage to add to the command, V.
+    pub(super) inject: AlphaBeta<T>,
+    /// The fundamental current for the current loops, A.
+    pub(super) i_fundamental: AlphaBeta<T>,
+    /// `false` while aligning (converging, polarity): the current loops are held and the
+    /// bridge applies the injection alone.
+    pub(super) ready: bool,
 }
 
 impl<T: Scalar> Drive<T> {
@@ -174,6 +194,10 @@ impl<T: Scalar> Drive<T> {
             p.anchor_x_m = x;
             p.seeded = false;
             p.aligned = false;
+            if let Some(h) = &mut p.hfi {
+                // Angle and polarity found again (the mover may have moved while off).
+                h.reset();
+            }
         }
         self.i_dq_ref = Dq::default();
         self.state = DriveState::LowSpeed;
@@ -327,6 +351,10 @@ impl<T: Scalar> Drive<T> {
         self.pi_q.preset(int_q + ff_q, T::ZERO);
         self.estimator.set_commanded_acceleration(T::ZERO);
         self.state = DriveState::LowSpeed;
+        if let Some(h) = self.positioning.as_mut().and_then(|p| p.hfi.as_mut()) {
+            // HFI takes over from the estimated angle and speed; the polarity is known.
+            h.preset(theta, omega, true);
+        }
         (theta, omega)
     }
 
@@ -372,5 +400,132 @@ impl<T: Scalar> Drive<T> {
             self.i_dq_ref.q = p.speed_loop_out + p.accel_ff_applied;
         }
         None
+    }
+}
+
+impl<T: Scalar> Drive<T> {
+    /// The low-speed mode of a drive with HFI (`None` without): closed loop on the HFI
+    /// angle. On enable, the current loops are held while HFI converges and tests the
+    /// polarity with the mover at rest (no alignment move); then the position estimate
+    /// starts from the HFI angle (the zero is electrical angle 0, as without HFI), and the
+    /// position loop, the speed loop on HFI's speed and `i_d = 0` run as in `Running`.
+    /// Leaving the band, the estimator is seeded from the HFI angle and the drive hands
+    /// over to it as from the current vector.
+    pub(super) fn hfi_low_speed(
+        &mut self,
+        estimate: &Estimate<T>,
+        i_ab: AlphaBeta<T>,
+    ) -> Option<(Angle, T, HfiStep<T>)> {
+        let dt_s = self.k.dt_s;
+        let p = self.positioning.as_mut()?;
+        let h = p.hfi.as_mut()?;
+        let hold = HfiStep { inject: AlphaBeta::default(), i_fundamental: i_ab, ready: false };
+        let Ok(o) = h.step(i_ab) else {
+            self.trip(crate::drive::Faults::ESTIMATOR);
+            return Some((self.theta_previous, T::ZERO, hold));
+        };
+        let step =
+            HfiStep { inject: o.u_inject_ab, i_fundamental: o.i_fundamental_ab, ready: o.polarity_known };
+        if !o.polarity_known {
+            // Aligning: nothing moves, the position estimate waits.
+            p.aligned = false;
+            self.i_dq_ref = Dq::default();
+            self.pi_d.reset();
+            self.pi_q.reset();
+            self.pi_speed.reset();
+            self.low_speed_mover_angle = Some(self.theta_previous);
+            return Some((o.theta_e, T::ZERO, step));
+        }
+        let theta = o.theta_e;
+        if !p.aligned {
+            // The first step with the polarity known: the position estimate takes the HFI
+            // angle (the shortest way from where it was), the profile holds there.
+            p.aligned = true;
+            p.seeded = false;
+            p.speed_loop_out = T::ZERO;
+            p.accel_ff_applied = T::ZERO;
+            p.speed_error_rad_s = 0.0;
+            self.omega_filtered = T::ZERO;
+            self.position_counts =
+                self.position_counts.saturating_add(i64::from((theta - self.theta_previous).bits()));
+            self.theta_previous = theta;
+            let x = self.position_m();
+            if let Some(p) = &mut self.positioning {
+                p.profile.hold_at(x);
+            }
+        }
+        let Some(p) = &mut self.positioning else {
+            return Some((theta, T::ZERO, step));
+        };
+        self.omega_filtered =
+            self.omega_filtered + p.hfi_speed_filter_rate * (o.omega_integral_e - self.omega_filtered);
+        let sp = p.profile.step(dt_s);
+        let omega_ref = T::from_f32(sp.speed_m_per_s * p.rad_per_m * self.k.inv_omega_base);
+        let alpha =
+            T::from_f32(sp.accel_m_per_s2 * p.rad_per_m * self.k.inv_omega_base * self.k.inv_omega_base);
+        self.estimator.set_commanded_acceleration(alpha);
+        // Position and speed loops on the HFI estimate, as in `Running`.
+        let (omega_cmd, iq_ff) = self.position_command();
+        self.omega_ref = omega_cmd;
+        self.speed_divider_count += 1;
+        let speed_loop_due = self.speed_divider_count >= self.k.speed_loop_divider;
+        if speed_loop_due {
+            self.speed_divider_count = 0;
+        }
+        let error = self.omega_ref - self.omega_filtered;
+        let limit = self.k.current_limit;
+        let x_hat = self.position_m();
+        let Some(p) = &mut self.positioning else {
+            return Some((theta, T::ZERO, step));
+        };
+        if speed_loop_due {
+            p.speed_loop_out = self.pi_speed.update(error);
+        }
+        // Feed forward the profile's acceleration and, along the motion, the friction
+        // learned while running sensorless (the speed loop's integrator then only takes
+        // what is unexpected). At rest, the friction towards the reference position,
+        // scaled down within a band of tau / 60 of it: without it the speed loop's
+        // integrator has to wind up to the break-away force from a small position error,
+        // then overshoots when the mover slips (stick-slip hunting, measured +-15 mm
+        // on the salient stroke).
+        let direction = if sp.speed_m_per_s == 0.0 {
+            ((sp.position_m - x_hat) * p.rest_band_inv_m).clamp(-1.0, 1.0)
+        } else {
+            sp.speed_m_per_s.signum()
+        };
+        let friction_ff = T::from_f32(direction * p.load_force_n / p.thrust_n_per_a / self.k.base.current_a);
+        let iq_ff = iq_ff + friction_ff;
+        let slew = p.slew_step;
+        p.accel_ff_applied = p.accel_ff_applied + (iq_ff - p.accel_ff_applied).clamp_to(-slew, slew);
+        self.i_dq_ref.q = (p.speed_loop_out + p.accel_ff_applied).clamp_to(-limit, limit);
+        let d = self.i_dq_ref.d;
+        self.i_dq_ref.d = if d > T::ZERO { (d - slew).max(T::ZERO) } else { (d + slew).min(T::ZERO) };
+        let omega = o.omega_e;
+        if sp.speed_m_per_s.abs() <= p.exit_m_per_s {
+            p.seeded = false;
+            return Some((theta, omega, step));
+        }
+        if !p.seeded {
+            self.estimator.seed(theta, omega_ref, i_ab);
+            p.seeded = true;
+            return Some((theta, omega, step));
+        }
+        let close = (estimate.omega_e - omega_ref).abs() < omega_ref.abs() * self.k.handover_tolerance;
+        if estimate.tracking && close {
+            // As from the current vector: the frames differ by the two estimates'
+            // disagreement only; the speed loop continues from the q current.
+            self.hand_over(theta, estimate);
+            let (omega_cmd, iq_ff) = self.position_command();
+            let iq = self.i_dq_ref.q;
+            self.pi_speed.preset(iq - iq_ff, omega_cmd - self.omega_filtered);
+            if let Some(p) = &mut self.positioning {
+                p.speed_loop_out = iq - iq_ff;
+                p.accel_ff_applied = iq_ff;
+            }
+            self.state = DriveState::Running;
+            let step = HfiStep { inject: AlphaBeta::default(), ..step };
+            return Some((estimate.theta_e, estimate.omega_e, step));
+        }
+        Some((theta, omega, step))
     }
 }
