@@ -128,6 +128,10 @@ pub(super) struct Positioning<T> {
     /// `60 / tau` (1/m): at rest with HFI, the friction feed-forward is full beyond
     /// `tau / 60` of position error and proportional within.
     pub(super) rest_band_inv_m: f32,
+    /// With HFI: the position estimate's angle, at rest the HFI angle filtered (first
+    /// order) at `hfi_position_rate` per period (twice the speed loop's bandwidth).
+    pub(super) hfi_position_angle: Angle,
+    pub(super) hfi_position_rate: f32,
 }
 
 /// What HFI contributes to one step of the low-speed mode (working units).
@@ -355,6 +359,9 @@ impl<T: Scalar> Drive<T> {
             // HFI takes over from the estimated angle and speed; the polarity is known.
             h.preset(theta, omega, true);
         }
+        if let Some(p) = &mut self.positioning {
+            p.hfi_position_angle = theta;
+        }
         (theta, omega)
     }
 
@@ -449,6 +456,9 @@ impl<T: Scalar> Drive<T> {
             self.position_counts =
                 self.position_counts.saturating_add(i64::from((theta - self.theta_previous).bits()));
             self.theta_previous = theta;
+            if let Some(p) = &mut self.positioning {
+                p.hfi_position_angle = theta;
+            }
             let x = self.position_m();
             if let Some(p) = &mut self.positioning {
                 p.profile.hold_at(x);
@@ -460,6 +470,16 @@ impl<T: Scalar> Drive<T> {
         self.omega_filtered =
             self.omega_filtered + p.hfi_speed_filter_rate * (o.omega_integral_e - self.omega_filtered);
         let sp = p.profile.step(dt_s);
+        // The position estimate: at rest, the HFI angle's noise (about 1.3 deg RMS over
+        // its 200 Hz noise bandwidth) filtered at the mechanics' scale; moving, the HFI
+        // angle itself (a filter would lag).
+        p.hfi_position_angle = if sp.speed_m_per_s == 0.0 {
+            let innovation = (theta - p.hfi_position_angle).to_radians::<f32>();
+            p.hfi_position_angle + (p.hfi_position_rate * innovation).radians_to_angle()
+        } else {
+            theta
+        };
+        self.low_speed_mover_angle = Some(p.hfi_position_angle);
         let omega_ref = T::from_f32(sp.speed_m_per_s * p.rad_per_m * self.k.inv_omega_base);
         let alpha =
             T::from_f32(sp.accel_m_per_s2 * p.rad_per_m * self.k.inv_omega_base * self.k.inv_omega_base);
@@ -497,7 +517,14 @@ impl<T: Scalar> Drive<T> {
         let iq_ff = iq_ff + friction_ff;
         let slew = p.slew_step;
         p.accel_ff_applied = p.accel_ff_applied + (iq_ff - p.accel_ff_applied).clamp_to(-slew, slew);
-        self.i_dq_ref.q = (p.speed_loop_out + p.accel_ff_applied).clamp_to(-limit, limit);
+        // Slewed: a step of the current reference makes the current loop step its voltage,
+        // and a change of the fundamental's slope between two periods reads as an HF
+        // response (`e` moves by `du / (2 L_q U_h D)`, 0.3 for 10 V on the salient motor,
+        // which fed back through the speed loop); at `slew` per period it moves `e` by
+        // at most `k_p slew / (2 L_q U_h D)` (0.04).
+        let iq_target = (p.speed_loop_out + p.accel_ff_applied).clamp_to(-limit, limit);
+        let iq = self.i_dq_ref.q;
+        self.i_dq_ref.q = iq + (iq_target - iq).clamp_to(-slew, slew);
         let d = self.i_dq_ref.d;
         self.i_dq_ref.d = if d > T::ZERO { (d - slew).max(T::ZERO) } else { (d + slew).min(T::ZERO) };
         let omega = o.omega_e;
