@@ -109,7 +109,7 @@ fn standstill<T: dcfo::num::Scalar>(
 /// (20 mA RMS, 10 mA steps) through the loop, about 1.3 deg RMS, 4.5 deg at 3.5 sigma; the
 /// dead time's tilt of the injected vector at zero current, up to 2 deg; the phases'
 /// unequal gain errors (+0.5 %, -0.8 %) as an apparent saliency, up to 2 deg: 10 deg
-/// electrical (0.56 mm) at any instant. The polarity is right at every position
+/// electrical (1.1 mm) at any instant. The polarity is right at every position
 /// (an error near 180 deg otherwise), decided within 0.2 s, and the mover does not move.
 fn check(name: &str, s: &Standstill) {
     assert!(s.decided_after.is_some_and(|k| k < 2000), "{name}: {s:?}");

@@ -439,7 +439,6 @@ impl<T: Scalar> Drive<T> {
                 hfi_speed_filter_rate: T::from_f32((ts / config.speed_filter_s).min(1.0)),
                 rest_band_inv_m: 60.0 / motor.pole_pitch_m,
                 hfi_position_angle: Angle::ZERO,
-                hfi_position_rate: (2.0 * config.speed_bandwidth_rad_s * ts).min(1.0),
                 anchor_angle: Angle::ZERO,
                 anchor_x_m: 0.0,
                 seeded: false,

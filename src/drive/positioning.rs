@@ -128,10 +128,8 @@ pub(super) struct Positioning<T> {
     /// `60 / tau` (1/m): at rest with HFI, the friction feed-forward is full beyond
     /// `tau / 60` of position error and proportional within.
     pub(super) rest_band_inv_m: f32,
-    /// With HFI: the position estimate's angle, at rest the HFI angle filtered (first
-    /// order) at `hfi_position_rate` per period (twice the speed loop's bandwidth).
+    /// With HFI: the position estimate's angle (the HFI angle).
     pub(super) hfi_position_angle: Angle,
-    pub(super) hfi_position_rate: f32,
 }
 
 /// What HFI contributes to one step of the low-speed mode (working units).
@@ -470,15 +468,10 @@ impl<T: Scalar> Drive<T> {
         self.omega_filtered =
             self.omega_filtered + p.hfi_speed_filter_rate * (o.omega_integral_e - self.omega_filtered);
         let sp = p.profile.step(dt_s);
-        // The position estimate: at rest, the HFI angle's noise (about 1.3 deg RMS over
-        // its 200 Hz noise bandwidth) filtered at the mechanics' scale; moving, the HFI
-        // angle itself (a filter would lag).
-        p.hfi_position_angle = if sp.speed_m_per_s == 0.0 {
-            let innovation = (theta - p.hfi_position_angle).to_radians::<f32>();
-            p.hfi_position_angle + (p.hfi_position_rate * innovation).radians_to_angle()
-        } else {
-            theta
-        };
+        // The position estimate: the HFI angle. (Low-passing it at rest, against its
+        // noise, lagged a mover that was still moving with the reference at rest: 6.4 mm
+        // under the 60 N load step of host/tests/hfi_drive.rs.)
+        p.hfi_position_angle = theta;
         self.low_speed_mover_angle = Some(p.hfi_position_angle);
         let omega_ref = T::from_f32(sp.speed_m_per_s * p.rad_per_m * self.k.inv_omega_base);
         let alpha =
