@@ -28,6 +28,19 @@
 //!   (friction, load) is learned here, along the motion. A lock loss falls back to the
 //!   low-speed mode.
 //!
+//! - **With HFI** (salient motors, [`MotionConfig::hfi`]): the
+//!   low-speed mode is closed loop on the [`crate::hfi`] estimate instead of the current
+//!   vector. On enable the current loops are held and the bridge applies the injection
+//!   alone while HFI converges and tests the magnet's polarity (0.13 s, the mover does
+//!   not move); the position estimate then starts from the HFI angle (zero at electrical
+//!   angle 0, as without HFI). From then on the position loop, the speed loop on HFI's
+//!   speed (its tracking loop's integrator) and `i_d = 0` run as in `Running`, on the
+//!   fundamental current (the mean of two samples), with the injection added to the
+//!   command; the q reference is slewed (a step reads as an HF response) and the
+//!   friction learned while running is fed forward (at rest: towards the reference,
+//!   scaled within `tau / 60`). Leaving the band, the estimator is seeded from the HFI
+//!   angle; entering it, HFI is preset from the estimate.
+//!
 //! ## Transitions (bumpless)
 //! Every change of the current reference is slewed at
 //! [`MotionConfig::current_slew_a_per_s`].
