@@ -294,17 +294,21 @@ pub struct HfiOutput<T> {
     pub polarity_margin: T,
 }
 
-/// One command in the history: the frame it was injected in and its sign.
+/// One command in the history: the frame it was injected in, its sign, and the
+/// fundamental voltage commanded with it.
 #[derive(Clone, Copy, Debug)]
 struct Command<T> {
     frame: CosSin<T>,
     /// +1, -1: an HF half period; 0: anything else (pulse, nothing).
     sign: i8,
+    /// The fundamental voltage of the same step (V, alpha-beta), as told by
+    /// [`Hfi::set_fundamental_command`].
+    u_fundamental: AlphaBeta<T>,
 }
 
 impl<T: Scalar> Command<T> {
     fn none() -> Self {
-        Command { frame: CosSin { cos: T::ONE, sin: T::ZERO }, sign: 0 }
+        Command { frame: CosSin { cos: T::ONE, sin: T::ZERO }, sign: 0, u_fundamental: AlphaBeta::default() }
     }
 }
 
@@ -315,6 +319,9 @@ pub struct Hfi<T> {
     u_pulse: T,
     /// `1 / (U_h T D)`, 1/A (working units).
     k_norm: T,
+    /// `T / L_d`, `T / L_q`, A/V (working units): the current step a voltage makes.
+    t_over_ld: T,
+    t_over_lq: T,
     kp: T,
     ki_dt: T,
     dt: T,
@@ -360,6 +367,8 @@ impl<T: Scalar> Hfi<T> {
             u_hf: base.voltage(config.u_hf_v),
             u_pulse: base.voltage(config.pulse_v),
             k_norm: T::from_f32(k_norm_si * base.current_a),
+            t_over_ld: T::from_f32(t / config.ld_h * base.voltage_v / base.current_a),
+            t_over_lq: T::from_f32(t / config.lq_h * base.voltage_v / base.current_a),
             kp: base.omega(config.damping * wn),
             ki_dt: base.omega(0.5 * wn * wn * t),
             dt: base.time(t),
@@ -405,6 +414,16 @@ impl<T: Scalar> Hfi<T> {
         self.phase = if polarity_known { HfiPhase::Tracking } else { HfiPhase::Converging };
     }
 
+    /// Tells the estimator the fundamental voltage (V, alpha-beta, working units) the
+    /// caller commands in this step besides the injection (after [`Hfi::step`], before
+    /// the next): its changes from one period to the next are taken out of the
+    /// demodulated response (module docs). Without it they are taken as zero.
+    pub fn set_fundamental_command(&mut self, u_ab: AlphaBeta<T>) {
+        if u_ab.is_valid() {
+            self.history[0].u_fundamental = u_ab;
+        }
+    }
+
     /// Back to angle 0, speed 0, polarity unknown.
     pub fn reset(&mut self) {
         self.preset(Angle::ZERO, T::ZERO, false);
@@ -438,7 +457,19 @@ impl<T: Scalar> Hfi<T> {
             let r3 = park(AlphaBeta::new(p1.alpha - p2.alpha, p1.beta - p2.beta), &h3.frame);
             let (r2, r3) =
                 if h2.sign > 0 { (r2, Dq::new(-r3.d, -r3.q)) } else { (Dq::new(-r2.d, -r2.q), r3) };
-            response = Dq::new((r2.d + r3.d) * T::HALF, (r2.q + r3.q) * T::HALF);
+            // A change of the fundamental voltage between the two commands changes the
+            // fundamental's slope, which the pair would read as HF: take out its
+            // expected effect, `sign T L^-1 (u_f(k-2) - u_f(k-3)) / 2` in the frame.
+            let du = park(
+                AlphaBeta::new(
+                    h2.u_fundamental.alpha - h3.u_fundamental.alpha,
+                    h2.u_fundamental.beta - h3.u_fundamental.beta,
+                ),
+                &h2.frame,
+            );
+            let (cd, cq) = (du.d * self.t_over_ld * T::HALF, du.q * self.t_over_lq * T::HALF);
+            let (cd, cq) = if h2.sign > 0 { (cd, cq) } else { (-cd, -cq) };
+            response = Dq::new((r2.d + r3.d) * T::HALF - cd, (r2.q + r3.q) * T::HALF - cq);
             error = (response.q * self.k_norm).clamp_to(-T::ONE, T::ONE);
             demodulated = true;
             i_fundamental =
@@ -471,7 +502,7 @@ impl<T: Scalar> Hfi<T> {
                     let frame = CosSin::new(theta_inj);
                     let amplitude = if sign > 0 { self.u_hf } else { -self.u_hf };
                     u = inverse_park(Dq::new(amplitude, T::ZERO), &frame);
-                    command = Command { frame, sign };
+                    command = Command { frame, sign, u_fundamental: AlphaBeta::default() };
                 }
                 self.theta = theta_now + (self.omega * self.dt).radians_to_angle();
             }
@@ -479,7 +510,7 @@ impl<T: Scalar> Hfi<T> {
                 self.omega = T::ZERO;
                 let (pulse_u, frame) = self.polarity_step(i_ab);
                 u = inverse_park(Dq::new(pulse_u, T::ZERO), &frame);
-                command = Command { frame, sign: 0 };
+                command = Command { frame, sign: 0, u_fundamental: AlphaBeta::default() };
                 // The angle is held during the test; a decision may have turned it by pi,
                 // and the output must carry the angle the polarity flag vouches for.
                 theta_out = self.theta;

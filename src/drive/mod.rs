@@ -879,7 +879,12 @@ impl<T: Scalar> Drive<T> {
         };
         let command = AlphaBeta::new(u_ab.alpha + comp.alpha, u_ab.beta + comp.beta);
         let command = match hfi {
-            Some(h) => AlphaBeta::new(command.alpha + h.inject.alpha, command.beta + h.inject.beta),
+            Some(h) => {
+                if let Some(hfi) = self.positioning.as_mut().and_then(|p| p.hfi.as_mut()) {
+                    hfi.set_fundamental_command(command);
+                }
+                AlphaBeta::new(command.alpha + h.inject.alpha, command.beta + h.inject.beta)
+            }
             None => command,
         };
         match svpwm(command, m.vdc) {
