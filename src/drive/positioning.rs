@@ -38,8 +38,12 @@
 //!   fundamental current (the mean of two samples), with the injection added to the
 //!   command; the q reference is slewed (a step reads as an HF response) and the
 //!   friction learned while running is fed forward (at rest: towards the reference,
-//!   scaled within `tau / 60`). Leaving the band, the estimator is seeded from the HFI
-//!   angle; entering it, HFI is preset from the estimate.
+//!   scaled within `tau / 60`). At rest (reference speed zero) a stiffer speed loop
+//!   (twice the drive's bandwidth, at most a quarter of HFI's) and position gain (half
+//!   that) hold against a load step, switched bumplessly; moving, the drive's own (the
+//!   stiff ones, used moving too, made the estimator lose lock after the hand-overs of
+//!   reversals). Leaving the band, the estimator is seeded from the HFI angle; entering
+//!   it, HFI is preset from the estimate.
 //!
 //! ## Transitions (bumpless)
 //! Every change of the current reference is slewed at
@@ -138,6 +142,13 @@ pub(super) struct Positioning<T> {
     pub(super) hfi: Option<Hfi<T>>,
     /// Rate per period of the filter on HFI's speed estimate (the drive's speed filter).
     pub(super) hfi_speed_filter_rate: T,
+    /// With HFI, the low-speed mode's speed loop at rest (bandwidth `min(2 w_s, w_n / 4)`,
+    /// `w_s` the drive's speed bandwidth, `w_n` HFI's) and its position gain (1/s, half
+    /// that bandwidth: damping 0.7 of the P-PI cascade on the moving mass).
+    pub(super) hfi_speed_loop: crate::pi::Pi<T>,
+    pub(super) hfi_position_gain: f32,
+    /// The stiff (at rest) speed loop is the one running.
+    pub(super) hfi_stiff: bool,
     /// `60 / tau` (1/m): at rest with HFI, the friction feed-forward is full beyond
     /// `tau / 60` of position error and proportional within.
     pub(super) rest_band_inv_m: f32,
@@ -370,8 +381,11 @@ impl<T: Scalar> Drive<T> {
             // HFI takes over from the estimated angle and speed; the polarity is known.
             h.preset(theta, omega, true);
         }
-        if let Some(p) = &mut self.positioning {
+        if let Some(p) = &mut self.positioning
+            && p.hfi.is_some()
+        {
             p.hfi_position_angle = theta;
+            p.hfi_stiff = false;
         }
         (theta, omega)
     }
@@ -463,6 +477,9 @@ impl<T: Scalar> Drive<T> {
             p.speed_loop_out = T::ZERO;
             p.accel_ff_applied = T::ZERO;
             p.speed_error_rad_s = 0.0;
+            p.hfi_speed_loop.reset();
+            p.hfi_stiff = false;
+            self.pi_speed.reset();
             self.omega_filtered = T::ZERO;
             self.position_counts =
                 self.position_counts.saturating_add(i64::from((theta - self.theta_previous).bits()));
@@ -475,6 +492,7 @@ impl<T: Scalar> Drive<T> {
                 p.profile.hold_at(x);
             }
         }
+        let x_hat = self.position_m();
         let Some(p) = &mut self.positioning else {
             return Some((theta, T::ZERO, step));
         };
@@ -491,7 +509,13 @@ impl<T: Scalar> Drive<T> {
             T::from_f32(sp.accel_m_per_s2 * p.rad_per_m * self.k.inv_omega_base * self.k.inv_omega_base);
         self.estimator.set_commanded_acceleration(alpha);
         // Position and speed loops on the HFI estimate, as in `Running`.
-        let (omega_cmd, iq_ff) = self.position_command();
+        // At rest the stiff loops hold (a load step); moving, the running drive's (the
+        // stiff ones disturbed the hand-overs: lock lost after reversals).
+        let at_rest = sp.speed_m_per_s == 0.0;
+        let gain = if at_rest { p.hfi_position_gain } else { p.position_gain };
+        let v_cmd = sp.speed_m_per_s + gain * (sp.position_m - x_hat);
+        let omega_cmd = T::from_f32(v_cmd * p.rad_per_m * self.k.inv_omega_base);
+        let iq_ff = T::from_f32(sp.accel_m_per_s2 * p.accel_current_per_m_s2);
         self.omega_ref = omega_cmd;
         self.speed_divider_count += 1;
         let speed_loop_due = self.speed_divider_count >= self.k.speed_loop_divider;
@@ -500,12 +524,23 @@ impl<T: Scalar> Drive<T> {
         }
         let error = self.omega_ref - self.omega_filtered;
         let limit = self.k.current_limit;
-        let x_hat = self.position_m();
         let Some(p) = &mut self.positioning else {
             return Some((theta, T::ZERO, step));
         };
         if speed_loop_due {
-            p.speed_loop_out = self.pi_speed.update(error);
+            // Bumpless switch between the two speed loops: the one taking over continues
+            // from the other's output.
+            if at_rest != p.hfi_stiff {
+                let out = p.speed_loop_out;
+                if at_rest {
+                    p.hfi_speed_loop.preset(out, error)
+                } else {
+                    self.pi_speed.preset(out, error)
+                }
+                p.hfi_stiff = at_rest;
+            }
+            p.speed_loop_out =
+                if at_rest { p.hfi_speed_loop.update(error) } else { self.pi_speed.update(error) };
         }
         // Feed forward the profile's acceleration and, along the motion, the friction
         // learned while running sensorless (the speed loop's integrator then only takes
