@@ -270,8 +270,9 @@ pub struct Drive<T> {
     current_error_count: u32,
 }
 
-/// The HFI low-speed mode's speed-loop bandwidth at rest in units of the drive's (4 made
-/// the estimate slip poles on the stroke; 2 holds a 50 % load step within 12.9 mm).
+/// The HFI low-speed mode's speed-loop bandwidth at rest in units of the drive's (4, before
+/// the demodulation's voltage correction, made the estimate slip poles on the stroke; 2
+/// holds a 50 % load step within 12.9 mm).
 const HFI_SPEED_FACTOR: f32 = 2.0;
 
 /// `x` as a working value, or the configuration error naming `field` when the numeric
