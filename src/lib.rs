@@ -18,6 +18,7 @@
 //! | [`observer`] | §2–3 | pure integrator, LPF (CFO) and DCFO flux observers |
 //! | [`pll`] | §4 | angle and speed from the flux |
 //! | [`fll`] | — | the frequency from the flux vector's rotation: tunes the DCFO's notch, acquires a moving mover |
+//! | [`hfi`] | — | high-frequency injection: the angle of a salient motor at standstill and low speed, magnet polarity |
 //! | [`estimator`] | §4–5 | observer + PLL as the drive and trace replay run them |
 //! | [`drive`] | §5 | the control step: FOC loop, I/f start-up, protection state machine |
 //! | [`link`] | — | hardware-in-the-loop serial protocol: sensor and actuation frames, COBS + CRC-16, receiver, watchdog |
@@ -46,6 +47,7 @@ pub mod capture;
 pub mod drive;
 pub mod estimator;
 pub mod fll;
+pub mod hfi;
 pub mod link;
 pub mod motion;
 pub mod motor;

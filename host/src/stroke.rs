@@ -27,7 +27,7 @@ use dcfo::transforms::{Dq, inverse_park};
 use dcfo::units::Base;
 use serde::Serialize;
 
-use crate::plant::{InverterParams, Plant, SimParams};
+use crate::plant::{InverterParams, Plant, PlantParams, SimParams};
 
 /// Carriage and load moved besides the mover, kg.
 pub const PAYLOAD_KG: f64 = dcfo::drive::PAPER_AXIS_PAYLOAD_KG as f64;
@@ -114,9 +114,17 @@ pub struct StrokeSummary {
     pub moves_done: usize,
 }
 
-/// The plant for `motor`: carriage, friction, R +20 %, L -5 %.
+/// The plant for `motor`: carriage, friction, R +20 %, L -5 %; for a salient motor
+/// (`L_q / L_d >= 1.15`, an interior-magnet design, whose iron saturates along the
+/// magnet) a d axis whose incremental inductance is 10 % lower at the rated peak
+/// current ([`PlantParams::d_saturation_for`]), which its HFI polarity test reads. The
+/// surface-magnet motors' plants stay linear (their figures are those of before).
 pub fn plant_for(motor: &MotorParams) -> SimParams {
     let mut p = SimParams::from_motor(motor);
+    if motor.lq_h >= dcfo::hfi::MIN_SALIENCY * motor.ld_h {
+        let rated_peak = f64::from(motor.rated_current_a) * 2f64.sqrt();
+        p.plant.ld_saturation_per_a = PlantParams::d_saturation_for(0.1, rated_peak);
+    }
     p.plant.mass_kg += PAYLOAD_KG;
     p.plant.coulomb_friction_n = COULOMB_N;
     p.plant.static_friction_n = 1.3 * COULOMB_N;

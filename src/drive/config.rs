@@ -1,6 +1,7 @@
 //! Drive settings (SI) and the controller gains derived from them.
 
 use crate::estimator::EstimatorConfig;
+use crate::hfi::HfiConfig;
 use crate::motion::ProfileLimits;
 use crate::motor::MotorParams;
 use crate::observer::ObserverKind;
@@ -141,6 +142,11 @@ pub struct MotionConfig {
     pub current_slew_a_per_s: f32,
     /// Position-loop bandwidth (proportional gain), rad/s (> 0).
     pub position_bandwidth_rad_s: f32,
+    /// High-frequency injection for a salient motor: with `Some`, the low-speed mode is
+    /// closed loop on the HFI angle (alignment without moving the mover, polarity,
+    /// position and speed loops at standstill) instead of the open-loop current vector;
+    /// see the `positioning` docs. `None`: the current vector.
+    pub hfi: Option<HfiConfig>,
 }
 
 impl MotionConfig {
@@ -167,6 +173,8 @@ impl MotionConfig {
     ///   motor): the hand-over needs a small `I_d`, the hold a large one.
     /// - current slew: rated peak current in 5 ms (2 % of rated a period).
     /// - position loop: a quarter of the speed loop's crossover.
+    /// - HFI ([`HfiConfig::for_motor`]) for a salient motor (`L_q / L_d >= 1.15`),
+    ///   tuned for the control period and the nominal bus; none otherwise.
     pub fn for_drive(motor: &MotorParams, drive: &DriveConfig, limits: ProfileLimits) -> Self {
         let omega_per_speed = core::f32::consts::PI / motor.pole_pitch_m;
         let bus_v = 0.5 * (drive.faults.bus_min_v / 0.6 + drive.faults.bus_max_v / 1.3);
@@ -186,6 +194,7 @@ impl MotionConfig {
             exit_current_a: (2.0 * accel_current).max(0.5 * rated_peak).min(low_speed_current_a),
             current_slew_a_per_s: rated_peak / 0.005,
             position_bandwidth_rad_s: 0.25 * drive.speed_bandwidth_rad_s,
+            hfi: HfiConfig::for_motor(motor, drive.control_period_s, bus_v).ok(),
         }
     }
 }
@@ -349,6 +358,10 @@ impl DriveConfig {
                 (pos(m.exit_current_a) && m.exit_current_a <= m.low_speed_current_a, "motion.exit_current_a"),
                 (pos(m.current_slew_a_per_s), "motion.current_slew_a_per_s"),
                 (pos(m.position_bandwidth_rad_s), "motion.position_bandwidth_rad_s"),
+                (
+                    m.hfi.is_none_or(|h| h.validate().is_ok() && h.pwm_period_s == self.control_period_s),
+                    "motion.hfi",
+                ),
             ];
             for (ok, field) in checks {
                 if !ok {

@@ -284,6 +284,11 @@ pub struct Drive<T> {
     startup_speed_error_rad_s: f32,
 }
 
+/// The HFI low-speed mode's speed-loop bandwidth at rest in units of the drive's (4, before
+/// the demodulation's voltage correction, made the estimate slip poles on the stroke; 2
+/// holds a 50 % load step within 12.9 mm).
+const HFI_SPEED_FACTOR: f32 = 2.0;
+
 /// `x` as a working value, or the configuration error naming `field` when the numeric
 /// type cannot hold it within 1 % (e.g. beyond fixed point's range, or NaN).
 fn representable<T: Scalar>(x: f32, field: &'static str) -> Result<T, DriveConfigError> {
@@ -455,6 +460,31 @@ impl<T: Scalar> Drive<T> {
                 speed_loop_out: T::ZERO,
                 accel_ff_applied: T::ZERO,
                 mover_filter_rate: (wn * ts).min(1.0),
+                hfi: match m.hfi {
+                    Some(h) => Some(
+                        crate::hfi::Hfi::new(&h, base)
+                            .map_err(|_| DriveConfigError { field: "motion.hfi" })?,
+                    ),
+                    None => None,
+                },
+                hfi_speed_filter_rate: T::from_f32((ts / config.speed_filter_s).min(1.0)),
+                hfi_speed_loop: {
+                    let ws = m.hfi.map_or(ws, |h| (HFI_SPEED_FACTOR * ws).min(0.25 * h.bandwidth_rad_s));
+                    let kp = ws / plant_gain;
+                    Pi::new(
+                        T::from_f32(kp * a_per_omega),
+                        T::from_f32(kp * ws / 4.0 * speed_ts * a_per_omega),
+                        base.current(-config.current_limit_a),
+                        base.current(config.current_limit_a),
+                    )
+                    .map_err(|_| DriveConfigError { field: "motion.hfi" })?
+                },
+                hfi_position_gain: m
+                    .hfi
+                    .map_or(0.0, |h| 0.5 * (HFI_SPEED_FACTOR * ws).min(0.25 * h.bandwidth_rad_s)),
+                hfi_stiff: false,
+                rest_band_inv_m: 60.0 / motor.pole_pitch_m,
+                hfi_position_angle: Angle::ZERO,
                 anchor_angle: Angle::ZERO,
                 anchor_x_m: 0.0,
                 seeded: false,
@@ -825,12 +855,17 @@ impl<T: Scalar> Drive<T> {
         self.omega_filtered =
             self.omega_filtered + k.speed_filter_rate * (estimate.omega_e - self.omega_filtered);
 
-        let (theta, omega) = match self.state {
-            DriveState::Starting => self.startup_references(&estimate),
-            DriveState::Reacquiring => self.reacquiring_references(&estimate),
-            DriveState::LowSpeed => self.low_speed_references(&estimate, out.i_observer),
-            _ => self.running_references(&estimate),
+        // A salient motor's low-speed mode runs on HFI (`positioning` docs).
+        let hfi =
+            if self.state == DriveState::LowSpeed { self.hfi_low_speed(&estimate, out.i_ab) } else { None };
+        let (theta, omega) = match (hfi, self.state) {
+            (Some((theta, omega, _)), _) => (theta, omega),
+            (None, DriveState::Starting) => self.startup_references(&estimate),
+            (None, DriveState::Reacquiring) => self.reacquiring_references(&estimate),
+            (None, DriveState::LowSpeed) => self.low_speed_references(&estimate, out.i_observer),
+            (None, _) => self.running_references(&estimate),
         };
+        let hfi = hfi.map(|(_, _, step)| step);
         let position_angle = self.low_speed_mover_angle.take().unwrap_or(theta);
         self.track_position(position_angle);
         if self.state == DriveState::Fault {
@@ -841,7 +876,8 @@ impl<T: Scalar> Drive<T> {
         // Running (also right after hand-over) controls at the PLL's angle, whose cos/sin
         // the PLL has already computed.
         let cs = if theta == estimate.theta_e { estimate.cos_sin } else { CosSin::new(theta) };
-        let i_dq = park(out.i_ab, &cs);
+        // With HFI the loops see the fundamental current (the HF swing averaged out).
+        let i_dq = park(hfi.map_or(out.i_ab, |h| h.i_fundamental), &cs);
         out.i_dq = i_dq;
         self.i_dq_measured = i_dq;
 
@@ -853,11 +889,17 @@ impl<T: Scalar> Drive<T> {
             (T::ZERO, T::ZERO)
         };
         let v_max = m.vdc * k.modulation_limit;
-        let u_d = ff_d + self.pi_d.update_within(self.i_dq_ref.d - i_dq.d, -v_max - ff_d, v_max - ff_d);
-        let u_d = u_d.clamp_to(-v_max, v_max);
-        let v_q_max = (v_max * v_max - u_d * u_d).sqrt();
-        let u_q = ff_q + self.pi_q.update_within(self.i_dq_ref.q - i_dq.q, -v_q_max - ff_q, v_q_max - ff_q);
-        let u_q = u_q.clamp_to(-v_q_max, v_q_max);
+        let (u_d, u_q) = if hfi.is_some_and(|h| !h.ready) {
+            // HFI aligning: the loops are held, the bridge applies the injection alone.
+            (T::ZERO, T::ZERO)
+        } else {
+            let u_d = ff_d + self.pi_d.update_within(self.i_dq_ref.d - i_dq.d, -v_max - ff_d, v_max - ff_d);
+            let u_d = u_d.clamp_to(-v_max, v_max);
+            let v_q_max = (v_max * v_max - u_d * u_d).sqrt();
+            let u_q =
+                ff_q + self.pi_q.update_within(self.i_dq_ref.q - i_dq.q, -v_q_max - ff_q, v_q_max - ff_q);
+            (u_d, u_q.clamp_to(-v_q_max, v_q_max))
+        };
         self.u_dq_last = Dq::new(u_d, u_q);
         // Current-control supervision: the voltage on its limit (within 2 %) and the
         // current still off its reference, period after period, means the loops have
@@ -878,9 +920,21 @@ impl<T: Scalar> Drive<T> {
         let theta_apply = theta + (omega * k.dt * k.delay_periods).radians_to_angle();
         let cs_apply = CosSin::new(theta_apply);
         let u_ab = inverse_park(Dq::new(u_d, u_q), &cs_apply);
-        let comp =
-            if k.compensate { self.compensation(m.vdc, i_dq, &cs_apply) } else { AlphaBeta::default() };
+        let comp = if k.compensate && hfi.is_none_or(|h| h.ready) {
+            self.compensation(m.vdc, i_dq, &cs_apply)
+        } else {
+            AlphaBeta::default()
+        };
         let command = AlphaBeta::new(u_ab.alpha + comp.alpha, u_ab.beta + comp.beta);
+        let command = match hfi {
+            Some(h) => {
+                if let Some(hfi) = self.positioning.as_mut().and_then(|p| p.hfi.as_mut()) {
+                    hfi.set_fundamental_command(command);
+                }
+                AlphaBeta::new(command.alpha + h.inject.alpha, command.beta + h.inject.beta)
+            }
+            None => command,
+        };
         match svpwm(command, m.vdc) {
             Ok(modulation) => {
                 out.duties = modulation.duties;

@@ -28,6 +28,23 @@
 //!   (friction, load) is learned here, along the motion. A lock loss falls back to the
 //!   low-speed mode.
 //!
+//! - **With HFI** (salient motors, [`MotionConfig::hfi`]): the
+//!   low-speed mode is closed loop on the [`crate::hfi`] estimate instead of the current
+//!   vector. On enable the current loops are held and the bridge applies the injection
+//!   alone while HFI converges and tests the magnet's polarity (0.13 s, the mover does
+//!   not move); the position estimate then starts from the HFI angle (zero at electrical
+//!   angle 0, as without HFI). From then on the position loop, the speed loop on HFI's
+//!   speed (its tracking loop's integrator) and `i_d = 0` run as in `Running`, on the
+//!   fundamental current (the mean of two samples), with the injection added to the
+//!   command; the q reference is slewed (a step reads as an HF response) and the
+//!   friction learned while running is fed forward (at rest: towards the reference,
+//!   scaled within `tau / 60`). At rest (reference speed zero) a stiffer speed loop
+//!   (twice the drive's bandwidth, at most a quarter of HFI's) and position gain (half
+//!   that) hold against a load step, switched bumplessly; moving, the drive's own (the
+//!   stiff ones, used moving too, made the estimator lose lock after the hand-overs of
+//!   reversals). Leaving the band, the estimator is seeded from the HFI angle; entering
+//!   it, HFI is preset from the estimate.
+//!
 //! ## Transitions (bumpless)
 //! Every change of the current reference is slewed at
 //! [`MotionConfig::current_slew_a_per_s`].
@@ -56,6 +73,7 @@
 
 use super::{Drive, DriveState};
 use crate::estimator::Estimate;
+use crate::hfi::Hfi;
 use crate::motion::{MotionError, Move, Profile, Setpoint};
 use crate::num::{Angle, Scalar};
 use crate::transforms::{AlphaBeta, Dq};
@@ -120,6 +138,34 @@ pub(super) struct Positioning<T> {
     pub(super) mover_filter_rate: f32,
     /// The alignment on enable is complete (the profile may move).
     pub(super) aligned: bool,
+    /// High-frequency injection (salient motors): the low-speed mode's estimator.
+    pub(super) hfi: Option<Hfi<T>>,
+    /// Rate per period of the filter on HFI's speed estimate (the drive's speed filter).
+    pub(super) hfi_speed_filter_rate: T,
+    /// With HFI, the low-speed mode's speed loop at rest (bandwidth `min(2 w_s, w_n / 4)`,
+    /// `w_s` the drive's speed bandwidth, `w_n` HFI's) and its position gain (1/s, half
+    /// that bandwidth: damping 0.7 of the P-PI cascade on the moving mass).
+    pub(super) hfi_speed_loop: crate::pi::Pi<T>,
+    pub(super) hfi_position_gain: f32,
+    /// The stiff (at rest) speed loop is the one running.
+    pub(super) hfi_stiff: bool,
+    /// `60 / tau` (1/m): at rest with HFI, the friction feed-forward is full beyond
+    /// `tau / 60` of position error and proportional within.
+    pub(super) rest_band_inv_m: f32,
+    /// With HFI: the position estimate's angle (the HFI angle).
+    pub(super) hfi_position_angle: Angle,
+}
+
+/// What HFI contributes to one step of the low-speed mode (working units).
+#[derive(Clone, Copy, Debug)]
+pub(super) struct HfiStep<T> {
+    /// Voltage to add to the command, V.
+    pub(super) inject: AlphaBeta<T>,
+    /// The fundamental current for the current loops, A.
+    pub(super) i_fundamental: AlphaBeta<T>,
+    /// `false` while aligning (converging, polarity): the current loops are held and the
+    /// bridge applies the injection alone.
+    pub(super) ready: bool,
 }
 
 impl<T: Scalar> Drive<T> {
@@ -174,6 +220,10 @@ impl<T: Scalar> Drive<T> {
             p.anchor_x_m = x;
             p.seeded = false;
             p.aligned = false;
+            if let Some(h) = &mut p.hfi {
+                // Angle and polarity found again (the mover may have moved while off).
+                h.reset();
+            }
         }
         self.i_dq_ref = Dq::default();
         self.state = DriveState::LowSpeed;
@@ -327,6 +377,16 @@ impl<T: Scalar> Drive<T> {
         self.pi_q.preset(int_q + ff_q, T::ZERO);
         self.estimator.set_commanded_acceleration(T::ZERO);
         self.state = DriveState::LowSpeed;
+        if let Some(h) = self.positioning.as_mut().and_then(|p| p.hfi.as_mut()) {
+            // HFI takes over from the estimated angle and speed; the polarity is known.
+            h.preset(theta, omega, true);
+        }
+        if let Some(p) = &mut self.positioning
+            && p.hfi.is_some()
+        {
+            p.hfi_position_angle = theta;
+            p.hfi_stiff = false;
+        }
         (theta, omega)
     }
 
@@ -372,5 +432,168 @@ impl<T: Scalar> Drive<T> {
             self.i_dq_ref.q = p.speed_loop_out + p.accel_ff_applied;
         }
         None
+    }
+}
+
+impl<T: Scalar> Drive<T> {
+    /// The low-speed mode of a drive with HFI (`None` without): closed loop on the HFI
+    /// angle. On enable, the current loops are held while HFI converges and tests the
+    /// polarity with the mover at rest (no alignment move); then the position estimate
+    /// starts from the HFI angle (the zero is electrical angle 0, as without HFI), and the
+    /// position loop, the speed loop on HFI's speed and `i_d = 0` run as in `Running`.
+    /// Leaving the band, the estimator is seeded from the HFI angle and the drive hands
+    /// over to it as from the current vector.
+    pub(super) fn hfi_low_speed(
+        &mut self,
+        estimate: &Estimate<T>,
+        i_ab: AlphaBeta<T>,
+    ) -> Option<(Angle, T, HfiStep<T>)> {
+        let dt_s = self.k.dt_s;
+        let p = self.positioning.as_mut()?;
+        let h = p.hfi.as_mut()?;
+        let hold = HfiStep { inject: AlphaBeta::default(), i_fundamental: i_ab, ready: false };
+        let Ok(o) = h.step(i_ab) else {
+            self.trip(crate::drive::Faults::ESTIMATOR);
+            return Some((self.theta_previous, T::ZERO, hold));
+        };
+        let step =
+            HfiStep { inject: o.u_inject_ab, i_fundamental: o.i_fundamental_ab, ready: o.polarity_known };
+        if !o.polarity_known {
+            // Aligning: nothing moves, the position estimate waits.
+            p.aligned = false;
+            self.i_dq_ref = Dq::default();
+            self.pi_d.reset();
+            self.pi_q.reset();
+            self.pi_speed.reset();
+            self.low_speed_mover_angle = Some(self.theta_previous);
+            return Some((o.theta_e, T::ZERO, step));
+        }
+        let theta = o.theta_e;
+        if !p.aligned {
+            // The first step with the polarity known: the position estimate takes the HFI
+            // angle (the shortest way from where it was), the profile holds there.
+            p.aligned = true;
+            p.seeded = false;
+            p.speed_loop_out = T::ZERO;
+            p.accel_ff_applied = T::ZERO;
+            p.speed_error_rad_s = 0.0;
+            p.hfi_speed_loop.reset();
+            p.hfi_stiff = false;
+            self.pi_speed.reset();
+            self.omega_filtered = T::ZERO;
+            self.position_counts =
+                self.position_counts.saturating_add(i64::from((theta - self.theta_previous).bits()));
+            self.theta_previous = theta;
+            if let Some(p) = &mut self.positioning {
+                p.hfi_position_angle = theta;
+            }
+            let x = self.position_m();
+            if let Some(p) = &mut self.positioning {
+                p.profile.hold_at(x);
+            }
+        }
+        let x_hat = self.position_m();
+        let Some(p) = &mut self.positioning else {
+            return Some((theta, T::ZERO, step));
+        };
+        self.omega_filtered =
+            self.omega_filtered + p.hfi_speed_filter_rate * (o.omega_integral_e - self.omega_filtered);
+        let sp = p.profile.step(dt_s);
+        // The position estimate: the HFI angle. (Low-passing it at rest, against its
+        // noise, lagged a mover that was still moving with the reference at rest: 6.4 mm
+        // under the 60 N load step of host/tests/hfi_drive.rs.)
+        p.hfi_position_angle = theta;
+        self.low_speed_mover_angle = Some(p.hfi_position_angle);
+        let omega_ref = T::from_f32(sp.speed_m_per_s * p.rad_per_m * self.k.inv_omega_base);
+        let alpha =
+            T::from_f32(sp.accel_m_per_s2 * p.rad_per_m * self.k.inv_omega_base * self.k.inv_omega_base);
+        self.estimator.set_commanded_acceleration(alpha);
+        // Position and speed loops on the HFI estimate, as in `Running`.
+        // At rest the stiff loops hold (a load step); moving, the running drive's (the
+        // stiff ones disturbed the hand-overs: lock lost after reversals).
+        let at_rest = sp.speed_m_per_s == 0.0;
+        let gain = if at_rest { p.hfi_position_gain } else { p.position_gain };
+        let v_cmd = sp.speed_m_per_s + gain * (sp.position_m - x_hat);
+        let omega_cmd = T::from_f32(v_cmd * p.rad_per_m * self.k.inv_omega_base);
+        let iq_ff = T::from_f32(sp.accel_m_per_s2 * p.accel_current_per_m_s2);
+        self.omega_ref = omega_cmd;
+        self.speed_divider_count += 1;
+        let speed_loop_due = self.speed_divider_count >= self.k.speed_loop_divider;
+        if speed_loop_due {
+            self.speed_divider_count = 0;
+        }
+        let error = self.omega_ref - self.omega_filtered;
+        let limit = self.k.current_limit;
+        let Some(p) = &mut self.positioning else {
+            return Some((theta, T::ZERO, step));
+        };
+        if speed_loop_due {
+            // Bumpless switch between the two speed loops: the one taking over continues
+            // from the other's output.
+            if at_rest != p.hfi_stiff {
+                let out = p.speed_loop_out;
+                if at_rest {
+                    p.hfi_speed_loop.preset(out, error)
+                } else {
+                    self.pi_speed.preset(out, error)
+                }
+                p.hfi_stiff = at_rest;
+            }
+            p.speed_loop_out =
+                if at_rest { p.hfi_speed_loop.update(error) } else { self.pi_speed.update(error) };
+        }
+        // Feed forward the profile's acceleration and, along the motion, the friction
+        // learned while running sensorless (the speed loop's integrator then only takes
+        // what is unexpected). At rest, the friction towards the reference position,
+        // scaled down within a band of tau / 60 of it: without it the speed loop's
+        // integrator has to wind up to the break-away force from a small position error,
+        // then overshoots when the mover slips (stick-slip hunting, measured +-15 mm
+        // on the salient stroke).
+        let direction = if sp.speed_m_per_s == 0.0 {
+            ((sp.position_m - x_hat) * p.rest_band_inv_m).clamp(-1.0, 1.0)
+        } else {
+            sp.speed_m_per_s.signum()
+        };
+        let friction_ff = T::from_f32(direction * p.load_force_n / p.thrust_n_per_a / self.k.base.current_a);
+        let iq_ff = iq_ff + friction_ff;
+        let slew = p.slew_step;
+        p.accel_ff_applied = p.accel_ff_applied + (iq_ff - p.accel_ff_applied).clamp_to(-slew, slew);
+        // Slewed: a step of the current reference makes the current loop step its voltage,
+        // and a change of the fundamental's slope between two periods reads as an HF
+        // response (`e` moves by `du / (2 L_q U_h D)`, 0.3 for 10 V on the salient motor,
+        // which fed back through the speed loop); at `slew` per period it moves `e` by
+        // at most `k_p slew / (2 L_q U_h D)` (0.04).
+        let iq_target = (p.speed_loop_out + p.accel_ff_applied).clamp_to(-limit, limit);
+        let iq = self.i_dq_ref.q;
+        self.i_dq_ref.q = iq + (iq_target - iq).clamp_to(-slew, slew);
+        let d = self.i_dq_ref.d;
+        self.i_dq_ref.d = if d > T::ZERO { (d - slew).max(T::ZERO) } else { (d + slew).min(T::ZERO) };
+        let omega = o.omega_e;
+        if sp.speed_m_per_s.abs() <= p.exit_m_per_s {
+            p.seeded = false;
+            return Some((theta, omega, step));
+        }
+        if !p.seeded {
+            self.estimator.seed(theta, omega_ref, i_ab);
+            p.seeded = true;
+            return Some((theta, omega, step));
+        }
+        let close = (estimate.omega_e - omega_ref).abs() < omega_ref.abs() * self.k.handover_tolerance;
+        if estimate.tracking && close {
+            // As from the current vector: the frames differ by the two estimates'
+            // disagreement only; the speed loop continues from the q current.
+            self.hand_over(theta, estimate);
+            let (omega_cmd, iq_ff) = self.position_command();
+            let iq = self.i_dq_ref.q;
+            self.pi_speed.preset(iq - iq_ff, omega_cmd - self.omega_filtered);
+            if let Some(p) = &mut self.positioning {
+                p.speed_loop_out = iq - iq_ff;
+                p.accel_ff_applied = iq_ff;
+            }
+            self.state = DriveState::Running;
+            let step = HfiStep { inject: AlphaBeta::default(), ..step };
+            return Some((estimate.theta_e, estimate.omega_e, step));
+        }
+        Some((theta, omega, step))
     }
 }

@@ -6,7 +6,11 @@
 //!   omega_e Lq i_q`, `u_q = Rs i_q + Lq di_q/dt + omega_e (Ld i_d + psi_f)`,
 //!   thrust `F_e = 1.5 (pi/tau) (psi_f i_q + (Ld - Lq) i_d i_q)`,
 //!   `omega_e = pi v / tau`, `theta_e = pi x / tau + theta_offset`. Park and Clarke
-//!   are amplitude-invariant; `psi_f_alpha = psi_f cos(theta_e)`.
+//!   are amplitude-invariant; `psi_f_alpha = psi_f cos(theta_e)`. Saliency (`Ld != Lq`)
+//!   is in the model as it stands; optionally the d axis saturates
+//!   ([`PlantParams::ld_saturation_per_a`]: `L_d i_d` becomes a flux whose incremental
+//!   inductance falls with `i_d > 0`; thrust `1.5 (pi/tau) (psi_d i_q - L_q i_q i_d)`),
+//!   which magnet-polarity detection reads; off by default.
 //! - **Mechanics**: `M dv/dt = F_e - B v - F_c sign(v) - F_load - F_em cos(2 pi x / tau)`,
 //!   `dx/dt = v`. At zero speed the mover sticks while `|F_e - F_load - F_em cos(..)|`
 //!   is at most the static friction; a mover that slows through zero under
@@ -91,6 +95,8 @@ struct Model {
     fs: f64,
     fem: f64,
     theta0: f64,
+    /// d saturation `c`, 1/A (0: linear).
+    sat: f64,
     dev: Devices,
 }
 
@@ -137,6 +143,7 @@ impl Model {
             fs: p.static_friction_n,
             fem: p.end_effect_ripple_n,
             theta0: p.theta_offset_rad,
+            sat: p.ld_saturation_per_a,
             dev: Devices {
                 igbt_v0: inv.igbt_threshold_v,
                 igbt_r: inv.igbt_slope_ohm,
@@ -151,7 +158,29 @@ impl Model {
     }
 
     fn thrust(&self, i_d: f64, i_q: f64) -> f64 {
-        1.5 * self.pi_tau * (self.psi_f * i_q + (self.ld - self.lq) * i_d * i_q)
+        if self.sat == 0.0 {
+            1.5 * self.pi_tau * (self.psi_f * i_q + (self.ld - self.lq) * i_d * i_q)
+        } else {
+            1.5 * self.pi_tau * (self.flux_d(i_d) * i_q - self.lq * i_q * i_d)
+        }
+    }
+
+    /// d flux linkage `psi_f + L_d i_d`, or with saturation `psi_f + L_d (i_d - (1/4c)
+    /// ln cosh(2 c i_d))` (see [`PlantParams::ld_saturation_per_a`]), Wb.
+    fn flux_d(&self, i_d: f64) -> f64 {
+        if self.sat == 0.0 {
+            self.ld * i_d + self.psi_f
+        } else {
+            let x = (2.0 * self.sat * i_d).abs();
+            // ln cosh x = x + ln(1 + e^-2x) - ln 2, exact and overflow-free.
+            let ln_cosh = x + (-2.0 * x).exp().ln_1p() - core::f64::consts::LN_2;
+            self.ld * (i_d - ln_cosh / (4.0 * self.sat)) + self.psi_f
+        }
+    }
+
+    /// Incremental d inductance `d psi_d / d i_d`, H.
+    fn ld_incremental(&self, i_d: f64) -> f64 {
+        if self.sat == 0.0 { self.ld } else { self.ld * (1.0 - 0.5 * (2.0 * self.sat * i_d).tanh()) }
     }
 
     /// End-effect force as it enters the mechanics (subtracted), newton.
@@ -217,8 +246,8 @@ impl Model {
             d[INT_VA..INT_VA + 3].copy_from_slice(&inv_clarke(e_alpha, e_beta));
             return d;
         }
-        d[ID] = (u_d - self.rs * i_d + w * self.lq * i_q) / self.ld;
-        d[IQ] = (u_q - self.rs * i_q - w * (self.ld * i_d + self.psi_f)) / self.lq;
+        d[ID] = (u_d - self.rs * i_d + w * self.lq * i_q) / self.ld_incremental(i_d);
+        d[IQ] = (u_q - self.rs * i_q - w * self.flux_d(i_d)) / self.lq;
         d[V] = dv;
         d[X] = dx;
         d[E_BUS] = fr.vdc * i_plus;
@@ -630,7 +659,7 @@ impl Plant {
         let (s, c) = theta.sin_cos();
         let i_alpha = c * i_d - s * i_q;
         let i_beta = s * i_d + c * i_q;
-        let psi_d = m.ld * i_d + m.psi_f;
+        let psi_d = m.flux_d(i_d);
         let psi_q = m.lq * i_q;
         TrueState {
             t_s: self.time_s(),

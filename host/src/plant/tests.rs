@@ -694,3 +694,158 @@ fn bad_parameters_and_inputs_are_refused_or_sanitised() {
     assert_eq!(s.last_period.load_force_n, 0.0);
     assert!(s.i_d_a.is_finite() && s.i_q_a.is_finite());
 }
+
+/// `motors/salient.toml` (Lq/Ld = 1.5), as the HFI tests use it.
+fn salient_motor() -> MotorParams {
+    MotorParams {
+        rs_ohm: 2.0,
+        ld_h: 0.006,
+        lq_h: 0.009,
+        psi_f_wb: 0.12,
+        pole_pitch_m: 0.02,
+        mass_kg: 1.2,
+        viscous_n_s_per_m: 0.5,
+        rated_current_a: 3.0,
+        rated_voltage_v: 200.0,
+    }
+}
+
+/// Square-wave injection `+-u_hf` along `theta - dth` (one PWM period each, from the
+/// period's own duties, no computation delay) on top of a DC voltage `u_bias` along the
+/// true d axis, the mover held at `theta` (rad). Returns the sign-weighted mean current
+/// step per period in the injection frame, (d^, q^), over the last 400 of 1200 periods.
+fn square_wave_response(p: &SimParams, theta: f64, dth: f64, u_hf: f64, u_bias: f64) -> (f64, f64) {
+    let mut p = *p;
+    p.plant.theta_offset_rad = theta;
+    let mut pl = plant(&p);
+    if let Err(e) = pl.set_speed_clamp(Some(0.0)) {
+        panic!("{e}");
+    }
+    let vdc = p.inverter.dc_bus_v;
+    let th = theta - dth;
+    let (n, keep) = (1200, 400);
+    let (mut sd, mut sq) = (0.0, 0.0);
+    for k in 0..n {
+        let sign = if k % 2 == 0 { 1.0 } else { -1.0 };
+        let before = pl.state();
+        let ua = u_bias * theta.cos() + sign * u_hf * th.cos();
+        let ub = u_bias * theta.sin() + sign * u_hf * th.sin();
+        pl.step(svpwm_duties(ua, ub, vdc), 0.0);
+        let after = pl.state();
+        if k >= n - keep {
+            let (da, db) = (after.i_alpha_a - before.i_alpha_a, after.i_beta_a - before.i_beta_a);
+            sd += sign * (da * th.cos() + db * th.sin());
+            sq += sign * (db * th.cos() - da * th.sin());
+        }
+    }
+    (sd / keep as f64, sq / keep as f64)
+}
+
+/// The analytic response of the module docs of `dcfo::hfi`: per true axis the periodic
+/// steady state of a square wave through R-L, `2 (U_x / R) tanh(R T / 2 L_x)` (`U T / L`
+/// to second order), rotated into the injection frame.
+fn square_wave_expected(rs: f64, ld: f64, lq: f64, ts: f64, dth: f64, u_hf: f64) -> (f64, f64) {
+    let step = |u: f64, l: f64| 2.0 * u / rs * (rs * ts / (2.0 * l)).tanh();
+    let di_d = step(u_hf * dth.cos(), ld);
+    let di_q = step(-u_hf * dth.sin(), lq);
+    (di_d * dth.cos() - di_q * dth.sin(), di_d * dth.sin() + di_q * dth.cos())
+}
+
+#[test]
+fn hf_square_wave_response_matches_the_analysis() {
+    // Salient motor, ideal inverter: the HFI's demodulated d^ and q^ responses at known
+    // angle errors equal U T (S + D cos 2 dth) and U T D sin 2 dth (with R: tanh), to
+    // 0.3 % of U T S (the PWM's pulse shape within a period enters at second order).
+    let m = salient_motor();
+    let p = SimParams::ideal_from_motor(&m);
+    let ts = p.inverter.pwm_period_s;
+    let u_hf = 38.18; // V; the response is linear in it (dcfo::hfi injects 63.6 V here)
+    let (rs, ld, lq) = (p.plant.rs_ohm, p.plant.ld_h, p.plant.lq_h);
+    let scale = u_hf * ts * 0.5 * (1.0 / ld + 1.0 / lq);
+    for dth_deg in [0.0f64, 15.0, 45.0, -30.0, 80.0] {
+        let dth = dth_deg.to_radians();
+        let (d, q) = square_wave_response(&p, 0.9, dth, u_hf, 0.0);
+        let (de, qe) = square_wave_expected(rs, ld, lq, ts, dth, u_hf);
+        println!("dth {dth_deg:5.1}: d^ {d:.5} (analysis {de:.5}) A, q^ {q:.5} ({qe:.5}) A");
+        assert!((d - de).abs() < 3e-3 * scale, "{dth_deg}: d^ {d} vs {de}");
+        assert!((q - qe).abs() < 3e-3 * scale, "{dth_deg}: q^ {q} vs {qe}");
+    }
+}
+
+#[test]
+fn hf_square_wave_response_through_dead_time() {
+    // The realistic inverter (2 us dead time, device drops). With a DC current whose
+    // phase currents all keep their sign through the HF swing (mover aligned with phase
+    // a, 2 A on d: phases at 2, -1, -1 A against a swing of +-0.35 A), the dead time's
+    // error is the same in both half periods and the response is the analytic one (the
+    // devices' slope adds 0.12 ohm to R: second order). With no DC current every phase
+    // crosses zero with the HF, and the dead time takes up to (4/3) V_dt of the
+    // injected vector (V_dt = V_bus t_dead / T = 5.7 V of 38 V here): the response
+    // shrinks, by at most that fraction.
+    let m = salient_motor();
+    let mut p = SimParams::from_motor(&m);
+    p.plant = PlantParams::ideal_from_motor(&m);
+    p.inverter.bus_ripple_v = 0.0;
+    p.sensors = SensorParams::ideal();
+    let ts = p.inverter.pwm_period_s;
+    let u_hf = 38.18;
+    let (rs, ld, lq) = (p.plant.rs_ohm, p.plant.ld_h, p.plant.lq_h);
+    let scale = u_hf * ts * 0.5 * (1.0 / ld + 1.0 / lq);
+    let v_dt = p.inverter.dead_time_error_v();
+    for dth_deg in [0.0f64, 20.0, -35.0] {
+        let dth = dth_deg.to_radians();
+        // Bias voltage for about 2 A: R I + the dead time's and the devices' drop.
+        let (d, q) = square_wave_response(&p, 0.0, dth, u_hf, 2.0 * rs + 4.0 / 3.0 * v_dt + 2.0);
+        let (de, qe) = square_wave_expected(rs, ld, lq, ts, dth, u_hf);
+        println!("biased, dth {dth_deg:5.1}: d^ {d:.5} (analysis {de:.5}) A, q^ {q:.5} ({qe:.5}) A");
+        assert!((d - de).abs() < 3e-3 * scale, "{dth_deg}: d^ {d} vs {de}");
+        assert!((q - qe).abs() < 3e-3 * scale, "{dth_deg}: q^ {q} vs {qe}");
+        let (d0, q0) = square_wave_response(&p, 0.0, dth, u_hf, 0.0);
+        let loss = 1.0 - d0 / de;
+        println!(
+            "no DC,  dth {dth_deg:5.1}: d^ {d0:.5} A ({:.1} % below the analysis; bound {:.1} %), q^ {q0:.5} A",
+            100.0 * loss,
+            100.0 * 4.0 / 3.0 * v_dt / u_hf
+        );
+        assert!(loss > 0.0 && loss < 4.0 / 3.0 * v_dt / u_hf, "{dth_deg}: {loss}");
+    }
+}
+
+#[test]
+fn d_saturation_is_off_by_default_and_shapes_the_flux_as_documented() {
+    let m = salient_motor();
+    let mut p = SimParams::ideal_from_motor(&m);
+    assert_eq!(p.plant.ld_saturation_per_a, 0.0);
+    let i_pk = 3.0 * 2f64.sqrt();
+    let c = PlantParams::d_saturation_for(0.1, i_pk);
+    assert!((c - 0.02389).abs() < 1e-4, "{c}");
+    p.plant.ld_saturation_per_a = c;
+    let model = Model::new(&p.plant, &p.inverter);
+    // Incremental inductance 10 % low at +I_pk, 10 % high at -I_pk; the flux is its
+    // integral (central difference).
+    assert!((model.ld_incremental(i_pk) / m.ld_h as f64 - 0.9).abs() < 1e-9);
+    assert!((model.ld_incremental(-i_pk) / m.ld_h as f64 - 1.1).abs() < 1e-9);
+    for i in [-8.0, -1.0, 0.0, 0.5, 3.0, 40.0] {
+        let h = 1e-5;
+        let slope = (model.flux_d(i + h) - model.flux_d(i - h)) / (2.0 * h);
+        assert!((slope - model.ld_incremental(i)).abs() < 1e-9, "{i}: {slope}");
+    }
+    assert_eq!(model.flux_d(0.0), p.plant.psi_f_wb);
+    // A d voltage pulse of flux L_d I_pk from rest: the current peaks higher along the
+    // magnet than against it, as the flux curve says (resistance aside).
+    let peak = |sign: f64| {
+        let mut pl = plant(&p);
+        if let Err(e) = pl.set_speed_clamp(Some(0.0)) {
+            panic!("{e}");
+        }
+        let u = 50.0 * sign;
+        let n = (m.ld_h as f64 * i_pk / (50.0 * 100e-6)).round() as usize;
+        for _ in 0..n {
+            pl.step(svpwm_duties(u, 0.0, p.inverter.dc_bus_v), 0.0);
+        }
+        pl.state().i_d_a.abs()
+    };
+    let (plus, minus) = (peak(1.0), peak(-1.0));
+    println!("d pulse peaks: +{plus:.4} A, -{minus:.4} A");
+    assert!(plus > 1.05 * minus, "{plus} {minus}");
+}
