@@ -133,8 +133,9 @@ pub enum NotchTuning {
     /// The PLL's frequency integrator, always: the paper's method. From a cold start the
     /// notch sits at its floor and finds a fast mover slowly or never.
     Pll,
-    /// The FLL while acquiring (from reset, and whenever the PLL's frequency leaves the
-    /// FLL's), then the PLL's frequency integrator once locked. The default.
+    /// The FLL while acquiring (from reset, a seed or [`Estimator::reacquire`]), then the
+    /// PLL's frequency integrator once locked, held within a band about the FLL's
+    /// frequency (module docs). The default.
     AcquireWithFll,
     /// The FLL, always, with its frequency fed forward to the PLL: the fastest transients
     /// (the 40 N load step: 3.8 deg instead of 27), but a DC step in the observer's input
