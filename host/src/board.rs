@@ -93,29 +93,8 @@ pub struct BoardLink<W: Write> {
 
 impl<W: Write> BoardLink<W> {
     /// A link writing to `writer` and reading from `reader` (moved to a thread).
-    pub fn new(writer: W, mut reader: impl Read + Send + 'static) -> Self {
-        let (tx, incoming) = mpsc::channel();
-        std::thread::spawn(move || {
-            let mut buf = [0u8; 1024];
-            loop {
-                match reader.read(&mut buf) {
-                    Ok(0) => {
-                        let _ = tx
-                            .send(Err(std::io::Error::new(std::io::ErrorKind::UnexpectedEof, "link closed")));
-                        return;
-                    }
-                    Ok(n) => {
-                        if tx.send(Ok(buf[..n].to_vec())).is_err() {
-                            return;
-                        }
-                    }
-                    Err(e) => {
-                        let _ = tx.send(Err(e));
-                        return;
-                    }
-                }
-            }
-        });
+    pub fn new(writer: W, reader: impl Read + Send + 'static) -> Self {
+        let incoming = crate::hil::spawn_reader(reader);
         BoardLink {
             writer,
             incoming,

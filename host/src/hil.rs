@@ -47,31 +47,43 @@ pub struct SerialController<W: Write> {
     last_sent: Vec<u8>,
 }
 
-impl<W: Write> SerialController<W> {
-    /// A controller writing to `writer` and reading from `reader` (moved to a thread).
-    pub fn new(writer: W, mut reader: impl Read + Send + 'static) -> Self {
-        let (tx, incoming) = mpsc::channel();
-        std::thread::spawn(move || {
-            let mut buf = [0u8; 512];
-            loop {
-                match reader.read(&mut buf) {
-                    Ok(0) => {
-                        let _ = tx
-                            .send(Err(std::io::Error::new(std::io::ErrorKind::UnexpectedEof, "link closed")));
-                        return;
-                    }
-                    Ok(n) => {
-                        if tx.send(Ok(buf[..n].to_vec())).is_err() {
-                            return;
-                        }
-                    }
-                    Err(e) => {
-                        let _ = tx.send(Err(e));
+/// Reads `reader` on a thread of its own and hands what arrives to the returned
+/// channel, chunk by chunk, so that a link's owner can wait with a timeout; the end of
+/// the stream arrives as an `UnexpectedEof` error, a read error as itself, and the
+/// thread ends after either (or when the receiver is dropped). Shared by `dcfo hil`
+/// and `dcfo board`.
+pub(crate) fn spawn_reader(
+    mut reader: impl Read + Send + 'static,
+) -> mpsc::Receiver<std::io::Result<Vec<u8>>> {
+    let (tx, incoming) = mpsc::channel();
+    std::thread::spawn(move || {
+        let mut buf = [0u8; 1024];
+        loop {
+            match reader.read(&mut buf) {
+                Ok(0) => {
+                    let _ =
+                        tx.send(Err(std::io::Error::new(std::io::ErrorKind::UnexpectedEof, "link closed")));
+                    return;
+                }
+                Ok(n) => {
+                    if tx.send(Ok(buf[..n].to_vec())).is_err() {
                         return;
                     }
                 }
+                Err(e) => {
+                    let _ = tx.send(Err(e));
+                    return;
+                }
             }
-        });
+        }
+    });
+    incoming
+}
+
+impl<W: Write> SerialController<W> {
+    /// A controller writing to `writer` and reading from `reader` (moved to a thread).
+    pub fn new(writer: W, reader: impl Read + Send + 'static) -> Self {
+        let incoming = spawn_reader(reader);
         SerialController {
             writer,
             incoming,
