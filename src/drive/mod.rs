@@ -212,13 +212,14 @@ struct Constants<T> {
     /// One electrical turn, m (two pole pitches).
     metres_per_turn: f32,
     /// Winding resistance (ohm, working units) and `1 / psi_f` (1/Wb, working units):
-    /// the mover's speed read from the voltage during the I/f start.
+    /// the mover's speed read from the voltage while a current vector drags it (the I/f
+    /// start, the low-speed mode).
     rs: T,
     inv_psi_f: T,
-    /// I/f damping: the vector is retarded by `k dw_e` (rad) with
-    /// `k = startup_damping_s_sqrt_a / sqrt(|I|)` (s, `|I|` in A), damping ratio 0.7
-    /// of the vector's spring on the moving mass (see [`Drive::startup_references`]).
-    startup_damping_s_sqrt_a: f32,
+    /// Damping of a dragging current vector (the I/f start, the low-speed mode): the
+    /// vector is retarded by `k dw_e` (rad) with `k = damping_s_sqrt_a / sqrt(|I|)`
+    /// (s, `|I|` in A), damping ratio 0.7 of the vector's spring on the moving mass.
+    damping_s_sqrt_a: f32,
     /// Per-period rate of the low-pass on the mover's speed error during the I/f
     /// start: five times the spring's natural frequency at the start-up current.
     startup_speed_filter_rate: f32,
@@ -389,11 +390,12 @@ impl<T: Scalar> Drive<T> {
             metres_per_turn: 2.0 * motor.pole_pitch_m,
             rs: base.resistance(motor.rs_ohm),
             inv_psi_f: T::from_f32(1.0 / base.flux::<f32>(motor.psi_f_wb)),
-            // The I/f vector is a spring of stiffness K_f I pi/tau (N/m) on the moving
-            // mass: natural frequency w_n = sqrt(K_f I pi / (tau M)). Retarding the
-            // vector by k dw_e (rad) gives a force -K_f I k dw_e against the swing:
-            // damping ratio 0.7 for k = 1.4 / w_n = 1.4 sqrt(M tau / (K_f pi)) / sqrt(I).
-            startup_damping_s_sqrt_a: 1.4
+            // A current vector dragging the mover is a spring of stiffness K_f I pi/tau
+            // (N/m) on the moving mass: natural frequency w_n = sqrt(K_f I pi / (tau M)).
+            // Retarding the vector by k dw_e (rad) gives a force -K_f I k dw_e against
+            // the swing: damping ratio 0.7 for k = 1.4 / w_n = 1.4 sqrt(M tau / (K_f pi))
+            // / sqrt(I).
+            damping_s_sqrt_a: 1.4
                 * libm::sqrtf(config.moving_mass_kg / (motor.thrust_constant_n_per_a() * omega_per_speed)),
             startup_speed_filter_rate: {
                 let stiffness = motor.thrust_constant_n_per_a() * config.startup.current_a * omega_per_speed;
@@ -434,17 +436,6 @@ impl<T: Scalar> Drive<T> {
                     / motor.thrust_constant_n_per_a()
                     / base.current_a,
                 rad_per_m: omega_per_speed,
-                rs: base.resistance(motor.rs_ohm),
-                inv_psi_f: T::from_f32(1.0 / base.flux::<f32>(motor.psi_f_wb)),
-                damping_s_sqrt_a: {
-                    // The vector is a spring: stiffness K_f I pi/tau (N/m) on the moving
-                    // mass, natural frequency w_n = sqrt(K_f I pi / (tau M)); retarding
-                    // the vector by k dw_e gives a force K_f I k (pi/tau) dv: damping
-                    // ratio 0.7 for k = 1.4 / w_n = 1.4 sqrt(M tau / (K_f pi)) / sqrt(I).
-                    1.4 * libm::sqrtf(
-                        config.moving_mass_kg / (motor.thrust_constant_n_per_a() * omega_per_speed),
-                    )
-                },
                 speed_filter_rate: (5.0 * wn * ts).min(1.0),
                 speed_error_rad_s: 0.0,
                 mass_kg: config.moving_mass_kg,
@@ -998,7 +989,7 @@ impl<T: Scalar> Drive<T> {
                 k.startup_speed_filter_rate * (error_rad_s - self.startup_speed_error_rad_s);
         }
         let amplitude_a = self.i_dq_ref.q.abs().to_f32() * k.base.current_a;
-        let damping_s = k.startup_damping_s_sqrt_a / Scalar::sqrt(amplitude_a.max(1e-3));
+        let damping_s = k.damping_s_sqrt_a / Scalar::sqrt(amplitude_a.max(1e-3));
         let retard = (damping_s * self.startup_speed_error_rad_s).clamp(-0.5, 0.5);
         let theta = self.theta_ol - retard.radians_to_angle();
         self.theta_ol = self.theta_ol + (self.omega_ol * k.dt).radians_to_angle();

@@ -104,14 +104,6 @@ pub(super) struct Positioning<T> {
     pub(super) anchor_x_m: f32,
     /// The estimator has been seeded for the exit from the low-speed mode.
     pub(super) seeded: bool,
-    /// Phase resistance (working units) and `1 / psi_f` (working units), for the
-    /// mover-speed measurement in the low-speed mode.
-    pub(super) rs: T,
-    pub(super) inv_psi_f: T,
-    /// Damping of the low-speed mode: the vector angle is retarded by `k` seconds times
-    /// the mover's electrical speed error, `k = damping_s_sqrt_a / sqrt(I)` for the
-    /// present amplitude `I` (A) (s A^0.5).
-    pub(super) damping_s_sqrt_a: f32,
     /// Rate of the speed-error filter per period (dimensionless, <= 1).
     pub(super) speed_filter_rate: f32,
     /// Filtered electrical speed error of the mover against the reference (rad/s, SI).
@@ -263,14 +255,14 @@ impl<T: Scalar> Drive<T> {
         // inverter's error lies along the current vector (d), so u_q is clean.
         let k = &self.k;
         let i = self.i_dq_measured;
-        let omega_mover = (self.u_dq_last.q - p.rs * i.q - omega_ref * k.ld * i.d) * p.inv_psi_f;
+        let omega_mover = (self.u_dq_last.q - k.rs * i.q - omega_ref * k.ld * i.d) * k.inv_psi_f;
         let error_rad_s = (omega_mover - omega_ref).to_f32() * k.base.omega_rad_s;
         if error_rad_s.is_finite() {
             p.speed_error_rad_s += p.speed_filter_rate * (error_rad_s - p.speed_error_rad_s);
         }
         // The vector trails the reference position by damping_s times the speed error:
         // a thrust against the mover's swing on the current vector's spring.
-        let damping_s = p.damping_s_sqrt_a / Scalar::sqrt(amplitude_a.max(1e-3));
+        let damping_s = k.damping_s_sqrt_a / Scalar::sqrt(amplitude_a.max(1e-3));
         let retard = (damping_s * p.speed_error_rad_s).clamp(-0.5, 0.5);
         let theta =
             p.anchor_angle + (p.rad_per_m * (sp.position_m - p.anchor_x_m) - retard).radians_to_angle();
