@@ -50,6 +50,23 @@ impl QemuCpu {
     }
 }
 
+/// Why an image for `cpu` cannot run on QEMU here, if it cannot: no `qemu-system-arm`,
+/// or the toolchain (`$RUSTC`, else `rustc`) lacks the target's `core`. For tests that
+/// skip rather than fail where the tools are missing.
+pub fn missing_tools(cpu: QemuCpu) -> Option<String> {
+    if Command::new("qemu-system-arm").arg("--version").output().is_err() {
+        return Some("qemu-system-arm is not installed (apt-get install qemu-system-arm)".into());
+    }
+    let rustc = std::env::var_os("RUSTC").unwrap_or_else(|| "rustc".into());
+    let libdir = Command::new(rustc).args(["--print", "target-libdir", "--target", cpu.target()]).output();
+    let installed = libdir.is_ok_and(|o| {
+        o.status.success()
+            && std::fs::read_dir(String::from_utf8_lossy(&o.stdout).trim())
+                .is_ok_and(|d| d.flatten().any(|e| e.file_name().to_string_lossy().starts_with("libcore-")))
+    });
+    (!installed).then(|| format!("the {} target is not installed", cpu.target()))
+}
+
 /// The ELF of firmware image `example` (`qemu_hil`, `qemu_drive`, ...) for `cpu`, in the
 /// workspace's target directory.
 pub fn qemu_example_elf(workspace: &Path, cpu: QemuCpu, example: &str) -> PathBuf {

@@ -21,7 +21,7 @@ use dcfo::units::Base;
 use dcfo::virtual_motor::{VirtualAxis, VirtualMotor};
 use dcfo_host::board::{Board, BoardLink, capture_trace, replay_matches};
 use dcfo_host::plant::{Plant, SimParams};
-use dcfo_host::qemu::{QemuCpu, QemuSession, build_qemu_example};
+use dcfo_host::qemu::{QemuCpu, QemuSession, build_qemu_example, missing_tools};
 use std::path::Path;
 use std::process::Command;
 use std::time::{Duration, Instant};
@@ -118,21 +118,6 @@ fn captured_drive_on_the_virtual_motor_replays_bit_for_bit() {
     altered[100].i_alpha += 1e-3;
     let trace = capture_trace(&altered, f64::from(config.control_period_s)).expect("trace");
     assert!(replay_matches(&trace, &motor, &samples).expect("replay") > 0);
-}
-
-/// Why QEMU cannot run here, if it cannot (as `qemu_hil.rs`).
-fn missing_tools(cpu: QemuCpu) -> Option<String> {
-    if Command::new("qemu-system-arm").arg("--version").output().is_err() {
-        return Some("qemu-system-arm is not installed (apt-get install qemu-system-arm)".into());
-    }
-    let rustc = std::env::var_os("RUSTC").unwrap_or_else(|| "rustc".into());
-    let libdir = Command::new(rustc).args(["--print", "target-libdir", "--target", cpu.target()]).output();
-    let installed = libdir.is_ok_and(|o| {
-        o.status.success()
-            && std::fs::read_dir(String::from_utf8_lossy(&o.stdout).trim())
-                .is_ok_and(|d| d.flatten().any(|e| e.file_name().to_string_lossy().starts_with("libcore-")))
-    });
-    (!installed).then(|| format!("the {} target is not installed", cpu.target()))
 }
 
 /// The drive image for `cpu`, or `None` (after saying why) when the test must skip.

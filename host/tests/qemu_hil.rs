@@ -15,25 +15,11 @@ use dcfo::drive::{DriveState, Faults};
 use dcfo::link::SensorFrame;
 use dcfo::observer::ObserverKind;
 use dcfo_host::hil::{QemuCpu, QemuSession, build_qemu_firmware, compare_runs};
+use dcfo_host::qemu::missing_tools;
 use dcfo_host::sim::{Controller, Setup, run_with, scenarios};
 use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::{Duration, Instant};
-
-/// Returns why QEMU HIL cannot run here for `cpu`, if it cannot.
-fn missing_tools(cpu: QemuCpu) -> Option<String> {
-    if Command::new("qemu-system-arm").arg("--version").output().is_err() {
-        return Some("qemu-system-arm is not installed (apt-get install qemu-system-arm)".into());
-    }
-    let rustc = std::env::var_os("RUSTC").unwrap_or_else(|| "rustc".into());
-    let libdir = Command::new(rustc).args(["--print", "target-libdir", "--target", cpu.target()]).output();
-    let installed = libdir.is_ok_and(|o| {
-        o.status.success()
-            && std::fs::read_dir(String::from_utf8_lossy(&o.stdout).trim())
-                .is_ok_and(|d| d.flatten().any(|e| e.file_name().to_string_lossy().starts_with("libcore-")))
-    });
-    (!installed).then(|| format!("the {} target is not installed", cpu.target()))
-}
 
 /// The firmware for `cpu`, or `None` (after saying why) when the test must skip.
 fn firmware(cpu: QemuCpu) -> Option<PathBuf> {

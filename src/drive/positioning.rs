@@ -316,21 +316,26 @@ impl<T: Scalar> Drive<T> {
         }
         let close = (estimate.omega_e - omega_ref).abs() < omega_ref.abs() * self.k.handover_tolerance;
         if estimate.tracking && close {
-            self.hand_over(theta, estimate);
-            // Take the thrust current over into the speed loop, which runs on the
-            // position loop's speed command from now on: its output continues from the
-            // q current the hand-over left (less the acceleration feed-forward).
-            let (omega_cmd, iq_ff) = self.position_command();
-            let iq = self.i_dq_ref.q;
-            self.pi_speed.preset(iq - iq_ff, omega_cmd - self.omega_filtered);
-            if let Some(p) = &mut self.positioning {
-                p.speed_loop_out = iq - iq_ff;
-                p.accel_ff_applied = iq_ff;
-            }
-            self.state = DriveState::Running;
+            self.hand_over_to_position_loop(theta, estimate);
             return (estimate.theta_e, estimate.omega_e);
         }
         (theta, omega_ref)
+    }
+
+    /// Leaves the low-speed mode for `Running` from the control frame at `theta`: the
+    /// current loops move to the estimated frame ([`Drive::hand_over`]) and the speed
+    /// loop, which runs on the position loop's speed command from now on, continues
+    /// from the q current the hand-over left (less the acceleration feed-forward).
+    fn hand_over_to_position_loop(&mut self, theta: Angle, estimate: &Estimate<T>) {
+        self.hand_over(theta, estimate);
+        let (omega_cmd, iq_ff) = self.position_command();
+        let iq = self.i_dq_ref.q;
+        self.pi_speed.preset(iq - iq_ff, omega_cmd - self.omega_filtered);
+        if let Some(p) = &mut self.positioning {
+            p.speed_loop_out = iq - iq_ff;
+            p.accel_ff_applied = iq_ff;
+        }
+        self.state = DriveState::Running;
     }
 
     /// The position loop's speed command (electrical, working units) and the
@@ -574,15 +579,7 @@ impl<T: Scalar> Drive<T> {
         if estimate.tracking && close {
             // As from the current vector: the frames differ by the two estimates'
             // disagreement only; the speed loop continues from the q current.
-            self.hand_over(theta, estimate);
-            let (omega_cmd, iq_ff) = self.position_command();
-            let iq = self.i_dq_ref.q;
-            self.pi_speed.preset(iq - iq_ff, omega_cmd - self.omega_filtered);
-            if let Some(p) = &mut self.positioning {
-                p.speed_loop_out = iq - iq_ff;
-                p.accel_ff_applied = iq_ff;
-            }
-            self.state = DriveState::Running;
+            self.hand_over_to_position_loop(theta, estimate);
             let step = HfiStep { inject: AlphaBeta::default(), ..step };
             return Some((estimate.theta_e, estimate.omega_e, step));
         }
