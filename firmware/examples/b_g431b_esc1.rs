@@ -42,27 +42,24 @@ fn main() {
 
 #[cfg(target_arch = "arm")]
 mod firmware {
-    use core::cell::RefCell;
     use core::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 
-    use cortex_m::interrupt::{Mutex, free};
+    use cortex_m::interrupt::free;
     use cortex_m::peripheral::NVIC;
-    use cortex_m::peripheral::scb::SystemHandler;
     use cortex_m::peripheral::syst::SystClkSource;
     use cortex_m_rt::{entry, exception};
-    use dcfo::capture::Capture;
     use dcfo::drive::{Drive, DriveConfig, DriveState};
-    use dcfo::link::board::{BoardTelemetry, CaptureChunk};
-    use dcfo::link::encode;
+    use dcfo::link::board::CaptureChunk;
     use dcfo::observer::ObserverKind;
     use dcfo::units::Base;
     use dcfo_firmware::board::b_g431b_esc1::{
         self as esc1, CONTROL_IRQ, DEFAULT_DEAD_TIME_NS, DEFAULT_PWM_HZ, Esc1Config, Esc1PowerStage,
-        Esc1Sensors, StatusLed,
+        Esc1Sensors, StatusLed, stop,
     };
-    use dcfo_firmware::board::{PhaseSample, PhaseSensors, PowerStage};
-    use dcfo_firmware::board_link::{BoardAnswer, BoardLinkServer, DriveStatus, answer};
+    use dcfo_firmware::board::{Bridge, PhaseSensors, PowerStage};
+    use dcfo_firmware::board_link::BoardLinkServer;
     use dcfo_firmware::control::{ControlLoop, Setpoints};
+    use dcfo_firmware::runtime::{BoardLinkState, DriveOnBoard, Slot, install, slot, start_systick};
     use dcfo_firmware::stack;
     use embedded_hal::digital::OutputPin;
     use embedded_io::Write as _;
@@ -82,47 +79,16 @@ mod firmware {
     /// control interrupt stop; with TIM1 still running the bridge would go on switching at
     /// the last duties with nothing in control.
     const STALL_CHECKS: u32 = 2;
+    /// NVIC priority of the control interrupt (`ADC1_2`): the highest.
+    const PRIORITY_CONTROL: u8 = 0x00;
+    /// SysTick (the stall check) priority: below the control interrupt.
+    const PRIORITY_STALL_CHECK: u8 = 0x80;
 
-    /// The board's sensors and power stage, as the control loop sees them.
-    struct Bridge {
-        sensors: Esc1Sensors,
-        power: Esc1PowerStage,
-    }
-
-    impl PhaseSensors for Bridge {
-        fn sample(&mut self) -> PhaseSample {
-            self.sensors.sample()
-        }
-    }
-
-    impl PowerStage for Bridge {
-        fn set_duties(&mut self, duties: [f32; 3]) {
-            self.power.set_duties(duties);
-        }
-        fn enable_bridge(&mut self) {
-            self.power.enable_bridge();
-        }
-        fn disable_bridge(&mut self) {
-            self.power.disable_bridge();
-        }
-        fn hardware_trip(&mut self) -> bool {
-            self.power.hardware_trip()
-        }
-        fn clear_hardware_trip(&mut self) {
-            self.power.clear_hardware_trip();
-        }
-    }
-
-    struct Control {
-        control: ControlLoop<f32>,
-        bridge: Bridge,
-    }
-
-    static CONTROL: Mutex<RefCell<Option<Control>>> = Mutex::new(RefCell::new(None));
+    /// What the control interrupt owns: the drive on the board's sensors and power stage.
+    static CONTROL: Slot<DriveOnBoard<f32, Bridge<Esc1Sensors, Esc1PowerStage>>> = slot();
     /// The capture and the last step's status, filled by the control interrupt, read by
     /// the thread (both in critical sections); constant-initialised in place.
-    static CAPTURE: Mutex<RefCell<Capture<CAPTURE_SAMPLES>>> = Mutex::new(RefCell::new(Capture::new()));
-    static STATUS: Mutex<RefCell<DriveStatus>> = Mutex::new(RefCell::new(DriveStatus::new()));
+    static LINK: BoardLinkState<CAPTURE_SAMPLES> = BoardLinkState::new();
     static SETPOINTS: Setpoints = Setpoints::new();
     /// Control periods run (the thread's time base).
     static PERIODS: AtomicU32 = AtomicU32::new(0);
@@ -197,35 +163,28 @@ mod firmware {
         defmt::info!("current offsets (counts): {}", sensors.current_offsets());
         defmt::info!("bus at rest: {} V", sensors.sample().vdc_v);
 
-        let installed = free(|cs| match CONTROL.borrow(cs).try_borrow_mut() {
-            Ok(mut slot) => {
-                *slot = Some(Control {
-                    control: ControlLoop::new(drive, u16::MAX),
-                    bridge: Bridge { sensors, power },
-                });
-                true
-            }
-            Err(_) => false,
-        });
-        if !installed {
+        let control =
+            DriveOnBoard { control: ControlLoop::new(drive, u16::MAX), board: Bridge { sensors, power } };
+        if !install(&CONTROL, control) {
             halt(&mut led, "control state busy at start-up");
         }
         // SAFETY: set before the interrupt is unmasked; no critical section here relies on
         // priorities (they use PRIMASK).
-        unsafe { cp.NVIC.set_priority(CONTROL_IRQ, 0x00) };
+        unsafe { cp.NVIC.set_priority(CONTROL_IRQ, PRIORITY_CONTROL) };
         NVIC::unpend(CONTROL_IRQ);
         // SAFETY: the handler's state is in place (above); critical sections use PRIMASK,
         // not the NVIC mask.
         unsafe { NVIC::unmask(CONTROL_IRQ) };
         // The stall check: SysTick at a priority below the control interrupt's.
         STALL_SEEN.store(PERIODS.load(Ordering::Relaxed), Ordering::Relaxed);
-        // SAFETY: set before SysTick is enabled; critical sections use PRIMASK.
-        unsafe { cp.SCB.set_priority(SystemHandler::SysTick, 0x80) };
-        cp.SYST.set_clock_source(SystClkSource::External); // HCLK / 8
-        cp.SYST.set_reload(esc1::SYSCLK_HZ / 8 / STALL_CHECK_HZ - 1);
-        cp.SYST.clear_current();
-        cp.SYST.enable_interrupt();
-        cp.SYST.enable_counter();
+        // HCLK / 8.
+        start_systick(
+            &mut cp.SYST,
+            &mut cp.SCB,
+            PRIORITY_STALL_CHECK,
+            SystClkSource::External,
+            esc1::SYSCLK_HZ / 8 / STALL_CHECK_HZ - 1,
+        );
 
         let mut server = BoardLinkServer::new(COMMAND_TIMEOUT_PERIODS);
         let mut last_state = DriveState::Disabled;
@@ -234,32 +193,14 @@ mod firmware {
             // Commands in, one answer each (telemetry, or capture samples).
             while let Ok(Some(byte)) = uart.try_read_byte() {
                 let periods = PERIODS.load(Ordering::Relaxed);
-                let Some(command) = server.on_byte(byte, &SETPOINTS, periods) else { continue };
-                let reply =
-                    free(|cs| match (CAPTURE.borrow(cs).try_borrow_mut(), STATUS.borrow(cs).try_borrow()) {
-                        (Ok(mut capture), Ok(status)) => {
-                            Some(answer(&command, &mut capture, &status, &SETPOINTS))
-                        }
-                        _ => None,
-                    });
-                let encoded = match reply {
-                    Some(BoardAnswer::Telemetry(t)) => encode::<BoardTelemetry>(&t, &mut wire),
-                    Some(BoardAnswer::Chunk(c)) => encode::<CaptureChunk>(&c, &mut wire),
-                    None => continue,
-                };
-                if let Some(bytes) = encoded.ok().and_then(|n| wire.get(..n)) {
+                if let Some(bytes) = LINK.on_byte(&mut server, byte, &SETPOINTS, periods, &mut wire) {
                     let _ = uart.write_all(bytes);
                 }
             }
             server.watchdog(&SETPOINTS, PERIODS.load(Ordering::Relaxed));
             // State changes logged.
-            let (state, faults) = free(|cs| {
-                STATUS
-                    .borrow(cs)
-                    .try_borrow()
-                    .map(|s| (s.state, s.faults))
-                    .unwrap_or((last_state, Default::default()))
-            });
+            let (state, faults) =
+                LINK.status().map(|s| (s.state, s.faults)).unwrap_or((last_state, Default::default()));
             if state != last_state {
                 defmt::info!("state {} -> {}, faults {}", last_state, state, faults);
                 last_state = state;
@@ -295,13 +236,7 @@ mod firmware {
         let stepped = free(|cs| match CONTROL.borrow(cs).try_borrow_mut() {
             Ok(mut guard) => {
                 if let Some(c) = guard.as_mut() {
-                    let (out, sample) = c.control.period(&mut c.bridge, &SETPOINTS);
-                    if let (Ok(mut capture), Ok(mut status)) =
-                        (CAPTURE.borrow(cs).try_borrow_mut(), STATUS.borrow(cs).try_borrow_mut())
-                    {
-                        capture.record(&out, c.control.base());
-                        status.update(&out, &sample, c.control.base());
-                    }
+                    LINK.period(cs, c, &SETPOINTS);
                     PERIODS.fetch_add(1, Ordering::Relaxed);
                 }
                 true
@@ -315,15 +250,6 @@ mod firmware {
     }
 
     dcfo_firmware::esc1_fault_handlers!();
-
-    /// Cannot run before the board is up: bridge off, the reason over defmt, stop.
-    fn stop(why: &str) -> ! {
-        esc1::safe_state_and_stop();
-        defmt::error!("cannot run: {}", why);
-        loop {
-            cortex_m::asm::wfi();
-        }
-    }
 
     /// Cannot run: bridge off (init left MOE clear and the ADC interrupt masked; cleared
     /// again here), says why over defmt and blinks the LED fast.

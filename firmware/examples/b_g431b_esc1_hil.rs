@@ -26,10 +26,6 @@ fn main() {
 
 #[cfg(target_arch = "arm")]
 mod firmware {
-    use core::cell::RefCell;
-
-    use cortex_m::interrupt::{self, Mutex};
-    use cortex_m::peripheral::scb::SystemHandler;
     use cortex_m::peripheral::syst::SystClkSource;
     use cortex_m_rt::{entry, exception};
     use dcfo::drive::{Drive, DriveConfig};
@@ -37,9 +33,10 @@ mod firmware {
     use dcfo::motor::MotorParams;
     use dcfo::observer::ObserverKind;
     use dcfo::units::Base;
-    use dcfo_firmware::board::b_g431b_esc1::{self as esc1, Esc1Config, SYSCLK_HZ};
+    use dcfo_firmware::board::b_g431b_esc1::{self as esc1, Esc1Config, SYSCLK_HZ, stop};
     use dcfo_firmware::hil::HilServer;
     use dcfo_firmware::queue::{Producer, Queue};
+    use dcfo_firmware::runtime::{Slot, install, slot, start_systick, with_slot};
     use dcfo_firmware::stack;
     use embedded_io::Write as _;
     use stm32g4::stm32g431 as pac;
@@ -48,13 +45,15 @@ mod firmware {
     /// Watchdog ticks per second (50 ms); SysTick's reload (24 bits) fits at 170 MHz / 8.
     const WATCHDOG_TICK_HZ: u32 = 20;
     const TX_QUEUE_BYTES: usize = 2 * ActuationFrame::WIRE_LEN;
+    /// SysTick (the link watchdog) priority.
+    const PRIORITY_WATCHDOG: u8 = 0x80;
 
     struct Hil {
         server: HilServer<f32>,
         tx: Producer<'static, u8, TX_QUEUE_BYTES>,
     }
 
-    static HIL: Mutex<RefCell<Option<Hil>>> = Mutex::new(RefCell::new(None));
+    static HIL: Slot<Hil> = slot();
 
     #[entry]
     fn main() -> ! {
@@ -77,24 +76,18 @@ mod firmware {
             stop("transmit queue taken twice")
         };
         let (producer, mut consumer) = queue.split();
-        let installed = interrupt::free(|cs| match HIL.borrow(cs).try_borrow_mut() {
-            Ok(mut slot) => {
-                *slot = Some(Hil { server: HilServer::new(drive), tx: producer });
-                true
-            }
-            Err(_) => false,
-        });
-        if !installed {
+        if !install(&HIL, Hil { server: HilServer::new(drive), tx: producer }) {
             stop("HIL state busy at start-up");
         }
 
-        // SAFETY: set before SysTick is enabled; critical sections use PRIMASK.
-        unsafe { cp.SCB.set_priority(SystemHandler::SysTick, 0x80) };
-        cp.SYST.set_clock_source(SystClkSource::External); // HCLK / 8
-        cp.SYST.set_reload(SYSCLK_HZ / 8 / WATCHDOG_TICK_HZ - 1);
-        cp.SYST.clear_current();
-        cp.SYST.enable_interrupt();
-        cp.SYST.enable_counter();
+        // HCLK / 8.
+        start_systick(
+            &mut cp.SYST,
+            &mut cp.SCB,
+            PRIORITY_WATCHDOG,
+            SystClkSource::External,
+            SYSCLK_HZ / 8 / WATCHDOG_TICK_HZ - 1,
+        );
         defmt::info!("B-G431B-ESC1 HIL target ready at {} bit/s", BAUD);
         defmt::info!("stack: {} bytes, MPU guard {}", stack::bounds().1 - stack::bounds().0, guarded);
 
@@ -103,7 +96,7 @@ mod firmware {
                 // (A byte that cannot reach the state is dropped: the frame's CRC
                 // rejects it and the link counts it.)
                 Ok(Some(byte)) => {
-                    with_hil(|h| h.server.on_byte(byte, &mut h.tx));
+                    with_slot(&HIL, |h| h.server.on_byte(byte, &mut h.tx));
                 }
                 Ok(None) => {}
                 // A lost or garbled byte: the frame's CRC rejects it, the link counts it.
@@ -115,35 +108,13 @@ mod firmware {
         }
     }
 
-    /// Runs `f` on the HIL state in a critical section. Its users borrow it only in such
-    /// sections and never from within another, so the borrow cannot fail; if it did,
-    /// `f` is skipped (no panic).
-    fn with_hil(f: impl FnOnce(&mut Hil)) {
-        interrupt::free(|cs| {
-            if let Ok(mut guard) = HIL.borrow(cs).try_borrow_mut()
-                && let Some(h) = guard.as_mut()
-            {
-                f(h);
-            }
-        });
-    }
-
+    /// The link watchdog, every 50 ms.
     #[exception]
     fn SysTick() {
-        with_hil(|h| {
+        with_slot(&HIL, |h| {
             h.server.watchdog_period();
         });
     }
 
     dcfo_firmware::esc1_fault_handlers!();
-
-    /// Cannot run: bridge off (it was never switched on here), the reason over defmt,
-    /// stop.
-    fn stop(why: &str) -> ! {
-        esc1::safe_state_and_stop();
-        defmt::error!("cannot run: {}", why);
-        loop {
-            cortex_m::asm::wfi();
-        }
-    }
 }

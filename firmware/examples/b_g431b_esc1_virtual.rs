@@ -30,24 +30,20 @@ fn main() {
 
 #[cfg(target_arch = "arm")]
 mod firmware {
-    use core::cell::RefCell;
-
-    use cortex_m::interrupt::{self, Mutex};
-    use cortex_m::peripheral::scb::SystemHandler;
+    use cortex_m::interrupt;
     use cortex_m::peripheral::syst::SystClkSource;
     use cortex_m_rt::{entry, exception};
-    use dcfo::capture::Capture;
     use dcfo::drive::{Drive, DriveConfig, PAPER_AXIS_BUS_V, PAPER_AXIS_PAYLOAD_KG};
-    use dcfo::link::board::{BoardTelemetry, CaptureChunk};
-    use dcfo::link::encode;
+    use dcfo::link::board::CaptureChunk;
     use dcfo::motor::MotorParams;
     use dcfo::observer::ObserverKind;
     use dcfo::units::Base;
     use dcfo::virtual_motor::{VirtualAxis, VirtualMotor};
-    use dcfo_firmware::board::b_g431b_esc1::{self as esc1, DEFAULT_PWM_HZ, Esc1Config, SYSCLK_HZ};
+    use dcfo_firmware::board::b_g431b_esc1::{self as esc1, DEFAULT_PWM_HZ, Esc1Config, SYSCLK_HZ, stop};
     use dcfo_firmware::board::virtual_motor::VirtualBoard;
-    use dcfo_firmware::board_link::{BoardAnswer, BoardLinkServer, DriveStatus, answer};
+    use dcfo_firmware::board_link::BoardLinkServer;
     use dcfo_firmware::control::{ControlLoop, Setpoints};
+    use dcfo_firmware::runtime::{BoardLinkState, DriveOnBoard, Slot, install, slot, start_systick};
     use dcfo_firmware::stack;
     use embedded_io::Write as _;
     use stm32g4::stm32g431 as pac;
@@ -57,15 +53,13 @@ mod firmware {
     const CAPTURE_SAMPLES: usize = 128;
     /// Control periods without a command after which the drive is disabled (0.5 s).
     const COMMAND_TIMEOUT_PERIODS: u32 = DEFAULT_PWM_HZ / 2;
+    /// SysTick (the control period) priority: the highest.
+    const PRIORITY_CONTROL: u8 = 0x00;
 
-    struct Control {
-        control: ControlLoop<f32>,
-        board: VirtualBoard,
-    }
-
-    static CONTROL: Mutex<RefCell<Option<Control>>> = Mutex::new(RefCell::new(None));
-    static CAPTURE: Mutex<RefCell<Capture<CAPTURE_SAMPLES>>> = Mutex::new(RefCell::new(Capture::new()));
-    static STATUS: Mutex<RefCell<DriveStatus>> = Mutex::new(RefCell::new(DriveStatus::new()));
+    /// What the control interrupt owns.
+    static CONTROL: Slot<DriveOnBoard<f32, VirtualBoard>> = slot();
+    /// The capture and the last step's status.
+    static LINK: BoardLinkState<CAPTURE_SAMPLES> = BoardLinkState::new();
     static SETPOINTS: Setpoints = Setpoints::new();
 
     #[entry]
@@ -99,26 +93,21 @@ mod firmware {
         let Ok(virtual_motor) = VirtualMotor::new(&motor, &axis) else {
             stop("virtual motor settings refused")
         };
-        let installed = interrupt::free(|cs| match CONTROL.borrow(cs).try_borrow_mut() {
-            Ok(mut slot) => {
-                *slot = Some(Control {
-                    control: ControlLoop::new(drive, u16::MAX),
-                    board: VirtualBoard::new(virtual_motor),
-                });
-                true
-            }
-            Err(_) => false,
-        });
-        if !installed {
+        let control = DriveOnBoard {
+            control: ControlLoop::new(drive, u16::MAX),
+            board: VirtualBoard::new(virtual_motor),
+        };
+        if !install(&CONTROL, control) {
             stop("control state busy at start-up");
         }
-        // SAFETY: set before SysTick is enabled; critical sections use PRIMASK.
-        unsafe { cp.SCB.set_priority(SystemHandler::SysTick, 0x00) };
-        cp.SYST.set_clock_source(SystClkSource::External); // HCLK / 8
-        cp.SYST.set_reload(SYSCLK_HZ / 8 / DEFAULT_PWM_HZ - 1);
-        cp.SYST.clear_current();
-        cp.SYST.enable_interrupt();
-        cp.SYST.enable_counter();
+        // HCLK / 8.
+        start_systick(
+            &mut cp.SYST,
+            &mut cp.SCB,
+            PRIORITY_CONTROL,
+            SystClkSource::External,
+            SYSCLK_HZ / 8 / DEFAULT_PWM_HZ - 1,
+        );
         defmt::info!(
             "B-G431B-ESC1 virtual motor, bridge off; stack {} bytes, MPU guard {}",
             stack::bounds().1 - stack::bounds().0,
@@ -128,24 +117,9 @@ mod firmware {
         let mut server = BoardLinkServer::new(COMMAND_TIMEOUT_PERIODS);
         let mut wire = [0u8; CaptureChunk::WIRE_LEN];
         loop {
-            let periods =
-                interrupt::free(|cs| STATUS.borrow(cs).try_borrow().map(|s| s.periods).unwrap_or(0));
+            let periods = LINK.periods();
             while let Ok(Some(byte)) = uart.try_read_byte() {
-                let Some(command) = server.on_byte(byte, &SETPOINTS, periods) else { continue };
-                let reply = interrupt::free(|cs| {
-                    match (CAPTURE.borrow(cs).try_borrow_mut(), STATUS.borrow(cs).try_borrow()) {
-                        (Ok(mut capture), Ok(status)) => {
-                            Some(answer(&command, &mut capture, &status, &SETPOINTS))
-                        }
-                        _ => None,
-                    }
-                });
-                let encoded = match reply {
-                    Some(BoardAnswer::Telemetry(t)) => encode::<BoardTelemetry>(&t, &mut wire),
-                    Some(BoardAnswer::Chunk(c)) => encode::<CaptureChunk>(&c, &mut wire),
-                    None => continue,
-                };
-                if let Some(bytes) = encoded.ok().and_then(|n| wire.get(..n)) {
+                if let Some(bytes) = LINK.on_byte(&mut server, byte, &SETPOINTS, periods, &mut wire) {
                     let _ = uart.write_all(bytes);
                 }
             }
@@ -158,29 +132,11 @@ mod firmware {
     #[exception]
     fn SysTick() {
         interrupt::free(|cs| {
-            let (Ok(mut control), Ok(mut capture), Ok(mut status)) = (
-                CONTROL.borrow(cs).try_borrow_mut(),
-                CAPTURE.borrow(cs).try_borrow_mut(),
-                STATUS.borrow(cs).try_borrow_mut(),
-            ) else {
-                return;
-            };
+            let Ok(mut control) = CONTROL.borrow(cs).try_borrow_mut() else { return };
             let Some(c) = control.as_mut() else { return };
-            let (out, sample) = c.control.period(&mut c.board, &SETPOINTS);
-            capture.record(&out, c.control.base());
-            status.update(&out, &sample, c.control.base());
+            LINK.period(cs, c, &SETPOINTS);
         });
     }
 
     dcfo_firmware::esc1_fault_handlers!();
-
-    /// Cannot run: bridge off (it was never switched on here), the reason over defmt,
-    /// stop.
-    fn stop(why: &str) -> ! {
-        esc1::safe_state_and_stop();
-        defmt::error!("cannot run: {}", why);
-        loop {
-            cortex_m::asm::wfi();
-        }
-    }
 }

@@ -39,24 +39,20 @@ fn main() {
 
 #[cfg(target_arch = "arm")]
 mod firmware {
-    use core::cell::RefCell;
-
-    use cortex_m::interrupt::{self, Mutex};
-    use cortex_m::peripheral::scb::SystemHandler;
+    use cortex_m::interrupt;
     use cortex_m::peripheral::syst::SystClkSource;
     use cortex_m_rt::{entry, exception};
-    use dcfo::capture::Capture;
     use dcfo::drive::{Drive, DriveConfig, PAPER_AXIS_BUS_V, PAPER_AXIS_PAYLOAD_KG};
-    use dcfo::link::board::{BoardTelemetry, CaptureChunk};
-    use dcfo::link::encode;
+    use dcfo::link::board::CaptureChunk;
     use dcfo::motor::MotorParams;
     use dcfo::observer::ObserverKind;
     use dcfo::units::Base;
     use dcfo::virtual_motor::{VirtualAxis, VirtualMotor};
-    use dcfo_firmware::board::mps2::{CmsdkUart, SYSCLK_HZ};
+    use dcfo_firmware::board::mps2::{CmsdkUart, SYSCLK_HZ, halt};
     use dcfo_firmware::board::virtual_motor::VirtualBoard;
-    use dcfo_firmware::board_link::{BoardAnswer, BoardLinkServer, DriveStatus, answer};
+    use dcfo_firmware::board_link::BoardLinkServer;
     use dcfo_firmware::control::{ControlLoop, Setpoints};
+    use dcfo_firmware::runtime::{BoardLinkState, DriveOnBoard, Slot, install, slot, start_systick};
     use dcfo_firmware::stack;
     use embedded_io::Write as _;
 
@@ -79,19 +75,14 @@ mod firmware {
     const CONTROL_HZ: u32 = 10_000;
     /// Control periods without a command after which the drive is disabled (0.5 s).
     const COMMAND_TIMEOUT_PERIODS: u32 = CONTROL_HZ / 2;
+    /// SysTick (the control period) priority: the highest.
+    const PRIORITY_CONTROL: u8 = 0x00;
 
     /// What the control interrupt owns.
-    struct Control {
-        control: ControlLoop<Work>,
-        board: VirtualBoard,
-    }
-
-    static CONTROL: Mutex<RefCell<Option<Control>>> = Mutex::new(RefCell::new(None));
+    static CONTROL: Slot<DriveOnBoard<Work, VirtualBoard>> = slot();
     /// The capture and the last step's status: filled by the control interrupt, read by
-    /// the thread (both in critical sections). Constant-initialised in place: the
-    /// capture never passes through the stack.
-    static CAPTURE: Mutex<RefCell<Capture<CAPTURE_SAMPLES>>> = Mutex::new(RefCell::new(Capture::new()));
-    static STATUS: Mutex<RefCell<DriveStatus>> = Mutex::new(RefCell::new(DriveStatus::new()));
+    /// the thread.
+    static LINK: BoardLinkState<CAPTURE_SAMPLES> = BoardLinkState::new();
     static SETPOINTS: Setpoints = Setpoints::new();
 
     #[entry]
@@ -129,50 +120,27 @@ mod firmware {
         let _ =
             write!(uart, "dcfo-firmware qemu_drive: virtual motor, capture {CAPTURE_SAMPLES} samples\r\n\0");
 
-        let installed = interrupt::free(|cs| match CONTROL.borrow(cs).try_borrow_mut() {
-            Ok(mut slot) => {
-                *slot = Some(Control {
-                    control: ControlLoop::new(drive, u16::MAX),
-                    board: VirtualBoard::new(virtual_motor),
-                });
-                true
-            }
-            Err(_) => false,
-        });
-        if !installed {
+        let control = DriveOnBoard {
+            control: ControlLoop::new(drive, u16::MAX),
+            board: VirtualBoard::new(virtual_motor),
+        };
+        if !install(&CONTROL, control) {
             halt("control state busy at start-up");
         }
-        // SAFETY: set before SysTick is enabled; critical sections use PRIMASK.
-        unsafe { cp.SCB.set_priority(SystemHandler::SysTick, 0x00) };
-        cp.SYST.set_clock_source(SystClkSource::Core);
-        cp.SYST.set_reload(SYSCLK_HZ / CONTROL_HZ - 1);
-        cp.SYST.clear_current();
-        cp.SYST.enable_interrupt();
-        cp.SYST.enable_counter();
+        start_systick(
+            &mut cp.SYST,
+            &mut cp.SCB,
+            PRIORITY_CONTROL,
+            SystClkSource::Core,
+            SYSCLK_HZ / CONTROL_HZ - 1,
+        );
 
         let mut server = BoardLinkServer::new(COMMAND_TIMEOUT_PERIODS);
         let mut wire = [0u8; CaptureChunk::WIRE_LEN];
         loop {
-            let periods =
-                interrupt::free(|cs| STATUS.borrow(cs).try_borrow().map(|s| s.periods).unwrap_or(0));
+            let periods = LINK.periods();
             while let Some(byte) = uart.try_read_byte() {
-                let Some(command) = server.on_byte(byte, &SETPOINTS, periods) else { continue };
-                let reply = interrupt::free(|cs| {
-                    let capture = CAPTURE.borrow(cs).try_borrow_mut();
-                    let status = STATUS.borrow(cs).try_borrow();
-                    match (capture, status) {
-                        (Ok(mut capture), Ok(status)) => {
-                            Some(answer(&command, &mut capture, &status, &SETPOINTS))
-                        }
-                        _ => None,
-                    }
-                });
-                let encoded = match reply {
-                    Some(BoardAnswer::Telemetry(t)) => encode::<BoardTelemetry>(&t, &mut wire),
-                    Some(BoardAnswer::Chunk(c)) => encode::<CaptureChunk>(&c, &mut wire),
-                    None => continue,
-                };
-                if let Some(bytes) = encoded.ok().and_then(|n| wire.get(..n)) {
+                if let Some(bytes) = LINK.on_byte(&mut server, byte, &SETPOINTS, periods, &mut wire) {
                     for &b in bytes {
                         uart.write_byte(b);
                     }
@@ -191,17 +159,9 @@ mod firmware {
     #[exception]
     fn SysTick() {
         interrupt::free(|cs| {
-            let (Ok(mut control), Ok(mut capture), Ok(mut status)) = (
-                CONTROL.borrow(cs).try_borrow_mut(),
-                CAPTURE.borrow(cs).try_borrow_mut(),
-                STATUS.borrow(cs).try_borrow_mut(),
-            ) else {
-                return;
-            };
+            let Ok(mut control) = CONTROL.borrow(cs).try_borrow_mut() else { return };
             let Some(c) = control.as_mut() else { return };
-            let (out, sample) = c.control.period(&mut c.board, &SETPOINTS);
-            capture.record(&out, c.control.base());
-            status.update(&out, &sample, c.control.base());
+            LINK.period(cs, c, &SETPOINTS);
         });
     }
 
@@ -213,32 +173,5 @@ mod firmware {
         SETPOINTS.set_enable(false);
     }
 
-    /// Cannot run: the reason on UART0, then sleep for good with interrupts off.
-    fn halt(why: &str) -> ! {
-        stop(format_args!("HALT: {why}"))
-    }
-
-    fn stop(what: core::fmt::Arguments<'_>) -> ! {
-        cortex_m::interrupt::disable();
-        // SAFETY: interrupts are off and this never returns, so no other user of UART0
-        // runs again; a byte the thread was writing is at worst cut short.
-        let mut uart = unsafe { CmsdkUart::steal_uart0() };
-        let _ = write!(uart, "\r\n{what}\r\n");
-        loop {
-            cortex_m::asm::wfi();
-        }
-    }
-
-    /// HardFault (a stack overflow among others), on a fresh stack: stops the core.
-    extern "C" fn on_hard_fault() -> ! {
-        stop(format_args!("HARDFAULT"))
-    }
-
-    dcfo_firmware::hard_fault_entry!(on_hard_fault);
-
-    /// Not linked while nothing can panic (`.ci/no-panic`).
-    #[panic_handler]
-    fn panic(info: &core::panic::PanicInfo) -> ! {
-        stop(format_args!("PANIC: {info}"))
-    }
+    dcfo_firmware::mps2_fault_handlers!();
 }

@@ -47,10 +47,6 @@ fn main() {
 
 #[cfg(target_arch = "arm")]
 mod firmware {
-    use core::cell::RefCell;
-
-    use cortex_m::interrupt::{self, Mutex};
-    use cortex_m::peripheral::scb::SystemHandler;
     use cortex_m::peripheral::syst::SystClkSource;
     use cortex_m_rt::{entry, exception};
     use dcfo::drive::{Drive, DriveConfig};
@@ -58,9 +54,10 @@ mod firmware {
     use dcfo::motor::MotorParams;
     use dcfo::observer::ObserverKind;
     use dcfo::units::Base;
-    use dcfo_firmware::board::mps2::{self, CmsdkUart, SYSCLK_HZ, UART0_RX_IRQN, Uart0RxIrq, UartRx};
+    use dcfo_firmware::board::mps2::{self, CmsdkUart, SYSCLK_HZ, UART0_RX_IRQN, Uart0RxIrq, UartRx, halt};
     use dcfo_firmware::hil::HilServer;
     use dcfo_firmware::queue::{Producer, Queue};
+    use dcfo_firmware::runtime::{Slot, install, slot, start_systick, with_slot};
     use dcfo_firmware::stack;
     use embedded_io::Write as _;
 
@@ -91,7 +88,7 @@ mod firmware {
         tx: Producer<'static, u8, TX_QUEUE_BYTES>,
     }
 
-    static CONTROL: Mutex<RefCell<Option<Control>>> = Mutex::new(RefCell::new(None));
+    static CONTROL: Slot<Control> = slot();
 
     #[entry]
     fn main() -> ! {
@@ -131,28 +128,20 @@ mod firmware {
         };
         let (producer, mut consumer) = queue.split();
         let (rx, mut tx) = uart.into_interrupt_driven();
-        let installed = interrupt::free(|cs| match CONTROL.borrow(cs).try_borrow_mut() {
-            Ok(mut slot) => {
-                *slot = Some(Control { server: HilServer::new(drive), rx, tx: producer });
-                true
-            }
-            Err(_) => false,
-        });
-        if !installed {
+        if !install(&CONTROL, Control { server: HilServer::new(drive), rx, tx: producer }) {
             halt("control state busy at start-up");
         }
 
-        // SAFETY: priorities are set before either interrupt is enabled; no critical
-        // section here relies on priorities (they mask with PRIMASK).
-        unsafe {
-            cp.NVIC.set_priority(Uart0RxIrq, PRIORITY_CONTROL);
-            cp.SCB.set_priority(SystemHandler::SysTick, PRIORITY_WATCHDOG);
-        }
-        cp.SYST.set_clock_source(SystClkSource::Core);
-        cp.SYST.set_reload(SYSCLK_HZ / WATCHDOG_TICK_HZ - 1);
-        cp.SYST.clear_current();
-        cp.SYST.enable_interrupt();
-        cp.SYST.enable_counter();
+        // SAFETY: set before the interrupt is unmasked; no critical section here relies on
+        // priorities (they mask with PRIMASK).
+        unsafe { cp.NVIC.set_priority(Uart0RxIrq, PRIORITY_CONTROL) };
+        start_systick(
+            &mut cp.SYST,
+            &mut cp.SCB,
+            PRIORITY_WATCHDOG,
+            SystClkSource::Core,
+            SYSCLK_HZ / WATCHDOG_TICK_HZ - 1,
+        );
         mps2::unmask_uart0_rx();
 
         loop {
@@ -161,7 +150,7 @@ mod firmware {
             }
             // Sleep only if nothing arrived since the check: with PRIMASK set a pending
             // interrupt still ends WFI, and it is taken when `free` re-enables.
-            interrupt::free(|_| {
+            cortex_m::interrupt::free(|_| {
                 if !consumer.ready() {
                     cortex_m::asm::wfi();
                 }
@@ -169,27 +158,12 @@ mod firmware {
         }
     }
 
-    /// Runs `f` on the control state in a critical section. Every user borrows it only
-    /// inside such a section and never from within another, so the borrow cannot be
-    /// taken; if it were, `f` is skipped (no panic) and `false` returned.
-    fn with_control(f: impl FnOnce(&mut Control)) -> bool {
-        interrupt::free(|cs| match CONTROL.borrow(cs).try_borrow_mut() {
-            Ok(mut guard) => {
-                if let Some(c) = guard.as_mut() {
-                    f(c);
-                }
-                true
-            }
-            Err(_) => false,
-        })
-    }
-
     /// UART0 RX: drain the receiver through the HIL server; an in-order frame runs one
     /// control step, whose answer goes to the transmit queue. Should the state be
     /// unreachable, the bytes are left in the UART and this interrupt is masked: a drive
     /// that cannot step answers nothing, and the host's watchdog sees a silent link.
     fn on_uart0_rx() {
-        let ok = with_control(|c| {
+        let ok = with_slot(&CONTROL, |c| {
             while let Some(byte) = c.rx.try_read_byte() {
                 c.server.on_byte(byte, &mut c.tx);
             }
@@ -199,9 +173,10 @@ mod firmware {
         }
     }
 
+    /// The link watchdog, every 50 ms.
     #[exception]
     fn SysTick() {
-        with_control(|c| {
+        with_slot(&CONTROL, |c| {
             c.server.watchdog_period();
         });
     }
@@ -217,40 +192,8 @@ mod firmware {
         }
         // No handler for this interrupt: silence it and switch the bridge off.
         mps2::mask_irq(irqn);
-        with_control(|c| c.server.trip());
+        with_slot(&CONTROL, |c| c.server.trip());
     }
 
-    /// Cannot run: interrupts off (no control step can run again), the reason on UART0,
-    /// then sleep for good. Nothing was switched on yet when `main` calls it.
-    fn halt(why: &str) -> ! {
-        stop(format_args!("HALT: {why}"))
-    }
-
-    /// Masks every interrupt (the control step lives in one: it never runs again, so no
-    /// answer goes out and the drive's bridge flag is never set again), prints `what` on
-    /// UART0 and sleeps for good.
-    fn stop(what: core::fmt::Arguments<'_>) -> ! {
-        cortex_m::interrupt::disable();
-        // SAFETY: interrupts are off and this never returns, so no other user of UART0
-        // runs again; a byte the thread was writing is at worst cut short.
-        let mut uart = unsafe { CmsdkUart::steal_uart0() };
-        let _ = write!(uart, "\r\n{what}\r\n");
-        loop {
-            cortex_m::asm::wfi();
-        }
-    }
-
-    /// HardFault (a stack overflow among others), on a fresh stack: stops the core.
-    extern "C" fn on_hard_fault() -> ! {
-        stop(format_args!("HARDFAULT"))
-    }
-
-    dcfo_firmware::hard_fault_entry!(on_hard_fault);
-
-    /// Not linked while nothing can panic (`.ci/no-panic`); kept so that a panic that
-    /// creeps in still stops the control step first.
-    #[panic_handler]
-    fn panic(info: &core::panic::PanicInfo) -> ! {
-        stop(format_args!("PANIC: {info}"))
-    }
+    dcfo_firmware::mps2_fault_handlers!();
 }

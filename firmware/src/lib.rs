@@ -11,12 +11,16 @@
 //!   [`dcfo::link::LinkServer`], a transmit queue and the watchdog).
 //! - [`queue`]: the fixed-capacity queue between an interrupt and the thread, with no
 //!   path to a panic.
+//! - `runtime` (Arm only): what every image does the same way (the interrupt-owned state,
+//!   the drive image's control period and board-link answers, SysTick), so that an image
+//!   says only what is its own.
 //! - `rtt_log` (ESC1 only): the defmt logger over RTT, without a path to a panic.
 //! - `stack` (Arm only): the HardFault entry that survives a stack overflow, and stack
 //!   painting for the high-water mark.
 //!
 //! The firmware images are `examples/` (one per board); on the host they build to an
-//! empty `main` so that `cargo test --workspace --all-targets` and clippy work.
+//! empty `main` so that `cargo test --workspace --all-targets` and clippy work. What a new
+//! board implements, and how its image is put together: `docs/new-board.md`.
 #![no_std]
 #![deny(unsafe_code)]
 #![deny(missing_docs)]
@@ -29,6 +33,9 @@ pub mod queue;
 #[cfg(all(target_arch = "arm", feature = "esc1"))]
 #[allow(unsafe_code)]
 pub mod rtt_log;
+#[cfg(target_arch = "arm")]
+#[allow(unsafe_code)]
+pub mod runtime;
 #[cfg(target_arch = "arm")]
 #[allow(unsafe_code)]
 pub mod stack;

@@ -11,6 +11,10 @@
 //! a power stage, for a drive image with no hardware) and, on Arm
 //! only, `mps2` (QEMU's MPS2 AN385/AN386 UART) and `b_g431b_esc1` (ST's drive board). The
 //! Arm modules are the only code in the firmware that touches registers.
+//!
+//! A board whose start-up hands out its sensors and its power stage separately (as the
+//! ESC1's does) gives the control loop both as one [`Bridge`]. What a new board
+//! implements, with [`fake`] as the reference: `docs/new-board.md`.
 
 pub mod fake;
 pub mod virtual_motor;
@@ -60,4 +64,65 @@ pub trait PowerStage {
     /// Re-arms the latched hardware trip (called when the drive's faults are cleared). If
     /// its cause is still present the trip stays latched. Boards without one: nothing.
     fn clear_hardware_trip(&mut self) {}
+}
+
+/// A board's sensors and power stage as the one [`PhaseSensors`] + [`PowerStage`] that the
+/// control loop runs on, for boards that bring them up as two parts. Every call is passed
+/// on unchanged.
+#[derive(Clone, Debug, Default)]
+pub struct Bridge<S, P> {
+    /// Phase currents and bus voltage.
+    pub sensors: S,
+    /// The three half-bridges.
+    pub power: P,
+}
+
+impl<S: PhaseSensors, P> PhaseSensors for Bridge<S, P> {
+    fn sample(&mut self) -> PhaseSample {
+        self.sensors.sample()
+    }
+}
+
+impl<S, P: PowerStage> PowerStage for Bridge<S, P> {
+    fn set_duties(&mut self, duties: [f32; 3]) {
+        self.power.set_duties(duties);
+    }
+    fn enable_bridge(&mut self) {
+        self.power.enable_bridge();
+    }
+    fn disable_bridge(&mut self) {
+        self.power.disable_bridge();
+    }
+    fn hardware_trip(&mut self) -> bool {
+        self.power.hardware_trip()
+    }
+    fn clear_hardware_trip(&mut self) {
+        self.power.clear_hardware_trip();
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::fake::{FakeBoard, InjectedFault};
+    use super::*;
+
+    /// The bridge reads its sensors and drives its power stage, nothing else.
+    #[test]
+    fn bridge_passes_calls_to_its_parts() {
+        let mut b = Bridge { sensors: FakeBoard::default(), power: FakeBoard::default() };
+        b.sensors.next.vdc_v = 24.0;
+        b.sensors.fault = Some(InjectedFault::CurrentSpike(3.0));
+        assert_eq!(b.sample(), PhaseSample { i_abc_a: [0.0, 3.0, 0.0], vdc_v: 24.0 });
+        b.set_duties([0.2, f32::NAN, 1.5]);
+        b.enable_bridge();
+        assert_eq!(b.power.duties, Some([0.2, 0.5, 1.0]));
+        assert!(b.power.bridge_on && b.power.enables == 1 && !b.sensors.bridge_on);
+        b.power.break_input = true;
+        assert!(b.hardware_trip() && !b.power.bridge_on);
+        b.power.break_input = false;
+        b.clear_hardware_trip();
+        assert!(!b.hardware_trip());
+        b.disable_bridge();
+        assert_eq!(b.power.disables, 1);
+    }
 }

@@ -329,3 +329,49 @@ impl embedded_io::Write for UartTx {
         embedded_io::Write::flush(&mut self.uart)
     }
 }
+
+/// An image that cannot run (an initialisation that cannot complete): `HALT: <why>` on
+/// UART0, then as [`stop`]. Nothing is switched on yet when `main` calls it.
+pub fn halt(why: &str) -> ! {
+    stop(format_args!("HALT: {why}"))
+}
+
+/// Stops the image for good: masks every interrupt (the control step lives in one, so it
+/// never runs again: no answer goes out and the drive's bridge flag is never set again),
+/// prints `what` on UART0 and sleeps. For [`halt`], the HardFault and the panic handler
+/// ([`mps2_fault_handlers!`](crate::mps2_fault_handlers)).
+pub fn stop(what: core::fmt::Arguments<'_>) -> ! {
+    cortex_m::interrupt::disable();
+    // SAFETY: interrupts are off and this never returns, so no other user of UART0 runs
+    // again; a byte the thread was writing is at worst cut short.
+    let mut uart = unsafe { CmsdkUart::steal_uart0() };
+    let _ = embedded_io::Write::write_fmt(&mut uart, format_args!("\r\n{what}\r\n"));
+    loop {
+        cortex_m::asm::wfi();
+    }
+}
+
+/// Defines the fault exits of an MPS2 image that talks on UART0, the same in every such
+/// image: `HardFault` (a stack overflow among others) on a fresh stack
+/// ([`crate::hard_fault_entry!`]) prints `HARDFAULT`, and the panic handler (not linked
+/// while nothing can panic, `.ci/no-panic`; kept so that a panic that creeps in still
+/// stops the control step first) prints `PANIC: <message>`; both through
+/// [`stop`](crate::board::mps2::stop). Expand once, at the image's top level; the
+/// image's `DefaultHandler` is its own (it dispatches its interrupts).
+#[macro_export]
+macro_rules! mps2_fault_handlers {
+    () => {
+        /// HardFault (a stack overflow among others), on a fresh stack: stops the core.
+        extern "C" fn on_hard_fault() -> ! {
+            $crate::board::mps2::stop(format_args!("HARDFAULT"))
+        }
+
+        $crate::hard_fault_entry!(on_hard_fault);
+
+        /// Not linked while nothing can panic (`.ci/no-panic`).
+        #[panic_handler]
+        fn panic(info: &core::panic::PanicInfo) -> ! {
+            $crate::board::mps2::stop(format_args!("PANIC: {info}"))
+        }
+    };
+}

@@ -77,3 +77,14 @@ fn panic(info: &core::panic::PanicInfo) -> ! {
     defmt::error!("panic: {}", defmt::Display2Format(info));
     cortex_m::asm::udf()
 }
+
+/// An image that cannot run before its control interrupt is on (an initialisation that
+/// cannot complete): bridge off ([`safe_state_and_stop`]; it was never switched on),
+/// the reason over defmt, then sleep for good.
+pub fn stop(why: &str) -> ! {
+    safe_state_and_stop();
+    defmt::error!("cannot run: {}", why);
+    loop {
+        cortex_m::asm::wfi();
+    }
+}

@@ -1,0 +1,185 @@
+//! What every drive image on a Cortex-M does the same way, whatever its board, so that an
+//! image (`examples/`) says only what is its own: its board, its drive, its interrupts'
+//! priorities and rates.
+//!
+//! - [`Slot`], [`slot`], [`install`], [`with_slot`]: the state an interrupt owns, put in place once
+//!   by `main` and borrowed only inside critical sections (never nested), so a borrow
+//!   cannot fail; were it to, the caller is told and nothing panics.
+//! - [`DriveOnBoard`] and [`BoardLinkState`]: the drive image's control period (one
+//!   [`ControlLoop::period`] on the board, then the capture and the status) and the
+//!   thread's side of the board link (a received byte in, the encoded answer out).
+//! - [`start_systick`]: SysTick at a priority and a reload, the images' periodic tick.
+//!
+//! ```text
+//!  thread                                         control interrupt
+//!  ------                                         -----------------
+//!  BoardLinkState::on_byte -> answer bytes         BoardLinkState::period(drive on board)
+//!  BoardLinkState::periods (watchdog clock)          ControlLoop::period, Capture::record,
+//!                                                    DriveStatus::update
+//! ```
+//!
+//! Board-specific start-up and fault handling stay with the board (e.g.
+//! `board::b_g431b_esc1::esc1_fault_handlers!`, `board::mps2::mps2_fault_handlers!`).
+//! Every critical section here masks with PRIMASK (`cortex_m::interrupt::free`): none
+//! relies on interrupt priorities.
+
+use core::cell::RefCell;
+
+use cortex_m::interrupt::{self, CriticalSection, Mutex};
+use cortex_m::peripheral::scb::SystemHandler;
+use cortex_m::peripheral::syst::SystClkSource;
+use cortex_m::peripheral::{SCB, SYST};
+use dcfo::capture::Capture;
+use dcfo::link::board::{BoardTelemetry, CaptureChunk};
+use dcfo::link::encode;
+use dcfo::num::Scalar;
+
+use crate::board::{PhaseSensors, PowerStage};
+use crate::board_link::{BoardAnswer, BoardLinkServer, DriveStatus, answer};
+use crate::control::{ControlLoop, Setpoints};
+
+/// State that an interrupt owns: empty until `main` [`install`]s it, then borrowed only
+/// in critical sections that never nest.
+pub type Slot<T> = Mutex<RefCell<Option<T>>>;
+
+/// An empty [`Slot`], for a `static` (const).
+pub const fn slot<T>() -> Slot<T> {
+    Mutex::new(RefCell::new(None))
+}
+
+/// Puts `value` into `slot` (in a critical section). `false` if the slot was borrowed,
+/// which cannot happen before the interrupts that use it are enabled.
+pub fn install<T>(slot: &Slot<T>, value: T) -> bool {
+    interrupt::free(|cs| match slot.borrow(cs).try_borrow_mut() {
+        Ok(mut s) => {
+            *s = Some(value);
+            true
+        }
+        Err(_) => false,
+    })
+}
+
+/// Runs `f` on the state in `slot` in a critical section (not at all while the slot is
+/// empty). Every user borrows the state only inside such a section and never from within
+/// another, so the borrow cannot fail; if it did, `f` is skipped (no panic) and `false`
+/// returned.
+pub fn with_slot<T>(slot: &Slot<T>, f: impl FnOnce(&mut T)) -> bool {
+    interrupt::free(|cs| match slot.borrow(cs).try_borrow_mut() {
+        Ok(mut guard) => {
+            if let Some(s) = guard.as_mut() {
+                f(s);
+            }
+            true
+        }
+        Err(_) => false,
+    })
+}
+
+/// The control interrupt's state in a drive image: the control loop and the board it
+/// runs on (a power stage, or the virtual motor).
+pub struct DriveOnBoard<T, B> {
+    /// The drive and its setpoint handling.
+    pub control: ControlLoop<T>,
+    /// Sensors and power stage ([`PhaseSensors`] + [`PowerStage`]).
+    pub board: B,
+}
+
+/// What the control interrupt leaves for the board link, and the thread's side of that
+/// link: the capture (`N` samples) and the last step's status, each behind a critical
+/// section. Constant-initialised in place (a `static`): the capture never passes
+/// through the stack.
+pub struct BoardLinkState<const N: usize> {
+    capture: Mutex<RefCell<Capture<N>>>,
+    status: Mutex<RefCell<DriveStatus>>,
+}
+
+impl<const N: usize> Default for BoardLinkState<N> {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl<const N: usize> BoardLinkState<N> {
+    /// An empty capture, a disabled drive's status.
+    pub const fn new() -> Self {
+        BoardLinkState {
+            capture: Mutex::new(RefCell::new(Capture::new())),
+            status: Mutex::new(RefCell::new(DriveStatus::new())),
+        }
+    }
+
+    /// One control period, from the control interrupt inside its critical section `cs`:
+    /// [`ControlLoop::period`] on the board, then [`Capture::record`] and
+    /// [`DriveStatus::update`] (skipped should the thread hold them, which it cannot:
+    /// its sections do not nest with this one). Bounded: the drive's step and O(1) more.
+    pub fn period<T: Scalar, B: PhaseSensors + PowerStage>(
+        &self,
+        cs: &CriticalSection,
+        c: &mut DriveOnBoard<T, B>,
+        setpoints: &Setpoints,
+    ) {
+        let (out, sample) = c.control.period(&mut c.board, setpoints);
+        if let (Ok(mut capture), Ok(mut status)) =
+            (self.capture.borrow(cs).try_borrow_mut(), self.status.borrow(cs).try_borrow_mut())
+        {
+            capture.record(&out, c.control.base());
+            status.update(&out, &sample, c.control.base());
+        }
+    }
+
+    /// The last step's status, copied in a critical section (`None` if it was borrowed).
+    pub fn status(&self) -> Option<DriveStatus> {
+        interrupt::free(|cs| self.status.borrow(cs).try_borrow().map(|s| *s).ok())
+    }
+
+    /// Control periods run so far (the status's count; 0 if it could not be read): the
+    /// command watchdog's clock.
+    pub fn periods(&self) -> u32 {
+        interrupt::free(|cs| self.status.borrow(cs).try_borrow().map(|s| s.periods).unwrap_or(0))
+    }
+
+    /// The thread's side of the board link, one received byte at a time: a complete
+    /// command goes to `server` (which applies it to `setpoints`), its answer
+    /// (telemetry, or capture samples) is encoded into `wire` and returned for the
+    /// caller to send. `None` while no command is complete, or should the capture or
+    /// status be busy (the host then sees no answer and asks again). The critical
+    /// section copies at most one chunk of samples.
+    pub fn on_byte<'w>(
+        &self,
+        server: &mut BoardLinkServer,
+        byte: u8,
+        setpoints: &Setpoints,
+        periods: u32,
+        wire: &'w mut [u8; CaptureChunk::WIRE_LEN],
+    ) -> Option<&'w [u8]> {
+        let command = server.on_byte(byte, setpoints, periods)?;
+        let reply = interrupt::free(|cs| {
+            match (self.capture.borrow(cs).try_borrow_mut(), self.status.borrow(cs).try_borrow()) {
+                (Ok(mut capture), Ok(status)) => Some(answer(&command, &mut capture, &status, setpoints)),
+                _ => None,
+            }
+        });
+        let encoded = match reply? {
+            BoardAnswer::Telemetry(t) => encode::<BoardTelemetry>(&t, wire),
+            BoardAnswer::Chunk(c) => encode::<CaptureChunk>(&c, wire),
+        };
+        let n = encoded.ok()?;
+        wire.get(..n)
+    }
+}
+
+/// Starts SysTick: `priority` (an NVIC priority byte, 0x00 highest), `clock` (the core
+/// clock, or the board's external reference, e.g. HCLK / 8 on the STM32G4) and `reload`
+/// (ticks per period minus one, at most 2^24 - 1). The interrupt is enabled last, with
+/// its handler's state in place beforehand.
+pub fn start_systick(syst: &mut SYST, scb: &mut SCB, priority: u8, clock: SystClkSource, reload: u32) {
+    // SAFETY: set before SysTick is enabled (below); changing a priority is unsafe only
+    // for critical sections built on priorities, and every critical section in this
+    // firmware masks with PRIMASK instead.
+    unsafe { scb.set_priority(SystemHandler::SysTick, priority) };
+    syst.set_clock_source(clock);
+    syst.set_reload(reload);
+    syst.clear_current();
+    syst.enable_interrupt();
+    syst.enable_counter();
+}
