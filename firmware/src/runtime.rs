@@ -18,8 +18,9 @@
 //!                                                    DriveStatus::update
 //! ```
 //!
-//! Board-specific start-up and fault handling stay with the board (e.g.
-//! `board::b_g431b_esc1::esc1_fault_handlers!`, `board::mps2::mps2_fault_handlers!`).
+//! Board-specific start-up and fault handling stay with the board (its `init`, its
+//! safe state, and the fault vectors an image expands once: `esc1_fault_handlers!`,
+//! `mps2_fault_handlers!`). What a new board implements: `docs/new-board.md`.
 //! Every critical section here masks with PRIMASK (`cortex_m::interrupt::free`): none
 //! relies on interrupt priorities.
 
