@@ -57,7 +57,7 @@ mod firmware {
     use dcfo::svpwm::svpwm;
     use dcfo::transforms::{Abc, AlphaBeta, CosSin, Dq, clarke, inverse_clarke, inverse_park, park};
     use dcfo::units::Base;
-    use dcfo_firmware::board::mps2::CmsdkUart;
+    use dcfo_firmware::board::mps2::{CmsdkUart, semihosting_exit as exit};
     use dcfo_firmware::hil::HilServer;
     use dcfo_firmware::queue::Queue;
 
@@ -93,30 +93,6 @@ mod firmware {
     pub extern "C" fn bench_end() {
         // SAFETY: a valid, aligned static; volatile, so the call is never optimised out.
         unsafe { MARK.as_ptr().write_volatile(2) };
-    }
-
-    // ---- semihosting (ARM semihosting: `bkpt 0xab`, operation in r0, argument in r1)
-
-    const SYS_EXIT: usize = 0x18;
-    const ADP_STOPPED_APPLICATION_EXIT: usize = 0x2_0026;
-    const ADP_STOPPED_RUNTIME_ERROR: usize = 0x2_0023;
-
-    fn semihost(op: usize, arg: usize) -> usize {
-        let ret;
-        // SAFETY: a semihosting call: QEMU (`-semihosting-config enable=on`) handles the
-        // breakpoint; `arg` is a value or a pointer to memory valid for the call.
-        unsafe {
-            core::arch::asm!("bkpt #0xab", inout("r0") op => ret, in("r1") arg, options(nostack));
-        }
-        ret
-    }
-
-    fn exit(ok: bool) -> ! {
-        let reason = if ok { ADP_STOPPED_APPLICATION_EXIT } else { ADP_STOPPED_RUNTIME_ERROR };
-        semihost(SYS_EXIT, reason);
-        loop {
-            cortex_m::asm::wfi();
-        }
     }
 
     /// A line of output, printed on UART0 (QEMU's semihosting stdout is buffered when

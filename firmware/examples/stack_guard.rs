@@ -34,7 +34,7 @@ mod firmware {
     use core::sync::atomic::{AtomicU32, Ordering};
 
     use cortex_m_rt::entry;
-    use dcfo_firmware::board::mps2::CmsdkUart;
+    use dcfo_firmware::board::mps2::{CmsdkUart, semihosting_exit as exit};
     use dcfo_firmware::stack;
     use embedded_io::Write as _;
 
@@ -91,22 +91,6 @@ mod firmware {
     }
 
     dcfo_firmware::hard_fault_entry!(on_hard_fault);
-
-    const SYS_EXIT: usize = 0x18;
-    const ADP_STOPPED_APPLICATION_EXIT: usize = 0x2_0026;
-    const ADP_STOPPED_RUNTIME_ERROR: usize = 0x2_0023;
-
-    fn exit(ok: bool) -> ! {
-        let reason = if ok { ADP_STOPPED_APPLICATION_EXIT } else { ADP_STOPPED_RUNTIME_ERROR };
-        // SAFETY: a semihosting call (QEMU runs with `-semihosting-config enable=on`):
-        // SYS_EXIT with the reason code in r1.
-        unsafe {
-            core::arch::asm!("bkpt #0xab", in("r0") SYS_EXIT, in("r1") reason, options(nostack));
-        }
-        loop {
-            cortex_m::asm::wfi();
-        }
-    }
 
     #[panic_handler]
     fn panic(_: &core::panic::PanicInfo) -> ! {

@@ -351,6 +351,25 @@ pub fn stop(what: core::fmt::Arguments<'_>) -> ! {
     }
 }
 
+/// Ends the QEMU run through ARM semihosting `SYS_EXIT` (QEMU runs with
+/// `-semihosting-config enable=on`): QEMU exits with status 0 when `ok`, 1 otherwise. For
+/// the test images (`stack_guard`, `bench`); should no debugger or QEMU take the call, the
+/// core sleeps for good.
+pub fn semihosting_exit(ok: bool) -> ! {
+    const SYS_EXIT: usize = 0x18;
+    const ADP_STOPPED_APPLICATION_EXIT: usize = 0x2_0026;
+    const ADP_STOPPED_RUNTIME_ERROR: usize = 0x2_0023;
+    let reason = if ok { ADP_STOPPED_APPLICATION_EXIT } else { ADP_STOPPED_RUNTIME_ERROR };
+    // SAFETY: a semihosting call (`bkpt 0xab`, operation in r0, argument in r1): SYS_EXIT
+    // with the reason code in r1, a value; nothing in memory is read or written.
+    unsafe {
+        core::arch::asm!("bkpt #0xab", in("r0") SYS_EXIT, in("r1") reason, options(nostack));
+    }
+    loop {
+        cortex_m::asm::wfi();
+    }
+}
+
 /// Defines the fault exits of an MPS2 image that talks on UART0, the same in every such
 /// image: `HardFault` (a stack overflow among others) on a fresh stack
 /// ([`crate::hard_fault_entry!`]) prints `HARDFAULT`, and the panic handler (not linked
