@@ -24,6 +24,15 @@
 //!
 //! The control interrupt is [`CONTROL_IRQ`] (`ADC1_2`, end of the injected sequence of ADC1).
 //!
+//! One file per peripheral (everything is re-exported here, so the paths are
+//! `b_g431b_esc1::*`): this file has the board table, [`Esc1Config`] and [`init`];
+//! `clocks` (PLL, flash wait states, peripheral clocks), `pins` (the pin table and GPIO
+//! set-up), `pwm` (TIM1, [`Esc1PowerStage`]), `adc` (op-amps, ADCs, [`Esc1Sensors`]),
+//! `over_current` (DAC3 and COMP1/2/4 on TIM1's break), `uart` ([`Esc1Uart`]), `led`
+//! ([`StatusLed`]), `safe_state` (bridge off from anywhere, the fault vectors, the panic
+//! handler) and `motor_image` (the motor image in the last flash page). What a new board
+//! implements: `docs/new-board.md`.
+//!
 //! Reference numbering used below: UM2516 = "B-G431B-ESC1 Discovery kit" user manual,
 //! RM0440 = STM32G4 reference manual, DS12589 = STM32G431xx datasheet, MCSDK = the ST Motor
 //! Control SDK project generated for this board ("ElectronicSpeedControl_ESC-G4", MCSDK 6.x:
