@@ -42,8 +42,6 @@ fn main() {
 
 #[cfg(target_arch = "arm")]
 mod firmware {
-    use core::sync::atomic::{AtomicBool, AtomicU32, Ordering};
-
     use cortex_m::interrupt::free;
     use cortex_m::peripheral::NVIC;
     use cortex_m::peripheral::syst::SystClkSource;
@@ -59,7 +57,9 @@ mod firmware {
     use dcfo_firmware::board::{Bridge, PhaseSensors, PowerStage};
     use dcfo_firmware::board_link::BoardLinkServer;
     use dcfo_firmware::control::{ControlLoop, Setpoints};
-    use dcfo_firmware::runtime::{BoardLinkState, DriveOnBoard, Slot, install, slot, start_systick};
+    use dcfo_firmware::runtime::{
+        BoardLinkState, DriveOnBoard, Slot, StallCheck, install, slot, start_systick,
+    };
     use dcfo_firmware::stack;
     use embedded_hal::digital::OutputPin;
     use embedded_io::Write as _;
@@ -90,13 +90,8 @@ mod firmware {
     /// the thread (both in critical sections); constant-initialised in place.
     static LINK: BoardLinkState<CAPTURE_SAMPLES> = BoardLinkState::new();
     static SETPOINTS: Setpoints = Setpoints::new();
-    /// Control periods run (the thread's time base).
-    static PERIODS: AtomicU32 = AtomicU32::new(0);
-    /// [`PERIODS`] at the last stall check, and the checks since it last changed.
-    static STALL_SEEN: AtomicU32 = AtomicU32::new(0);
-    static STALL_COUNT: AtomicU32 = AtomicU32::new(0);
-    /// Set by the stall check once it has switched the bridge off.
-    static STALLED: AtomicBool = AtomicBool::new(false);
+    /// Control periods run (the thread's time base) and the stall check on them.
+    static STALL: StallCheck = StallCheck::new(STALL_CHECKS);
 
     #[entry]
     fn main() -> ! {
@@ -176,7 +171,7 @@ mod firmware {
         // not the NVIC mask.
         unsafe { NVIC::unmask(CONTROL_IRQ) };
         // The stall check: SysTick at a priority below the control interrupt's.
-        STALL_SEEN.store(PERIODS.load(Ordering::Relaxed), Ordering::Relaxed);
+        STALL.arm();
         // HCLK / 8.
         start_systick(
             &mut cp.SYST,
@@ -192,12 +187,12 @@ mod firmware {
         loop {
             // Commands in, one answer each (telemetry, or capture samples).
             while let Ok(Some(byte)) = uart.try_read_byte() {
-                let periods = PERIODS.load(Ordering::Relaxed);
+                let periods = STALL.periods();
                 if let Some(bytes) = LINK.on_byte(&mut server, byte, &SETPOINTS, periods, &mut wire) {
                     let _ = uart.write_all(bytes);
                 }
             }
-            server.watchdog(&SETPOINTS, PERIODS.load(Ordering::Relaxed));
+            server.watchdog(&SETPOINTS, STALL.periods());
             // State changes logged.
             let (state, faults) =
                 LINK.status().map(|s| (s.state, s.faults)).unwrap_or((last_state, Default::default()));
@@ -206,7 +201,7 @@ mod firmware {
                 last_state = state;
             }
             let _ = led.set_state((last_state == DriveState::Running).into());
-            if STALLED.load(Ordering::Relaxed) {
+            if STALL.stalled() {
                 halt(&mut led, "control interrupt stalled: no ADC end of conversion for 10-20 ms");
             }
         }
@@ -217,14 +212,10 @@ mod firmware {
     /// then halts and says why).
     #[exception]
     fn SysTick() {
-        let now = PERIODS.load(Ordering::Relaxed);
-        if STALL_SEEN.swap(now, Ordering::Relaxed) != now {
-            STALL_COUNT.store(0, Ordering::Relaxed);
-        } else if STALL_COUNT.fetch_add(1, Ordering::Relaxed) + 1 >= STALL_CHECKS {
+        STALL.check(|| {
             NVIC::mask(CONTROL_IRQ);
             esc1::force_bridge_off();
-            STALLED.store(true, Ordering::Relaxed);
-        }
+        });
     }
 
     /// The control interrupt: end of the injected conversions at the carrier valley.
@@ -237,7 +228,7 @@ mod firmware {
             Ok(mut guard) => {
                 if let Some(c) = guard.as_mut() {
                     LINK.period(cs, c, &SETPOINTS);
-                    PERIODS.fetch_add(1, Ordering::Relaxed);
+                    STALL.period();
                 }
                 true
             }

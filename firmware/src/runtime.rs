@@ -8,6 +8,9 @@
 //! - [`DriveOnBoard`] and [`BoardLinkState`]: the drive image's control period (one
 //!   [`ControlLoop::period`] on the board, then the capture and the status) and the
 //!   thread's side of the board link (a received byte in, the encoded answer out).
+//! - [`StallCheck`]: a control interrupt that stops coming is seen by a slower periodic
+//!   interrupt, which switches the bridge off (a drive on a real power stage needs it:
+//!   the PWM timer would go on switching at the last duties with nothing in control).
 //! - [`start_systick`]: SysTick at a priority and a reload, the images' periodic tick.
 //!
 //! ```text
@@ -25,6 +28,7 @@
 //! relies on interrupt priorities.
 
 use core::cell::RefCell;
+use core::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 
 use cortex_m::interrupt::{self, CriticalSection, Mutex};
 use cortex_m::peripheral::scb::SystemHandler;
@@ -183,4 +187,68 @@ pub fn start_systick(syst: &mut SYST, scb: &mut SCB, priority: u8, clock: SystCl
     syst.clear_current();
     syst.enable_interrupt();
     syst.enable_counter();
+}
+
+/// Watches the control interrupt from a slower periodic one (e.g. SysTick at a lower
+/// priority): the control interrupt counts its periods ([`StallCheck::period`]), the
+/// periodic check ([`StallCheck::check`]) finds whether any ran since its previous call.
+/// `checks` calls in a row without one (between `checks` and `checks + 1` check periods
+/// of silence) are a stall. The command watchdog counts control periods, so it cannot see
+/// the control interrupt stop. Atomics only: any context may call any method.
+pub struct StallCheck {
+    /// Control periods run (wrapping): the thread's time base.
+    periods: AtomicU32,
+    /// `periods` at the last check.
+    seen: AtomicU32,
+    /// Checks in a row that saw no new period.
+    count: AtomicU32,
+    /// Set once a stall was handled.
+    stalled: AtomicBool,
+    checks: u32,
+}
+
+impl StallCheck {
+    /// A check that declares a stall after `checks` silent check periods in a row.
+    pub const fn new(checks: u32) -> Self {
+        StallCheck {
+            periods: AtomicU32::new(0),
+            seen: AtomicU32::new(0),
+            count: AtomicU32::new(0),
+            stalled: AtomicBool::new(false),
+            checks,
+        }
+    }
+
+    /// One control period has run (from the control interrupt, every period).
+    pub fn period(&self) {
+        self.periods.fetch_add(1, Ordering::Relaxed);
+    }
+
+    /// Control periods run so far (wrapping).
+    pub fn periods(&self) -> u32 {
+        self.periods.load(Ordering::Relaxed)
+    }
+
+    /// Starts the count from now (call before the periodic check is enabled).
+    pub fn arm(&self) {
+        self.seen.store(self.periods(), Ordering::Relaxed);
+    }
+
+    /// The periodic check: on a stall runs `on_stall` (switch the bridge off, mask the
+    /// control interrupt) and then marks the stall for [`StallCheck::stalled`]. A load,
+    /// a swap and a compare otherwise.
+    pub fn check(&self, on_stall: impl FnOnce()) {
+        let now = self.periods();
+        if self.seen.swap(now, Ordering::Relaxed) != now {
+            self.count.store(0, Ordering::Relaxed);
+        } else if self.count.fetch_add(1, Ordering::Relaxed) + 1 >= self.checks {
+            on_stall();
+            self.stalled.store(true, Ordering::Relaxed);
+        }
+    }
+
+    /// Whether a stall was found (and handled): the thread then stops and says why.
+    pub fn stalled(&self) -> bool {
+        self.stalled.load(Ordering::Relaxed)
+    }
 }
