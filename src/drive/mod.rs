@@ -3,7 +3,7 @@
 //!
 //! ```text
 //! samples -> offsets -> Clarke -> estimator (observer + PLL) -> Park -> current PIs
-//!         -> inverse Park (angle advanced 1.5 periods) -> dead-time compensation
+//!         -> inverse Park (angle advanced `delay_compensation_periods`, 1.5) -> dead-time compensation
 //!         -> SVPWM -> duties;   speed PI every `speed_loop_divider` periods
 //! ```
 //!
@@ -323,7 +323,7 @@ impl<T: Scalar> Drive<T> {
         let a_per_omega = base.omega_rad_s / base.current_a;
         let pi_speed = Pi::new(
             T::from_f32(kp_s * a_per_omega),
-            T::from_f32(kp_s * ws / 4.0 * speed_ts * a_per_omega),
+            T::from_f32(kp_s * ws * config.speed_zero_ratio * speed_ts * a_per_omega),
             base.current(-config.current_limit_a),
             base.current(config.current_limit_a),
         )
@@ -360,16 +360,18 @@ impl<T: Scalar> Drive<T> {
             ),
             startup_accel_step: base.omega(config.startup.accel_m_per_s2 * omega_per_speed * ts),
             handover_omega: base.omega(config.startup.handover_speed_m_per_s * omega_per_speed),
-            handover_tolerance: T::from_f32(0.2),
+            handover_tolerance: T::from_f32(config.handover_speed_tolerance),
             dwell_samples: samples(config.startup.dwell_s),
-            startup_timeout_samples: samples(config.startup.dwell_s).saturating_mul(10).max(samples(1.0)),
+            startup_timeout_samples: samples(config.startup.dwell_s)
+                .saturating_mul(u32::from(config.startup.timeout_dwells))
+                .max(samples(config.startup.min_timeout_s)),
             id_ramp_step: base.current(config.startup.current_a * ts / config.startup.id_ramp_s),
             lock_loss_samples: samples(config.faults.lock_loss_s).max(1),
             current_error: base.current(config.faults.current_error_a),
             current_error_samples: samples(config.faults.current_error_s).max(1),
             at_limit_sq: T::from_f32(0.98 * 0.98),
             reacquire_timeout_samples: samples(config.faults.reacquire_timeout_s).max(1),
-            delay_periods: T::from_f32(1.5),
+            delay_periods: T::from_f32(config.delay_compensation_periods),
             dead_time_ratio: T::from_f32(dead_time_ratio),
             device_drop: base.voltage(device_drop),
             inv_current_band_sqrt: representable(
@@ -464,7 +466,7 @@ impl<T: Scalar> Drive<T> {
                     let kp = ws / plant_gain;
                     Pi::new(
                         T::from_f32(kp * a_per_omega),
-                        T::from_f32(kp * ws / 4.0 * speed_ts * a_per_omega),
+                        T::from_f32(kp * ws * config.speed_zero_ratio * speed_ts * a_per_omega),
                         base.current(-config.current_limit_a),
                         base.current(config.current_limit_a),
                     )
