@@ -435,7 +435,8 @@ mod tests {
         assert_eq!(c.delay_compensation_periods, 1.5);
         assert_eq!((c.startup.timeout_dwells, c.startup.min_timeout_s), (10, 1.0));
         assert_eq!(c.validate(), Ok(()));
-        let bad: [(fn(&mut DriveConfig), &str); 8] = [
+        type Spoil = fn(&mut DriveConfig);
+        let bad: [(Spoil, &str); 8] = [
             (|c| c.speed_zero_ratio = 0.0, "speed_zero_ratio"),
             (|c| c.speed_zero_ratio = 1.5, "speed_zero_ratio"),
             (|c| c.handover_speed_tolerance = 1.0, "handover_speed_tolerance"),

@@ -40,11 +40,13 @@
 //! ramp, a move's acceleration): the estimator's notch leads by the PLL's lag on that
 //! ramp ([`Estimator::set_commanded_acceleration`]).
 
+mod commands;
 mod commissioning;
 mod config;
 mod faults;
 mod positioning;
 
+pub use commands::Commands;
 pub use commissioning::{
     Commissioning, CommissioningConfig, CommissioningError, CommissioningResult, CommissioningStep,
     IF_FREQUENCY_HZ, SWEEP_FRACTIONS, SWEEP_LEVELS, VoltageErrorPoint,
@@ -94,22 +96,6 @@ pub enum DriveState {
     /// its own limits; it ends in `Disabled` with a result, or in `Fault`
     /// ([`Faults::COMMISSIONING`]) with a named error ([`Drive::commissioning_result`]).
     Commissioning,
-}
-
-impl DriveState {
-    /// A small number for telemetry frames (0..=7 in declaration order).
-    pub fn code(self) -> u8 {
-        match self {
-            DriveState::Disabled => 0,
-            DriveState::Calibrating => 1,
-            DriveState::Starting => 2,
-            DriveState::Running => 3,
-            DriveState::Fault => 4,
-            DriveState::Reacquiring => 5,
-            DriveState::LowSpeed => 6,
-            DriveState::Commissioning => 7,
-        }
-    }
 }
 
 /// One period's measurements, in working units.
@@ -238,6 +224,9 @@ pub struct Drive<T> {
     enable_requested: bool,
     /// Speed reference, target and rate-limited (rad/s).
     omega_target: T,
+    /// The m/s reference (f32 bits) `omega_target` was last converted from by
+    /// [`Drive::apply`]; `None` after [`Drive::set_speed_reference`].
+    applied_speed_ref_bits: Option<u32>,
     omega_ref: T,
     /// Filtered speed feedback (rad/s).
     omega_filtered: T,
@@ -498,6 +487,7 @@ impl<T: Scalar> Drive<T> {
             faults: Faults::NONE,
             enable_requested: false,
             omega_target: T::ZERO,
+            applied_speed_ref_bits: None,
             omega_ref: T::ZERO,
             omega_filtered: T::ZERO,
             i_dq_ref: Dq::default(),
@@ -597,6 +587,7 @@ impl<T: Scalar> Drive<T> {
         if omega_e.is_valid() {
             self.omega_target = omega_e;
         }
+        self.applied_speed_ref_bits = None;
     }
 
     /// A linear speed in m/s as the electrical speed reference in working units.
