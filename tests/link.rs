@@ -82,8 +82,8 @@ fn actuation() -> ActuationFrame {
         duty_b: 0.5,
         duty_c: 1.0,
         bridge_enabled: true,
-        state: DriveState::Running,
-        faults: Faults::OVER_CURRENT | Faults::EXTERNAL,
+        state_code: DriveState::Running.code(),
+        fault_bits: (Faults::OVER_CURRENT | Faults::EXTERNAL).bits(),
         estimate: Some(EstimateReport { theta_hat: -1.0, speed: 0.29, psi_alpha: 0.1, psi_beta: -0.2 }),
         stats: LinkStats { malformed: 1, bad_crc: 2, out_of_order: 3 },
     }
@@ -159,8 +159,8 @@ prop_compose! {
                        estimate in proptest::option::of(arb_estimate()),
                        stats in any::<(u16, u16, u16)>()) -> ActuationFrame {
         ActuationFrame {
-            sequence, duty_a, duty_b, duty_c, bridge_enabled, state,
-            faults: Faults::from_bits(faults), estimate,
+            sequence, duty_a, duty_b, duty_c, bridge_enabled, state_code: state.code(),
+            fault_bits: faults, estimate,
             stats: LinkStats { malformed: stats.0, bad_crc: stats.1, out_of_order: stats.2 },
         }
     }
@@ -184,7 +184,7 @@ fn sizes_are_constant_and_as_documented() {
     let mut a = actuation();
     a.estimate = None;
     a.stats = LinkStats::default();
-    a.faults = Faults::NONE;
+    a.fault_bits = Faults::NONE.bits();
     assert_eq!(wire(&a).len(), 45);
 }
 
@@ -801,9 +801,13 @@ fn a_drive_answers_sensor_frames_over_the_link() {
         let got = feed(&mut host_rx, &buf[..n]);
         assert_eq!(got, [Ok(reply)]);
         assert_eq!(reply.sequence, sent.sequence);
-        assert_eq!(reply.state, out.state);
+        assert_eq!(reply.state(), out.state);
         assert_eq!(reply.bridge_enabled, out.bridge_enabled);
-        assert!(matches!(reply.state, DriveState::Calibrating | DriveState::Disabled), "{:?}", reply.state);
+        assert!(
+            matches!(reply.state(), DriveState::Calibrating | DriveState::Disabled),
+            "{:?}",
+            reply.state()
+        );
     }
 }
 

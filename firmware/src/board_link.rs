@@ -124,8 +124,8 @@ pub fn answer<const N: usize>(
     }
     BoardAnswer::Telemetry(BoardTelemetry {
         sequence: command.sequence,
-        state: status.state,
-        faults: status.faults,
+        state_code: status.state.code(),
+        fault_bits: status.faults.bits(),
         bridge_enabled: status.bridge_enabled,
         estimate: status.estimate,
         i_ab_a: status.i_ab_a,
@@ -160,11 +160,7 @@ impl BoardLinkServer {
     /// the control periods run so far (the watchdog's clock).
     pub fn on_byte(&mut self, byte: u8, setpoints: &Setpoints, periods: u32) -> Option<BoardCommand> {
         let command = self.rx.push(byte)?.ok()?;
-        if command.clear_faults {
-            setpoints.request_clear_faults();
-        }
-        setpoints.set_enable(command.enable);
-        setpoints.set_speed_m_per_s(command.speed_ref);
+        setpoints.set_commands(&command.commands());
         self.last_command_periods = periods;
         Some(command)
     }

@@ -16,10 +16,9 @@
 
 use core::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 
-use dcfo::drive::{Drive, DriveState, Faults, Measurements, StepOutput};
+use dcfo::drive::{Commands, Drive, DriveState, Faults, Measurements, StepOutput};
 use dcfo::link::{ActuationFrame, LinkStats};
 use dcfo::num::Scalar;
-use dcfo::transforms::Abc;
 use dcfo::units::Base;
 
 use crate::board::{PhaseSample, PhaseSensors, PowerStage};
@@ -74,6 +73,27 @@ impl Setpoints {
     pub fn speed_m_per_s(&self) -> f32 {
         f32::from_bits(self.speed_m_per_s_bits.load(Ordering::Relaxed))
     }
+
+    /// Stores `commands`: a clear-faults request (kept until the control interrupt takes
+    /// it), enable, and the speed reference (a non-finite one is refused, `false`, and
+    /// the previous reference kept; the rest is stored anyway).
+    pub fn set_commands(&self, commands: &Commands) -> bool {
+        if commands.clear_faults {
+            self.request_clear_faults();
+        }
+        self.set_enable(commands.enable);
+        self.set_speed_m_per_s(commands.speed_ref_m_per_s)
+    }
+
+    /// The commands for this control period (call once per period, from the control
+    /// interrupt): takes the clear-faults request, so it is applied once.
+    pub fn take_commands(&self) -> Commands {
+        Commands {
+            clear_faults: self.clear_faults.swap(false, Ordering::Relaxed),
+            enable: self.enable.load(Ordering::Relaxed),
+            speed_ref_m_per_s: self.speed_m_per_s(),
+        }
+    }
 }
 
 /// The drive and its bridge bookkeeping, owned by the control interrupt.
@@ -81,8 +101,6 @@ impl Setpoints {
 pub struct ControlLoop<T> {
     drive: Drive<T>,
     base: Base,
-    /// Bits of the speed reference last converted (m/s as f32 bits).
-    speed_bits: u32,
     telemetry_every: u16,
     countdown: u16,
     sequence: u16,
@@ -99,7 +117,6 @@ impl<T: Scalar> ControlLoop<T> {
         ControlLoop {
             drive,
             base,
-            speed_bits: 0f32.to_bits(),
             telemetry_every: telemetry_every.max(1),
             countdown: 1,
             sequence: 0,
@@ -156,11 +173,7 @@ impl<T: Scalar> ControlLoop<T> {
         if !(s.i_abc_a.iter().all(|i| i.is_finite()) && s.vdc_v.is_finite()) {
             self.drive.trip(Faults::NON_FINITE);
         }
-        let b = &self.base;
-        let m = Measurements {
-            i_abc: Abc { a: b.current(s.i_abc_a[0]), b: b.current(s.i_abc_a[1]), c: b.current(s.i_abc_a[2]) },
-            vdc: b.voltage(s.vdc_v),
-        };
+        let m = Measurements::from_si(s.i_abc_a, s.vdc_v, &self.base);
         let out = self.drive.step(&m);
         if out.bridge_enabled {
             board.set_duties([out.duties.a.to_f32(), out.duties.b.to_f32(), out.duties.c.to_f32()]);
@@ -173,25 +186,14 @@ impl<T: Scalar> ControlLoop<T> {
     }
 
     fn apply<B: PowerStage>(&mut self, setpoints: &Setpoints, board: &mut B) {
-        if setpoints.clear_faults.swap(false, Ordering::Relaxed) {
+        let commands = setpoints.take_commands();
+        if commands.clear_faults {
             // The board's latch first: if its cause is still there it latches again and
             // the check in `step` trips the drive again in this same period.
             board.clear_hardware_trip();
-            self.drive.clear_faults();
         }
-        if setpoints.enable.load(Ordering::Relaxed) {
-            self.drive.enable();
-        } else {
-            self.drive.disable();
-        }
-        // Converting the reference costs a few float operations (soft-float on an
-        // FPU-less core): only when it changed.
-        let bits = setpoints.speed_m_per_s_bits.load(Ordering::Relaxed);
-        if bits != self.speed_bits {
-            self.speed_bits = bits;
-            let omega = self.drive.omega_from_speed(f32::from_bits(bits));
-            self.drive.set_speed_reference(omega);
-        }
+        // The drive converts the speed reference only when it changed.
+        self.drive.apply(&commands);
     }
 
     /// Telemetry records dropped because the queue was full.

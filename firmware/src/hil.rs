@@ -129,7 +129,7 @@ mod tests {
         // What is queued is exactly one valid answer, to frame 0.
         let got = answers(&mut rx);
         assert_eq!(got.len(), 1);
-        assert_eq!((got[0].sequence, got[0].state), (0, DriveState::Calibrating));
+        assert_eq!((got[0].sequence, got[0].state()), (0, DriveState::Calibrating));
         // With room again the next frame is answered.
         for b in frame(2) {
             s.on_byte(b, &mut tx);

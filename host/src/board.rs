@@ -309,11 +309,11 @@ impl<W: Write> Board<W> {
         let deadline = Instant::now() + Duration::from_secs(2);
         loop {
             let t = self.poll(false, false)?;
-            if matches!(t.state, DriveState::Disabled | DriveState::Fault) && !t.bridge_enabled {
+            if matches!(t.state(), DriveState::Disabled | DriveState::Fault) && !t.bridge_enabled {
                 return Ok(t);
             }
             if Instant::now() > deadline {
-                bail!("the drive still reports {:?} 2 s after the disable command", t.state);
+                bail!("the drive still reports {:?} 2 s after the disable command", t.state());
             }
             std::thread::sleep(Duration::from_millis(10));
         }
@@ -544,47 +544,51 @@ pub fn run_demo(
     let started = Instant::now();
     with_board(target, |board| {
         let first = board.poll(false, false)?;
-        eprintln!("connected: drive {:?}, capture capacity {} samples", first.state, first.capture_capacity);
+        eprintln!(
+            "connected: drive {:?}, capture capacity {} samples",
+            first.state(),
+            first.capture_capacity
+        );
         *board.wish_mut() = Wish { enable: true, speed_m_per_s: speed };
         let mut t = board.poll(true, true)?;
-        let mut best = t.state;
+        let mut best = t.state();
         let deadline = Instant::now() + timeout;
-        while !(t.capture == CaptureState::Done && t.state == DriveState::Running) {
+        while !(t.capture == CaptureState::Done && t.state() == DriveState::Running) {
             if Instant::now() > deadline {
                 let _ = board.disable();
                 bail!(
                     "no finished capture with the drive running within {} s: drive {:?} (faults {}), capture {:?} with {} samples",
                     timeout.as_secs(),
-                    t.state,
-                    fault_names(t.faults),
+                    t.state(),
+                    fault_names(t.faults()),
                     t.capture,
                     t.capture_len
                 );
             }
-            if t.state == DriveState::Fault {
+            if t.state() == DriveState::Fault {
                 let _ = board.disable();
-                bail!("the drive tripped: {}", fault_names(t.faults));
+                bail!("the drive tripped: {}", fault_names(t.faults()));
             }
             if interrupted() {
                 let t = board.disable()?;
                 bail!(
                     "interrupted: drive {:?}, bridge {}",
-                    t.state,
+                    t.state(),
                     if t.bridge_enabled { "on" } else { "off" }
                 );
             }
             std::thread::sleep(POLL_PERIOD);
             t = board.poll(false, false)?;
-            if state_rank(t.state) > state_rank(best) {
-                best = t.state;
+            if state_rank(t.state()) > state_rank(best) {
+                best = t.state();
                 eprintln!(
                     "drive {:?} after {:.2} s simulated",
-                    t.state,
+                    t.state(),
                     f64::from(t.periods) * CONTROL_PERIOD_S
                 );
             }
         }
-        let (state_before, faults, speed_now) = (t.state, t.faults, t.estimate.map(|e| e.1));
+        let (state_before, faults, speed_now) = (t.state(), t.faults(), t.estimate.map(|e| e.1));
         let trips_before = board.round_trips();
         let download_started = Instant::now();
         let samples = board.download_capture(t.capture_len)?;
@@ -594,7 +598,7 @@ pub fn run_demo(
         eprintln!(
             "downloaded {} samples in {download_s:.1} s ({round_trips_per_s:.0} round trips/s); drive {:?}",
             samples.len(),
-            last.state
+            last.state()
         );
         // Through the file, as `dcfo replay` reads it.
         let dir = tempfile::tempdir().context("temporary directory")?;
@@ -630,8 +634,8 @@ pub fn status_line(t: &BoardTelemetry) -> String {
     };
     format!(
         "{:<12} faults {:<10} v {v:<11} ref {:+.3} m/s  i_ab [{:+6.2} {:+6.2}] A  bus {:6.1} V  theta {theta}  bridge {}  capture {:?} {}/{}",
-        format!("{:?}", t.state),
-        fault_names(t.faults),
+        format!("{:?}", t.state()),
+        fault_names(t.faults()),
         t.speed_ref,
         t.i_ab_a[0],
         t.i_ab_a[1],
@@ -810,8 +814,8 @@ mod tests {
     fn answers_are_told_apart_by_length_and_garbage_is_refused() {
         let t = BoardTelemetry {
             sequence: 3,
-            state: DriveState::Running,
-            faults: Faults::NONE,
+            state_code: DriveState::Running.code(),
+            fault_bits: Faults::NONE.bits(),
             bridge_enabled: true,
             estimate: Some((0.5, 0.3)),
             i_ab_a: [1.0, 2.0],
@@ -837,8 +841,8 @@ mod tests {
         let reader = ours.try_clone().unwrap();
         let t = BoardTelemetry {
             sequence: 1,
-            state: DriveState::Disabled,
-            faults: Faults::NONE,
+            state_code: DriveState::Disabled.code(),
+            fault_bits: Faults::NONE.bits(),
             bridge_enabled: false,
             estimate: None,
             i_ab_a: [0.0; 2],

@@ -200,12 +200,12 @@ fn a_silent_host_disables_the_drive_image() {
     println!(
         "after 3 s of silence ({} periods): {:?}, bridge {}",
         t.periods - before,
-        t.state,
+        t.state(),
         t.bridge_enabled
     );
     assert!(t.periods - before > 5000, "the image ran on meanwhile");
-    assert!(matches!(t.state, DriveState::Disabled | DriveState::Calibrating), "{:?}", t.state);
+    assert!(matches!(t.state(), DriveState::Disabled | DriveState::Calibrating), "{:?}", t.state());
     assert!(!t.bridge_enabled);
     let t = board.disable().expect("disabled");
-    assert_eq!(t.state, DriveState::Disabled);
+    assert_eq!(t.state(), DriveState::Disabled);
 }

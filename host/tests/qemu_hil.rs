@@ -101,34 +101,34 @@ fn a_silent_link_switches_the_bridge_off() {
         reply
     };
     // Disabled, then quiet for 1 s: no fault.
-    assert_eq!(send(&mut link, &mut frame).state, DriveState::Disabled);
+    assert_eq!(send(&mut link, &mut frame).state(), DriveState::Disabled);
     std::thread::sleep(Duration::from_secs(1));
     let reply = send(&mut link, &mut frame);
-    assert_eq!((reply.state, reply.faults), (DriveState::Disabled, Faults::NONE));
+    assert_eq!((reply.state(), reply.faults()), (DriveState::Disabled, Faults::NONE));
     // Enabled: current-offset calibration (bridge off, but the drive is active).
     frame.enable = true;
-    assert_eq!(send(&mut link, &mut frame).state, DriveState::Calibrating);
+    assert_eq!(send(&mut link, &mut frame).state(), DriveState::Calibrating);
     let quiet = Instant::now();
     std::thread::sleep(Duration::from_millis(1000));
     let reply = send(&mut link, &mut frame);
     println!(
         "after {:.2} s of silence: {:?}, faults {:?}",
         quiet.elapsed().as_secs_f64(),
-        reply.state,
-        reply.faults
+        reply.state(),
+        reply.faults()
     );
-    assert_eq!(reply.state, DriveState::Fault);
-    assert!(reply.faults.contains(Faults::EXTERNAL) && !reply.bridge_enabled);
+    assert_eq!(reply.state(), DriveState::Fault);
+    assert!(reply.faults().contains(Faults::EXTERNAL) && !reply.bridge_enabled);
     // Short gaps (well under the 0.5 s limit) do not trip it.
     frame.clear_faults = true;
     frame.enable = false;
-    assert_eq!(send(&mut link, &mut frame).state, DriveState::Disabled);
+    assert_eq!(send(&mut link, &mut frame).state(), DriveState::Disabled);
     frame.clear_faults = false;
     frame.enable = true;
     for _ in 0..5 {
         std::thread::sleep(Duration::from_millis(100));
         let reply = send(&mut link, &mut frame);
-        assert_ne!(reply.state, DriveState::Fault, "{:?}", reply.faults);
+        assert_ne!(reply.state(), DriveState::Fault, "{:?}", reply.faults());
     }
 }
 

@@ -34,6 +34,14 @@ pub struct StartupConfig {
     /// begins; otherwise the drive enters `Running` once the estimate tracks, or trips
     /// `LOCK_LOST` after `faults.reacquire_timeout_s`. `None`: always start by I/f.
     pub catch_probe_s: Option<f32>,
+    /// The I/f start trips `LOCK_LOST` when the estimator has not taken over after this
+    /// many dwells at the hand-over speed (count, >= 1; default 10): long enough for a
+    /// slow acquisition, short enough that a stalled mover is not dragged for long.
+    pub timeout_dwells: u16,
+    /// Shortest start-up timeout, s (> 0; default 1 s): with a short (or zero) dwell,
+    /// `timeout_dwells` dwells would not leave the observer and PLL time to converge
+    /// (0.5-1 s from cold, digest §8).
+    pub min_timeout_s: f32,
 }
 
 /// Compensation of the inverter's dead time and device drops, added to the voltage
@@ -90,7 +98,8 @@ pub struct DriveConfig {
     pub speed_loop_divider: u16,
     /// Current-loop bandwidth, rad/s: `kp = L w_c`, `ki = R w_c` (pole-zero cancellation).
     pub current_bandwidth_rad_s: f32,
-    /// Speed-loop crossover, rad/s: `kp = w_s M / K_f`, PI zero at `w_s / 4`. Keep it
+    /// Speed-loop crossover, rad/s: `kp = w_s M / K_f`, PI zero at `speed_zero_ratio *
+    /// w_s`. Keep it
     /// well below `1 / (3 tau_g)`: the DCFO's angle estimate lags transients by its
     /// band-pass group delay `tau_g = 1 / (zeta w)` (22.5 ms at 10 Hz).
     pub speed_bandwidth_rad_s: f32,
@@ -105,6 +114,20 @@ pub struct DriveConfig {
     pub accel_limit_m_per_s2: f32,
     /// Fraction of the linear modulation range `Vdc / sqrt(3)` the current loops may use.
     pub modulation_limit: f32,
+    /// The speed PI's zero as a fraction of the crossover `speed_bandwidth_rad_s`
+    /// (dimensionless, in `(0, 1]`; default 0.25): `ki = kp w_s * speed_zero_ratio`. A
+    /// zero a quarter of the crossover leaves about 76 deg of phase margin against the
+    /// integrator's lag.
+    pub speed_zero_ratio: f32,
+    /// The estimate may be handed to the closed loops (from the I/f start, or from the
+    /// low-speed mode to the position loop) once its speed is within this fraction of
+    /// the reference (dimensionless, in `(0, 1)`; default 0.2): close enough that the
+    /// speed PI, preset to the present current, takes over without a jerk.
+    pub handover_speed_tolerance: f32,
+    /// The inverse Park advances the angle by this many control periods (in `[0, 4]`;
+    /// default 1.5): the duties computed at the carrier valley `t_k` are applied over
+    /// `[t_{k+1}, t_{k+2})`, whose middle is 1.5 periods ahead (module docs, Timing).
+    pub delay_compensation_periods: f32,
     /// Open-loop start-up.
     pub startup: StartupConfig,
     /// Inverter compensation; `None` feeds the command uncompensated.
@@ -226,6 +249,9 @@ impl DriveConfig {
             current_limit_a: 2.0 * rated_peak,
             accel_limit_m_per_s2: 0.5,
             modulation_limit: 0.95,
+            speed_zero_ratio: 0.25,
+            handover_speed_tolerance: 0.2,
+            delay_compensation_periods: 1.5,
             startup: StartupConfig {
                 current_a: rated_peak,
                 handover_current_a: 0.3 * rated_peak,
@@ -234,6 +260,8 @@ impl DriveConfig {
                 dwell_s: 1.0,
                 id_ramp_s: 0.05,
                 catch_probe_s: Some(0.05),
+                timeout_dwells: 10,
+                min_timeout_s: 1.0,
             },
             dead_time_compensation: None,
             faults: FaultConfig {
@@ -301,7 +329,7 @@ impl DriveConfig {
     pub fn validate(&self) -> Result<(), DriveConfigError> {
         let pos = |x: f32| x.is_finite() && x > 0.0;
         let non_neg = |x: f32| x.is_finite() && x >= 0.0;
-        let checks: [(bool, &'static str); 24] = [
+        let checks: [(bool, &'static str); 29] = [
             (pos(self.control_period_s), "control_period_s"),
             (self.speed_loop_divider >= 1, "speed_loop_divider"),
             (pos(self.current_bandwidth_rad_s), "current_bandwidth_rad_s"),
@@ -311,6 +339,15 @@ impl DriveConfig {
             (pos(self.current_limit_a), "current_limit_a"),
             (pos(self.accel_limit_m_per_s2), "accel_limit_m_per_s2"),
             (pos(self.modulation_limit) && self.modulation_limit <= 1.0, "modulation_limit"),
+            (pos(self.speed_zero_ratio) && self.speed_zero_ratio <= 1.0, "speed_zero_ratio"),
+            (
+                pos(self.handover_speed_tolerance) && self.handover_speed_tolerance < 1.0,
+                "handover_speed_tolerance",
+            ),
+            (
+                non_neg(self.delay_compensation_periods) && self.delay_compensation_periods <= 4.0,
+                "delay_compensation_periods",
+            ),
             (pos(self.startup.current_a), "startup.current_a"),
             (
                 pos(self.startup.handover_current_a)
@@ -322,6 +359,8 @@ impl DriveConfig {
             (non_neg(self.startup.dwell_s), "startup.dwell_s"),
             (pos(self.startup.id_ramp_s), "startup.id_ramp_s"),
             (self.startup.catch_probe_s.is_none_or(pos), "startup.catch_probe_s"),
+            (self.startup.timeout_dwells >= 1, "startup.timeout_dwells"),
+            (pos(self.startup.min_timeout_s), "startup.min_timeout_s"),
             (pos(self.faults.overcurrent_a), "faults.overcurrent_a"),
             (pos(self.faults.bus_min_v) && self.faults.bus_max_v > self.faults.bus_min_v, "faults.bus_max_v"),
             (pos(self.faults.lock_loss_s), "faults.lock_loss_s"),
@@ -381,5 +420,36 @@ impl DriveConfig {
             }
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn tuning_fields_default_to_the_former_constants_and_are_validated() {
+        let c = DriveConfig::paper_axis(ObserverKind::Dcfo);
+        assert_eq!(c.speed_zero_ratio, 0.25);
+        assert_eq!(c.handover_speed_tolerance, 0.2);
+        assert_eq!(c.delay_compensation_periods, 1.5);
+        assert_eq!((c.startup.timeout_dwells, c.startup.min_timeout_s), (10, 1.0));
+        assert_eq!(c.validate(), Ok(()));
+        type Spoil = fn(&mut DriveConfig);
+        let bad: [(Spoil, &str); 8] = [
+            (|c| c.speed_zero_ratio = 0.0, "speed_zero_ratio"),
+            (|c| c.speed_zero_ratio = 1.5, "speed_zero_ratio"),
+            (|c| c.handover_speed_tolerance = 1.0, "handover_speed_tolerance"),
+            (|c| c.handover_speed_tolerance = f32::NAN, "handover_speed_tolerance"),
+            (|c| c.delay_compensation_periods = -0.5, "delay_compensation_periods"),
+            (|c| c.delay_compensation_periods = f32::INFINITY, "delay_compensation_periods"),
+            (|c| c.startup.timeout_dwells = 0, "startup.timeout_dwells"),
+            (|c| c.startup.min_timeout_s = 0.0, "startup.min_timeout_s"),
+        ];
+        for (spoil, field) in bad {
+            let mut c = DriveConfig::paper_axis(ObserverKind::Dcfo);
+            spoil(&mut c);
+            assert_eq!(c.validate(), Err(DriveConfigError { field }));
+        }
     }
 }

@@ -3,7 +3,7 @@
 //!
 //! ```text
 //! samples -> offsets -> Clarke -> estimator (observer + PLL) -> Park -> current PIs
-//!         -> inverse Park (angle advanced 1.5 periods) -> dead-time compensation
+//!         -> inverse Park (angle advanced `delay_compensation_periods`, 1.5) -> dead-time compensation
 //!         -> SVPWM -> duties;   speed PI every `speed_loop_divider` periods
 //! ```
 //!
@@ -40,11 +40,13 @@
 //! ramp, a move's acceleration): the estimator's notch leads by the PLL's lag on that
 //! ramp ([`Estimator::set_commanded_acceleration`]).
 
+mod commands;
 mod commissioning;
 mod config;
 mod faults;
 mod positioning;
 
+pub use commands::Commands;
 pub use commissioning::{
     Commissioning, CommissioningConfig, CommissioningError, CommissioningResult, CommissioningStep,
     IF_FREQUENCY_HZ, SWEEP_FRACTIONS, SWEEP_LEVELS, VoltageErrorPoint,
@@ -94,22 +96,6 @@ pub enum DriveState {
     /// its own limits; it ends in `Disabled` with a result, or in `Fault`
     /// ([`Faults::COMMISSIONING`]) with a named error ([`Drive::commissioning_result`]).
     Commissioning,
-}
-
-impl DriveState {
-    /// A small number for telemetry frames (0..=7 in declaration order).
-    pub fn code(self) -> u8 {
-        match self {
-            DriveState::Disabled => 0,
-            DriveState::Calibrating => 1,
-            DriveState::Starting => 2,
-            DriveState::Running => 3,
-            DriveState::Fault => 4,
-            DriveState::Reacquiring => 5,
-            DriveState::LowSpeed => 6,
-            DriveState::Commissioning => 7,
-        }
-    }
 }
 
 /// One period's measurements, in working units.
@@ -238,6 +224,9 @@ pub struct Drive<T> {
     enable_requested: bool,
     /// Speed reference, target and rate-limited (rad/s).
     omega_target: T,
+    /// The m/s reference (f32 bits) `omega_target` was last converted from by
+    /// [`Drive::apply`]; `None` after [`Drive::set_speed_reference`].
+    applied_speed_ref_bits: Option<u32>,
     omega_ref: T,
     /// Filtered speed feedback (rad/s).
     omega_filtered: T,
@@ -323,7 +312,7 @@ impl<T: Scalar> Drive<T> {
         let a_per_omega = base.omega_rad_s / base.current_a;
         let pi_speed = Pi::new(
             T::from_f32(kp_s * a_per_omega),
-            T::from_f32(kp_s * ws / 4.0 * speed_ts * a_per_omega),
+            T::from_f32(kp_s * ws * config.speed_zero_ratio * speed_ts * a_per_omega),
             base.current(-config.current_limit_a),
             base.current(config.current_limit_a),
         )
@@ -360,16 +349,18 @@ impl<T: Scalar> Drive<T> {
             ),
             startup_accel_step: base.omega(config.startup.accel_m_per_s2 * omega_per_speed * ts),
             handover_omega: base.omega(config.startup.handover_speed_m_per_s * omega_per_speed),
-            handover_tolerance: T::from_f32(0.2),
+            handover_tolerance: T::from_f32(config.handover_speed_tolerance),
             dwell_samples: samples(config.startup.dwell_s),
-            startup_timeout_samples: samples(config.startup.dwell_s).saturating_mul(10).max(samples(1.0)),
+            startup_timeout_samples: samples(config.startup.dwell_s)
+                .saturating_mul(u32::from(config.startup.timeout_dwells))
+                .max(samples(config.startup.min_timeout_s)),
             id_ramp_step: base.current(config.startup.current_a * ts / config.startup.id_ramp_s),
             lock_loss_samples: samples(config.faults.lock_loss_s).max(1),
             current_error: base.current(config.faults.current_error_a),
             current_error_samples: samples(config.faults.current_error_s).max(1),
             at_limit_sq: T::from_f32(0.98 * 0.98),
             reacquire_timeout_samples: samples(config.faults.reacquire_timeout_s).max(1),
-            delay_periods: T::from_f32(1.5),
+            delay_periods: T::from_f32(config.delay_compensation_periods),
             dead_time_ratio: T::from_f32(dead_time_ratio),
             device_drop: base.voltage(device_drop),
             inv_current_band_sqrt: representable(
@@ -464,7 +455,7 @@ impl<T: Scalar> Drive<T> {
                     let kp = ws / plant_gain;
                     Pi::new(
                         T::from_f32(kp * a_per_omega),
-                        T::from_f32(kp * ws / 4.0 * speed_ts * a_per_omega),
+                        T::from_f32(kp * ws * config.speed_zero_ratio * speed_ts * a_per_omega),
                         base.current(-config.current_limit_a),
                         base.current(config.current_limit_a),
                     )
@@ -496,6 +487,7 @@ impl<T: Scalar> Drive<T> {
             faults: Faults::NONE,
             enable_requested: false,
             omega_target: T::ZERO,
+            applied_speed_ref_bits: None,
             omega_ref: T::ZERO,
             omega_filtered: T::ZERO,
             i_dq_ref: Dq::default(),
@@ -595,6 +587,7 @@ impl<T: Scalar> Drive<T> {
         if omega_e.is_valid() {
             self.omega_target = omega_e;
         }
+        self.applied_speed_ref_bits = None;
     }
 
     /// A linear speed in m/s as the electrical speed reference in working units.

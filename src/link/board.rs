@@ -25,8 +25,8 @@
 //! |---|---|---|
 //! | 0 | u8 | protocol version |
 //! | 1 | u16 | sequence number of the command answered |
-//! | 3 | u8 | drive state ([`DriveState::code`]) |
-//! | 4 | u16 | fault bits ([`Faults::bits`]) |
+//! | 3 | u8 | drive state (code, `0..`[`STATE_CODES`](super::STATE_CODES)) |
+//! | 4 | u16 | fault bits (the drive's `Faults::bits`) |
 //! | 6 | u8 | flags ([`ACTUATION_FLAG_BRIDGE_ENABLED`], [`ACTUATION_FLAG_ESTIMATE_VALID`]) |
 //! | 7, 11 | f32 | θ̂ (electrical rad), speed estimate (m/s); zero without an estimate |
 //! | 15, 19 | f32 | measured i_α, i_β (A) |
@@ -46,12 +46,12 @@
 //! | 7 | u8 | samples in this chunk, 0 to [`CAPTURE_CHUNK_SAMPLES`] (0: past the end) |
 //! | 8 | 6 × 36 B | [`CaptureSample::to_le_bytes`]; unused slots zero |
 
-use super::{
-    ACTUATION_FLAG_BRIDGE_ENABLED, ACTUATION_FLAG_ESTIMATE_VALID, CRC_LEN, EncodeError, Frame, LinkError,
-    PROTOCOL_VERSION, Reader, Writer, state_from_code, wire_len,
+use super::codec::{EncodeError, LinkError, Reader, Writer};
+use super::frame::{
+    ACTUATION_FLAG_BRIDGE_ENABLED, ACTUATION_FLAG_ESTIMATE_VALID, CRC_LEN, Frame, PROTOCOL_VERSION,
+    state_code_ok, wire_len,
 };
 use crate::capture::{CaptureSample, CaptureState};
-use crate::drive::{DriveState, Faults};
 
 /// [`BoardCommand`] flag: the drive should run (clear: disable).
 pub const BOARD_FLAG_ENABLE: u8 = 1 << 0;
@@ -147,10 +147,11 @@ impl Frame for BoardCommand {
 pub struct BoardTelemetry {
     /// Sequence number of the command answered.
     pub sequence: u16,
-    /// Drive state.
-    pub state: DriveState,
-    /// Latched faults.
-    pub faults: Faults,
+    /// Drive state, as its code `0..`[`STATE_CODES`](super::STATE_CODES) (the drive adapter converts:
+    /// `BoardTelemetry::state`).
+    pub state_code: u8,
+    /// Latched faults, as bits (the drive adapter converts: `BoardTelemetry::faults`).
+    pub fault_bits: u16,
     /// The bridge is switching.
     pub bridge_enabled: bool,
     /// Estimated angle θ̂ (electrical rad) and speed (m/s), `None` without an estimate.
@@ -186,7 +187,7 @@ impl Frame for BoardTelemetry {
     fn write_payload(&self, payload: &mut [u8]) -> Result<(), EncodeError> {
         let (theta, speed) = self.estimate.unwrap_or((0.0, 0.0));
         let floats = [theta, speed, self.i_ab_a[0], self.i_ab_a[1], self.vdc_v, self.speed_ref];
-        if !floats.iter().all(|x| x.is_finite()) {
+        if !floats.iter().all(|x| x.is_finite()) || !state_code_ok(self.state_code) {
             return Err(EncodeError::InvalidValue);
         }
         let mut flags = 0;
@@ -199,8 +200,8 @@ impl Frame for BoardTelemetry {
         let mut w = Writer::new(payload);
         w.u8(PROTOCOL_VERSION);
         w.u16(self.sequence);
-        w.u8(self.state.code());
-        w.u16(self.faults.bits());
+        w.u8(self.state_code);
+        w.u16(self.fault_bits);
         w.u8(flags);
         for x in floats {
             w.f32(x);
@@ -216,8 +217,11 @@ impl Frame for BoardTelemetry {
         let mut r = Reader::new(payload, Self::PAYLOAD_LEN)?;
         r.version()?;
         let sequence = r.u16();
-        let state = state_from_code(r.u8()).ok_or(LinkError::Value)?;
-        let faults = Faults::from_bits(r.u16());
+        let state_code = r.u8();
+        if !state_code_ok(state_code) {
+            return Err(LinkError::Value);
+        }
+        let fault_bits = r.u16();
         let flags = r.u8();
         if flags & !(ACTUATION_FLAG_BRIDGE_ENABLED | ACTUATION_FLAG_ESTIMATE_VALID) != 0 {
             return Err(LinkError::Flags);
@@ -242,8 +246,8 @@ impl Frame for BoardTelemetry {
         }
         Ok(BoardTelemetry {
             sequence,
-            state,
-            faults,
+            state_code,
+            fault_bits,
             bridge_enabled: flags & ACTUATION_FLAG_BRIDGE_ENABLED != 0,
             estimate,
             i_ab_a,
@@ -362,8 +366,8 @@ mod tests {
         assert_eq!(round_trip(c), c);
         let t = BoardTelemetry {
             sequence: 7,
-            state: DriveState::Running,
-            faults: Faults::LOCK_LOST,
+            state_code: 3,
+            fault_bits: 1 << 5,
             bridge_enabled: true,
             estimate: Some((1.5, 0.29)),
             i_ab_a: [0.1, -0.2],

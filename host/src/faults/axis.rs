@@ -347,7 +347,7 @@ impl Axis {
                 None => (f64::NAN, false),
             },
             (None, Some(f)) => match f.estimate {
-                Some(e) => (f64::from(e.theta_hat), f.state == DriveState::Running),
+                Some(e) => (f64::from(e.theta_hat), f.state() == DriveState::Running),
                 None => (f64::NAN, false),
             },
             (None, None) => (f64::NAN, false),

@@ -29,14 +29,12 @@ impl SensorReading {
     /// This reading as the drive takes it: phase currents (A) and bus voltage (V) in
     /// f32, SI.
     pub fn measurements(&self) -> dcfo::drive::Measurements<f32> {
-        dcfo::drive::Measurements {
-            i_abc: dcfo::transforms::Abc {
-                a: self.i_abc_a[0] as f32,
-                b: self.i_abc_a[1] as f32,
-                c: self.i_abc_a[2] as f32,
-            },
-            vdc: self.vdc_v as f32,
-        }
+        let [a, b, c] = self.i_abc_a;
+        dcfo::drive::Measurements::from_si(
+            [a as f32, b as f32, c as f32],
+            self.vdc_v as f32,
+            &dcfo::units::Base::SI,
+        )
     }
 }
 

@@ -305,12 +305,12 @@ pub fn run_with(
         pending_on = f.bridge_enabled;
         pending =
             if f.bridge_enabled { [f.duty_a as f64, f.duty_b as f64, f.duty_c as f64] } else { [0.5; 3] };
-        faults = f.faults;
-        if f.state == DriveState::Running && handover_s.is_none() {
+        faults = f.faults();
+        if f.state() == DriveState::Running && handover_s.is_none() {
             handover_s = Some(t);
         }
         let Some(e) = f.estimate else { continue };
-        let v_ref = if f.state == DriveState::Running { v_ref_target } else { f64::NAN };
+        let v_ref = if f.state() == DriveState::Running { v_ref_target } else { f64::NAN };
         let locked = step.detail.and_then(|out| out.estimate).map(|est| est.locked);
         let alpha_e_ref = step.detail.map_or(f64::NAN, |out| f64::from(out.alpha_e_ref));
         let (observer_u, observer_i, i_dq, i_dq_ref, theta_hat, psi_hat) = match step.detail {
@@ -361,7 +361,7 @@ pub fn run_with(
             i_q_ref: i_dq_ref[1],
             i_q: i_dq[1],
             v_ref,
-            state: f.state.code(),
+            state: f.state().code(),
             locked,
             alpha_e_ref,
         });

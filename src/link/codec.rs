@@ -1,0 +1,317 @@
+//! The codec: a frame's payload and CRC-16 in COBS with a `0x00` delimiter
+//! ([`encode`], [`decode_raw`], [`decode_in_place`]), the streaming [`Receiver`], the
+//! errors, and the little-endian field writer and reader the frame layouts use.
+
+use core::marker::PhantomData;
+
+use crc::{CRC_16_IBM_3740, Crc};
+
+use super::board;
+use super::cobs;
+use super::frame::{ActuationFrame, Frame, PROTOCOL_VERSION};
+use super::session::LinkStats;
+
+/// Capacity of a [`Receiver`]'s buffer (bytes): the largest COBS-encoded frame, the
+/// [`ActuationFrame`], without its delimiter. A longer frame is reported as
+/// [`LinkError::Overflow`].
+pub const RX_CAPACITY: usize = ActuationFrame::WIRE_LEN - 1;
+
+/// The largest raw frame (payload + CRC, bytes): the board link's capture chunk.
+pub(super) const MAX_RAW_LEN: usize = board::CaptureChunk::RAW_LEN;
+
+pub(super) const CRC16: Crc<u16> = Crc::<u16>::new(&CRC_16_IBM_3740);
+
+// COBS adds exactly one byte only below 254 raw bytes.
+const _: () = assert!(MAX_RAW_LEN < 254);
+
+/// Why a received frame was dropped.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum LinkError {
+    /// More bytes than [`RX_CAPACITY`] before a delimiter (the rest is skipped up to
+    /// the next `0x00`).
+    Overflow,
+    /// Invalid COBS encoding.
+    Cobs,
+    /// The decoded frame does not have the frame type's raw length.
+    Length,
+    /// The CRC does not match the payload.
+    Crc,
+    /// Unknown protocol version.
+    Version,
+    /// Unknown flag bits set.
+    Flags,
+    /// A value out of its range: a non-finite `f32`, a duty outside `[0, 1]`, an
+    /// unknown drive-state code, or estimate bytes sent without an estimate.
+    Value,
+}
+
+impl LinkError {
+    /// `true` for [`LinkError::Crc`] (counted as bad CRC); every other error counts as
+    /// malformed.
+    pub const fn is_crc(self) -> bool {
+        matches!(self, LinkError::Crc)
+    }
+}
+
+impl core::fmt::Display for LinkError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str(match self {
+            LinkError::Overflow => "frame longer than the receive buffer",
+            LinkError::Cobs => "invalid COBS encoding",
+            LinkError::Length => "wrong frame length",
+            LinkError::Crc => "CRC mismatch",
+            LinkError::Version => "unknown protocol version",
+            LinkError::Flags => "unknown flag bits",
+            LinkError::Value => "value out of range",
+        })
+    }
+}
+
+/// Why a frame could not be encoded.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum EncodeError {
+    /// The output buffer is shorter than `needed` bytes (the frame's `WIRE_LEN`).
+    BufferTooSmall {
+        /// Bytes the frame needs on the wire.
+        needed: usize,
+    },
+    /// A field the receiver would reject: a non-finite `f32` or a duty outside `[0, 1]`.
+    InvalidValue,
+}
+
+impl core::fmt::Display for EncodeError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            EncodeError::BufferTooSmall { needed } => write!(f, "output buffer needs {needed} bytes"),
+            EncodeError::InvalidValue => f.write_str("value out of range"),
+        }
+    }
+}
+
+/// Writes little-endian fields in sequence; never panics, notes a short buffer.
+pub(super) struct Writer<'a> {
+    buf: &'a mut [u8],
+    pos: usize,
+    fits: bool,
+}
+
+impl<'a> Writer<'a> {
+    pub(super) fn new(buf: &'a mut [u8]) -> Self {
+        Writer { buf, pos: 0, fits: true }
+    }
+    pub(super) fn bytes(&mut self, bytes: &[u8]) {
+        let end = self.pos.saturating_add(bytes.len());
+        match self.buf.get_mut(self.pos..end) {
+            // Element by element: the lengths are equal, but `copy_from_slice`'s length
+            // check is a panic path the optimiser cannot always remove (`.ci/no-panic`).
+            Some(dst) => dst.iter_mut().zip(bytes).for_each(|(d, s)| *d = *s),
+            None => self.fits = false,
+        }
+        self.pos = end;
+    }
+    pub(super) fn u8(&mut self, x: u8) {
+        self.bytes(&[x]);
+    }
+    pub(super) fn u16(&mut self, x: u16) {
+        self.bytes(&x.to_le_bytes());
+    }
+    pub(super) fn u32(&mut self, x: u32) {
+        self.bytes(&x.to_le_bytes());
+    }
+    pub(super) fn f32(&mut self, x: f32) {
+        self.bytes(&x.to_le_bytes());
+    }
+    /// `Ok` when everything fit and exactly `len` bytes were written.
+    pub(super) fn finish(self, len: usize) -> Result<(), EncodeError> {
+        if self.fits && self.pos == len && self.buf.len() == len {
+            Ok(())
+        } else {
+            Err(EncodeError::BufferTooSmall { needed: len })
+        }
+    }
+}
+
+/// Reads little-endian fields from a payload whose length was checked. Reads past the
+/// end yield zeros (cannot happen after the check).
+pub(super) struct Reader<'a> {
+    buf: &'a [u8],
+    pos: usize,
+}
+
+impl<'a> Reader<'a> {
+    /// A reader over `payload`, which must be exactly `len` bytes.
+    pub(super) fn new(payload: &'a [u8], len: usize) -> Result<Self, LinkError> {
+        if payload.len() == len { Ok(Reader { buf: payload, pos: 0 }) } else { Err(LinkError::Length) }
+    }
+    /// Reads the version byte and checks it.
+    pub(super) fn version(&mut self) -> Result<(), LinkError> {
+        if self.u8() == PROTOCOL_VERSION { Ok(()) } else { Err(LinkError::Version) }
+    }
+    pub(super) fn bytes<const N: usize>(&mut self) -> [u8; N] {
+        let end = self.pos.saturating_add(N);
+        let out = self.buf.get(self.pos..end).and_then(|s| <[u8; N]>::try_from(s).ok()).unwrap_or([0; N]);
+        self.pos = end;
+        out
+    }
+    pub(super) fn u8(&mut self) -> u8 {
+        let [b] = self.bytes::<1>();
+        b
+    }
+    pub(super) fn u16(&mut self) -> u16 {
+        u16::from_le_bytes(self.bytes())
+    }
+    pub(super) fn u32(&mut self) -> u32 {
+        u32::from_le_bytes(self.bytes())
+    }
+    pub(super) fn finite_f32(&mut self) -> Result<f32, LinkError> {
+        let x = f32::from_le_bytes(self.bytes());
+        if x.is_finite() { Ok(x) } else { Err(LinkError::Value) }
+    }
+    pub(super) fn duty(&mut self) -> Result<f32, LinkError> {
+        let x = f32::from_le_bytes(self.bytes());
+        if super::frame::duty_ok(x) { Ok(x) } else { Err(LinkError::Value) }
+    }
+}
+
+/// Encodes `frame` into `out`: COBS(payload ‖ CRC) followed by the `0x00` delimiter.
+/// Returns the bytes written, always `F::WIRE_LEN`.
+///
+/// # Errors
+/// [`EncodeError::BufferTooSmall`] when `out` is shorter than `F::WIRE_LEN`
+/// ([`SensorFrame::WIRE_LEN`](super::SensorFrame::WIRE_LEN), [`ActuationFrame::WIRE_LEN`]);
+/// [`EncodeError::InvalidValue`] for a field the receiver would reject.
+pub fn encode<F: Frame>(frame: &F, out: &mut [u8]) -> Result<usize, EncodeError> {
+    let too_small = EncodeError::BufferTooSmall { needed: F::WIRE_LEN };
+    if out.len() < F::WIRE_LEN {
+        return Err(too_small);
+    }
+    let mut raw_buf = [0u8; MAX_RAW_LEN];
+    let raw = raw_buf.get_mut(..F::RAW_LEN).ok_or(too_small)?;
+    let (payload, crc) = raw.split_at_mut_checked(F::PAYLOAD_LEN).ok_or(too_small)?;
+    frame.write_payload(payload)?;
+    let sum = CRC16.checksum(payload).to_le_bytes();
+    if crc.len() != sum.len() {
+        return Err(too_small);
+    }
+    crc.copy_from_slice(&sum);
+    let n = cobs::encode(raw, out).ok_or(too_small)?;
+    *out.get_mut(n).ok_or(too_small)? = 0;
+    Ok(n + 1)
+}
+
+/// Decodes one raw frame (COBS already removed): length, CRC, then the payload.
+///
+/// # Errors
+/// [`LinkError::Length`], [`LinkError::Crc`], [`LinkError::Version`],
+/// [`LinkError::Flags`] or [`LinkError::Value`], checked in that order.
+pub fn decode_raw<F: Frame>(raw: &[u8]) -> Result<F, LinkError> {
+    if raw.len() != F::RAW_LEN {
+        return Err(LinkError::Length);
+    }
+    let (payload, crc) = raw.split_at_checked(F::PAYLOAD_LEN).ok_or(LinkError::Length)?;
+    let sent = u16::from_le_bytes(<[u8; 2]>::try_from(crc).map_err(|_| LinkError::Length)?);
+    if CRC16.checksum(payload) != sent {
+        return Err(LinkError::Crc);
+    }
+    F::read_payload(payload)
+}
+
+/// Decodes one COBS-encoded frame (without its `0x00` delimiter) in place: `encoded`
+/// is overwritten with the raw frame.
+///
+/// # Errors
+/// [`LinkError::Cobs`] for an invalid encoding, then as [`decode_raw`].
+pub fn decode_in_place<F: Frame>(encoded: &mut [u8]) -> Result<F, LinkError> {
+    let n = cobs::decode_in_place(encoded).ok_or(LinkError::Cobs)?;
+    decode_raw(encoded.get(..n).ok_or(LinkError::Cobs)?)
+}
+
+/// A streaming receiver for frames of type `F`, fed one byte at a time (e.g. from the
+/// UART interrupt). No allocation, no panic; the work per byte is constant except at a
+/// delimiter, where decoding takes at most [`RX_CAPACITY`] bytes' worth (a few
+/// microseconds on a Cortex-M4).
+#[derive(Clone, Debug)]
+pub struct Receiver<F> {
+    buf: [u8; RX_CAPACITY],
+    len: usize,
+    /// Skipping to the next delimiter after an overflow.
+    skipping: bool,
+    stats: LinkStats,
+    frame: PhantomData<fn() -> F>,
+}
+
+impl<F: Frame> Default for Receiver<F> {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl<F: Frame> Receiver<F> {
+    /// An empty receiver with zero counts.
+    pub const fn new() -> Self {
+        Receiver {
+            buf: [0; RX_CAPACITY],
+            len: 0,
+            skipping: false,
+            stats: LinkStats { malformed: 0, bad_crc: 0, out_of_order: 0 },
+            frame: PhantomData,
+        }
+    }
+
+    /// Takes one byte from the line. Returns `None` while a frame is incomplete (and for
+    /// empty frames), `Some(Ok(frame))` at the delimiter of a good frame, and
+    /// `Some(Err(_))` for a dropped frame, which is also counted in
+    /// [`stats`](Self::stats). An overflow is reported at the byte that overflows; the
+    /// rest of that frame is skipped silently up to the next `0x00`.
+    pub fn push(&mut self, byte: u8) -> Option<Result<F, LinkError>> {
+        if byte == 0 {
+            let len = core::mem::take(&mut self.len);
+            if core::mem::take(&mut self.skipping) || len == 0 {
+                return None;
+            }
+            let result = match self.buf.get_mut(..len) {
+                Some(encoded) => decode_in_place::<F>(encoded),
+                None => Err(LinkError::Overflow),
+            };
+            if let Err(e) = result {
+                self.stats.record(e);
+            }
+            return Some(result);
+        }
+        if self.skipping {
+            return None;
+        }
+        match self.buf.get_mut(self.len) {
+            Some(slot) => {
+                *slot = byte;
+                self.len += 1;
+                None
+            }
+            None => {
+                self.len = 0;
+                self.skipping = true;
+                self.stats.record(LinkError::Overflow);
+                Some(Err(LinkError::Overflow))
+            }
+        }
+    }
+
+    /// The counts of dropped frames.
+    pub fn stats(&self) -> LinkStats {
+        self.stats
+    }
+
+    /// The counts, for adding frames dropped for their sequence number
+    /// ([`LinkStats::record_out_of_order`]).
+    pub fn stats_mut(&mut self) -> &mut LinkStats {
+        &mut self.stats
+    }
+
+    /// Forgets a partial frame (the counts are kept).
+    pub fn reset(&mut self) {
+        self.len = 0;
+        self.skipping = false;
+    }
+}

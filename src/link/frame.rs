@@ -1,0 +1,297 @@
+//! The frames: protocol constants, the [`Frame`] trait and each frame type's payload
+//! layout (the tables in the [module docs](super)). Plain data and codes only: the drive
+//! types are the [drive adapter's](super::drive_adapter) business.
+
+use super::codec::{EncodeError, LinkError, Reader, Writer};
+use super::session::LinkStats;
+
+/// The protocol version carried in byte 0 of every frame; any other value is rejected.
+pub const PROTOCOL_VERSION: u8 = 1;
+
+/// Bytes of the CRC after the payload (CRC-16, little-endian).
+pub const CRC_LEN: usize = 2;
+
+/// [`SensorFrame`] command flag: the drive should run (clear: disable).
+pub const SENSOR_FLAG_ENABLE: u8 = 1 << 0;
+/// [`SensorFrame`] command flag: clear latched faults (hold it for one frame).
+pub const SENSOR_FLAG_CLEAR_FAULTS: u8 = 1 << 1;
+const SENSOR_FLAGS_KNOWN: u8 = SENSOR_FLAG_ENABLE | SENSOR_FLAG_CLEAR_FAULTS;
+
+/// [`ActuationFrame`] flag: the bridge is enabled.
+pub const ACTUATION_FLAG_BRIDGE_ENABLED: u8 = 1 << 0;
+/// [`ActuationFrame`] flag: the estimate fields hold an estimate.
+pub const ACTUATION_FLAG_ESTIMATE_VALID: u8 = 1 << 1;
+const ACTUATION_FLAGS_KNOWN: u8 = ACTUATION_FLAG_BRIDGE_ENABLED | ACTUATION_FLAG_ESTIMATE_VALID;
+
+/// Drive-state codes the frames carry are `0..STATE_CODES` (8: disabled, calibrating,
+/// starting, running, fault, reacquiring, low speed, commissioning; the drive's
+/// `DriveState::code`); any other code is rejected as [`LinkError::Value`].
+pub const STATE_CODES: u8 = 8;
+
+/// Wire length of a raw frame shorter than 254 bytes: one COBS overhead byte and the
+/// delimiter.
+pub(super) const fn wire_len(raw_len: usize) -> usize {
+    raw_len + 2
+}
+
+mod private {
+    pub trait Sealed {}
+    impl Sealed for super::SensorFrame {}
+    impl Sealed for super::ActuationFrame {}
+    impl Sealed for super::super::board::BoardCommand {}
+    impl Sealed for super::super::board::BoardTelemetry {}
+    impl Sealed for super::super::board::CaptureChunk {}
+}
+
+/// A frame type of the link: [`SensorFrame`], [`ActuationFrame`] or one of the board
+/// link's (sealed).
+pub trait Frame: private::Sealed + Sized {
+    /// Payload length (bytes), before the CRC.
+    const PAYLOAD_LEN: usize;
+    /// Raw length (bytes): payload and CRC.
+    const RAW_LEN: usize = Self::PAYLOAD_LEN + CRC_LEN;
+    /// Length on the wire (bytes): COBS-encoded raw frame and the `0x00` delimiter.
+    const WIRE_LEN: usize = wire_len(Self::RAW_LEN);
+
+    /// Writes the payload into `payload` (exactly [`Frame::PAYLOAD_LEN`] bytes).
+    fn write_payload(&self, payload: &mut [u8]) -> Result<(), EncodeError>;
+
+    /// Reads a payload of exactly [`Frame::PAYLOAD_LEN`] bytes whose CRC was checked.
+    fn read_payload(payload: &[u8]) -> Result<Self, LinkError>;
+}
+
+/// Host → controller, once per PWM period: the plant's sensors and the commands.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct SensorFrame {
+    /// Sequence number, incremented (wrapping) by the host for each frame.
+    pub sequence: u16,
+    /// Phase-a current (A), finite.
+    pub i_a: f32,
+    /// Phase-b current (A), finite.
+    pub i_b: f32,
+    /// Phase-c current (A), finite.
+    pub i_c: f32,
+    /// DC-bus voltage (V), finite.
+    pub vdc: f32,
+    /// Speed reference (m/s), finite.
+    pub speed_ref: f32,
+    /// Command: the drive should run; clear: disable (bridge off).
+    pub enable: bool,
+    /// Command: clear latched faults; send it for one frame.
+    pub clear_faults: bool,
+}
+
+impl SensorFrame {
+    /// Payload length (bytes).
+    pub const PAYLOAD_LEN: usize = 24;
+    /// Raw length (bytes): payload and CRC.
+    pub const RAW_LEN: usize = Self::PAYLOAD_LEN + CRC_LEN;
+    /// Length on the wire (bytes).
+    pub const WIRE_LEN: usize = wire_len(Self::RAW_LEN);
+
+    fn flags(&self) -> u8 {
+        let mut flags = 0;
+        if self.enable {
+            flags |= SENSOR_FLAG_ENABLE;
+        }
+        if self.clear_faults {
+            flags |= SENSOR_FLAG_CLEAR_FAULTS;
+        }
+        flags
+    }
+}
+
+impl Frame for SensorFrame {
+    const PAYLOAD_LEN: usize = SensorFrame::PAYLOAD_LEN;
+
+    fn write_payload(&self, payload: &mut [u8]) -> Result<(), EncodeError> {
+        let floats = [self.i_a, self.i_b, self.i_c, self.vdc, self.speed_ref];
+        if !floats.iter().all(|x| x.is_finite()) {
+            return Err(EncodeError::InvalidValue);
+        }
+        let mut w = Writer::new(payload);
+        w.u8(PROTOCOL_VERSION);
+        w.u16(self.sequence);
+        for x in floats {
+            w.f32(x);
+        }
+        w.u8(self.flags());
+        w.finish(Self::PAYLOAD_LEN)
+    }
+
+    fn read_payload(payload: &[u8]) -> Result<Self, LinkError> {
+        let mut r = Reader::new(payload, Self::PAYLOAD_LEN)?;
+        r.version()?;
+        let sequence = r.u16();
+        let i_a = r.finite_f32()?;
+        let i_b = r.finite_f32()?;
+        let i_c = r.finite_f32()?;
+        let vdc = r.finite_f32()?;
+        let speed_ref = r.finite_f32()?;
+        let flags = r.u8();
+        if flags & !SENSOR_FLAGS_KNOWN != 0 {
+            return Err(LinkError::Flags);
+        }
+        Ok(SensorFrame {
+            sequence,
+            i_a,
+            i_b,
+            i_c,
+            vdc,
+            speed_ref,
+            enable: flags & SENSOR_FLAG_ENABLE != 0,
+            clear_faults: flags & SENSOR_FLAG_CLEAR_FAULTS != 0,
+        })
+    }
+}
+
+/// The estimator's output as sent in an [`ActuationFrame`] (SI units).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct EstimateReport {
+    /// Estimated electrical angle θ̂ (rad, `[-π, π)` from the drive), finite.
+    pub theta_hat: f32,
+    /// Estimated linear speed (m/s), finite.
+    pub speed: f32,
+    /// Estimated mover flux, α component (Wb), finite.
+    pub psi_alpha: f32,
+    /// Estimated mover flux, β component (Wb), finite.
+    pub psi_beta: f32,
+}
+
+impl EstimateReport {
+    pub(super) fn is_finite(&self) -> bool {
+        [self.theta_hat, self.speed, self.psi_alpha, self.psi_beta].iter().all(|x| x.is_finite())
+    }
+}
+
+/// Controller → host, the answer to one [`SensorFrame`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct ActuationFrame {
+    /// Sequence number of the sensor frame this answers.
+    pub sequence: u16,
+    /// Phase-a upper-switch duty for the next period, `[0, 1]`.
+    pub duty_a: f32,
+    /// Phase-b upper-switch duty for the next period, `[0, 1]`.
+    pub duty_b: f32,
+    /// Phase-c upper-switch duty for the next period, `[0, 1]`.
+    pub duty_c: f32,
+    /// `false`: every switch must be off.
+    pub bridge_enabled: bool,
+    /// The drive's state after the step: its code, `0..`[`STATE_CODES`] (the drive
+    /// adapter converts: `ActuationFrame::state`).
+    pub state_code: u8,
+    /// Latched faults as bits (unknown bits are kept; the drive adapter converts:
+    /// `ActuationFrame::faults`).
+    pub fault_bits: u16,
+    /// The estimator's output, `None` while it is not running.
+    pub estimate: Option<EstimateReport>,
+    /// The controller's counts of dropped frames.
+    pub stats: LinkStats,
+}
+
+impl ActuationFrame {
+    /// Payload length (bytes).
+    pub const PAYLOAD_LEN: usize = 41;
+    /// Raw length (bytes): payload and CRC.
+    pub const RAW_LEN: usize = Self::PAYLOAD_LEN + CRC_LEN;
+    /// Length on the wire (bytes).
+    pub const WIRE_LEN: usize = wire_len(Self::RAW_LEN);
+
+    fn flags(&self) -> u8 {
+        let mut flags = 0;
+        if self.bridge_enabled {
+            flags |= ACTUATION_FLAG_BRIDGE_ENABLED;
+        }
+        if self.estimate.is_some() {
+            flags |= ACTUATION_FLAG_ESTIMATE_VALID;
+        }
+        flags
+    }
+}
+
+pub(super) fn duty_ok(d: f32) -> bool {
+    (0.0..=1.0).contains(&d)
+}
+
+/// `true` for a known drive-state code (`0..STATE_CODES`).
+pub(super) const fn state_code_ok(code: u8) -> bool {
+    code < STATE_CODES
+}
+
+impl Frame for ActuationFrame {
+    const PAYLOAD_LEN: usize = ActuationFrame::PAYLOAD_LEN;
+
+    fn write_payload(&self, payload: &mut [u8]) -> Result<(), EncodeError> {
+        let duties = [self.duty_a, self.duty_b, self.duty_c];
+        if !duties.iter().all(|&d| duty_ok(d))
+            || !self.estimate.is_none_or(|e| e.is_finite())
+            || !state_code_ok(self.state_code)
+        {
+            return Err(EncodeError::InvalidValue);
+        }
+        let e = self.estimate.unwrap_or_default();
+        let mut w = Writer::new(payload);
+        w.u8(PROTOCOL_VERSION);
+        w.u16(self.sequence);
+        for d in duties {
+            w.f32(d);
+        }
+        w.u8(self.flags());
+        w.u8(self.state_code);
+        w.u16(self.fault_bits);
+        for x in [e.theta_hat, e.speed, e.psi_alpha, e.psi_beta] {
+            w.f32(x);
+        }
+        w.u16(self.stats.malformed);
+        w.u16(self.stats.bad_crc);
+        w.u16(self.stats.out_of_order);
+        w.finish(Self::PAYLOAD_LEN)
+    }
+
+    fn read_payload(payload: &[u8]) -> Result<Self, LinkError> {
+        let mut r = Reader::new(payload, Self::PAYLOAD_LEN)?;
+        r.version()?;
+        let sequence = r.u16();
+        let duty_a = r.duty()?;
+        let duty_b = r.duty()?;
+        let duty_c = r.duty()?;
+        let flags = r.u8();
+        if flags & !ACTUATION_FLAGS_KNOWN != 0 {
+            return Err(LinkError::Flags);
+        }
+        let state_code = r.u8();
+        if !state_code_ok(state_code) {
+            return Err(LinkError::Value);
+        }
+        let fault_bits = r.u16();
+        let estimate_bytes = r.bytes::<16>();
+        let estimate = if flags & ACTUATION_FLAG_ESTIMATE_VALID != 0 {
+            let mut e = Reader::new(&estimate_bytes, 16)?;
+            Some(EstimateReport {
+                theta_hat: e.finite_f32()?,
+                speed: e.finite_f32()?,
+                psi_alpha: e.finite_f32()?,
+                psi_beta: e.finite_f32()?,
+            })
+        } else if estimate_bytes.iter().any(|&b| b != 0) {
+            return Err(LinkError::Value);
+        } else {
+            None
+        };
+        let stats = LinkStats { malformed: r.u16(), bad_crc: r.u16(), out_of_order: r.u16() };
+        Ok(ActuationFrame {
+            sequence,
+            duty_a,
+            duty_b,
+            duty_c,
+            bridge_enabled: flags & ACTUATION_FLAG_BRIDGE_ENABLED != 0,
+            state_code,
+            fault_bits,
+            estimate,
+            stats,
+        })
+    }
+}

@@ -1,0 +1,169 @@
+//! The hardware-in-the-loop serial link: a versioned pair of frames for a byte stream
+//! (UART), shared by the firmware and the host.
+//!
+//! The link runs in lock-step. Each PWM period the host (the simulated plant) sends a
+//! [`SensorFrame`]; the controller runs one [`Drive::step`](crate::drive::Drive::step) and answers with an
+//! [`ActuationFrame`] that echoes the sensor frame's sequence number.
+//!
+//! ## Framing
+//! `frame = COBS(payload ‖ CRC) ‖ 0x00`. COBS removes every `0x00` from the frame, so
+//! `0x00` delimits frames and a receiver resynchronises on the next one after any
+//! corruption. Empty frames (two `0x00` in a row) are ignored, so a sender may also put a
+//! `0x00` *before* each frame: then noise on the idle line ends before the frame starts
+//! instead of corrupting it. A receiver that starts in the middle of a frame reports that
+//! one partial frame as an error.
+//!
+//! **CRC-16/IBM-3740** (often called CRC-16/CCITT-FALSE: polynomial `0x1021`, initial
+//! value `0xFFFF`, no reflection, no final XOR; check value `0x29B1`), over the payload,
+//! sent little-endian. For frames this short (at most 43 bytes, 344 bits) the polynomial
+//! has Hamming distance 4: every error of 1, 2 or 3 bits, every odd number of flipped
+//! bits and every burst up to 16 bits is caught, and a random corruption that survives
+//! COBS and the exact length check passes with probability 2⁻¹⁶. CRC-32 would catch more
+//! but costs two more bytes on every frame of a link whose budget is bandwidth (see
+//! below); the non-zero initial value makes leading zero bytes count.
+//!
+//! **Encoding: a fixed little-endian layout written by hand**, not `postcard`. Every
+//! frame has one constant size known at compile time, so buffers are sized exactly, time
+//! is bounded, truncation is caught by a length check, and any tool can parse the tables
+//! below; postcard's varints make sizes data-dependent and bring serde into the
+//! interrupt for no gain on a dozen fixed fields. `f32` travels as its IEEE-754 bits
+//! (exact, no rounding); both ends are little-endian machines anyway.
+//!
+//! ## Sizes
+//! | frame | payload | raw (payload + CRC) | on the wire (COBS + delimiter) |
+//! |---|---|---|---|
+//! | [`SensorFrame`] | 24 B | 26 B | 28 B |
+//! | [`ActuationFrame`] | 41 B | 43 B | 45 B |
+//! | [`board::BoardCommand`] | 12 B | 14 B | 16 B |
+//! | [`board::BoardTelemetry`] | 44 B | 46 B | 48 B |
+//! | [`board::CaptureChunk`] | 224 B | 226 B | 228 B |
+//!
+//! The board link's frames ([`board`]: a drive image operated from the host) share the
+//! framing; every frame type has its own length.
+//!
+//! COBS adds exactly one byte to a raw frame shorter than 254 bytes, whatever its
+//! content, so the wire sizes are constant. With 8N1 framing (10 bits a byte) and a
+//! 100 µs period the link needs 2.8 Mbit/s host → controller and 4.5 Mbit/s back.
+//!
+//! ## Layouts (byte offsets, little-endian)
+//! [`SensorFrame`] payload:
+//!
+//! | offset | type | field |
+//! |---|---|---|
+//! | 0 | u8 | protocol version ([`PROTOCOL_VERSION`]) |
+//! | 1 | u16 | sequence number |
+//! | 3, 7, 11 | f32 | phase currents i_a, i_b, i_c (A) |
+//! | 15 | f32 | DC-bus voltage (V) |
+//! | 19 | f32 | speed reference (m/s) |
+//! | 23 | u8 | command flags ([`SENSOR_FLAG_ENABLE`], [`SENSOR_FLAG_CLEAR_FAULTS`]) |
+//!
+//! [`ActuationFrame`] payload:
+//!
+//! | offset | type | field |
+//! |---|---|---|
+//! | 0 | u8 | protocol version |
+//! | 1 | u16 | sequence number (echo) |
+//! | 3, 7, 11 | f32 | duties a, b, c (`[0, 1]`) |
+//! | 15 | u8 | flags ([`ACTUATION_FLAG_BRIDGE_ENABLED`], [`ACTUATION_FLAG_ESTIMATE_VALID`]) |
+//! | 16 | u8 | drive state code, `0..`[`STATE_CODES`] (the drive's [`DriveState::code`](crate::drive::DriveState::code)) |
+//! | 17 | u16 | fault bits (the drive's [`Faults::bits`](crate::drive::Faults::bits)) |
+//! | 19 | f32 | θ̂ (electrical rad) |
+//! | 23 | f32 | speed estimate (m/s) |
+//! | 27, 31 | f32 | ψ_α, ψ_β (Wb) |
+//! | 35, 37, 39 | u16 | frames dropped: malformed, bad CRC, out of order |
+//!
+//! Without an estimate the four estimate fields are sent as zero bytes.
+//!
+//! ## Rejected frames
+//! A frame is checked in this order: COBS, length, CRC, version, flags (unknown bits are
+//! an error), values (every `f32` finite, duties in `[0, 1]`, a known state code). A
+//! failure at the CRC is counted as *bad CRC*, every other failure (including a frame
+//! longer than the receive buffer) as *malformed*; see [`LinkStats`]. Encoding refuses
+//! the same values, so a frame that was sent is never rejected for its content.
+//!
+//! ## Sequence numbers and the silent link
+//! [`SequenceTracker`] keeps the last accepted sequence number (u16, wrapping) and
+//! classifies the next with [`classify_sequence`]: one to 32 767 ahead is in order (a
+//! gap means frames were lost), equal is a duplicate, anything else (behind) is out of
+//! order. The controller acts only on in-order frames and counts the others as *out of
+//! order*. [`LinkWatchdog`] counts control periods without an accepted frame; after
+//! [`SILENT_LINK_PERIODS`] = 10 periods (1 ms at the 100 µs default period) the bridge
+//! must be turned off: trip the drive with [`Faults::EXTERNAL`](crate::drive::Faults::EXTERNAL) and
+//! [`reset`](SequenceTracker::reset) the tracker, so a restarted host is accepted again.
+//!
+//! ## Modules
+//! The protocol knows nothing of the drive: [`frame`] (constants, the [`Frame`] trait,
+//! the frame types and their layouts, plain data and codes), [`codec`] (CRC, COBS
+//! framing, [`Receiver`]), [`session`] (statistics, sequence numbers, watchdog) and the
+//! board link's frames ([`board`]). [`drive_adapter`] alone maps frames to and from the
+//! drive ([`crate::drive::Commands`], measurements, state codes) and holds the
+//! controller side of the lock-step link ([`LinkServer`]).
+//!
+//! ## Controller side, one PWM period
+//! ```
+//! use dcfo::link::{ActuationFrame, LinkWatchdog, Receiver, SensorFrame, SequenceOrder, SequenceTracker};
+//!
+//! let mut rx = Receiver::<SensorFrame>::new();
+//! let mut sequence = SequenceTracker::new();
+//! let mut watchdog = LinkWatchdog::default();
+//! # let sent = SensorFrame { sequence: 7, i_a: 0.1, i_b: -0.05, i_c: -0.05, vdc: 48.0,
+//! #     speed_ref: 0.3, enable: true, clear_faults: false };
+//! # let mut uart = [0u8; SensorFrame::WIRE_LEN];
+//! # let n = dcfo::link::encode(&sent, &mut uart).unwrap();
+//! let mut accepted = None;
+//! for &byte in &uart[..n] {
+//!     if let Some(Ok(frame)) = rx.push(byte) {
+//!         match sequence.check(frame.sequence) {
+//!             SequenceOrder::InOrder { .. } => accepted = Some(frame),
+//!             _ => rx.stats_mut().record_out_of_order(),
+//!         }
+//!     }
+//! }
+//! if watchdog.period(accepted.is_some()) {
+//!     // drive.trip(Faults::EXTERNAL); sequence.reset();
+//! }
+//! if let Some(frame) = accepted {
+//!     // drive.apply(&frame.commands());
+//!     // let out = drive.step(&frame.measurements(&Base::SI));
+//!     // let reply = ActuationFrame::from_step(frame.sequence, &out, &Base::SI, rx.stats());
+//!     // let n = dcfo::link::encode(&reply, &mut tx_buffer)?;
+//! #   assert_eq!(frame, sent);
+//! }
+//! ```
+
+pub mod board;
+pub mod cobs;
+pub mod codec;
+pub mod drive_adapter;
+pub mod frame;
+pub mod session;
+
+pub use codec::{EncodeError, LinkError, RX_CAPACITY, Receiver, decode_in_place, decode_raw, encode};
+pub use drive_adapter::LinkServer;
+pub use frame::{
+    ACTUATION_FLAG_BRIDGE_ENABLED, ACTUATION_FLAG_ESTIMATE_VALID, ActuationFrame, CRC_LEN, EstimateReport,
+    Frame, PROTOCOL_VERSION, SENSOR_FLAG_CLEAR_FAULTS, SENSOR_FLAG_ENABLE, STATE_CODES, SensorFrame,
+};
+pub use session::{
+    LinkStats, LinkWatchdog, SILENT_LINK_PERIODS, SequenceOrder, SequenceTracker, classify_sequence,
+};
+
+#[cfg(test)]
+mod tests {
+    use super::codec::CRC16;
+    use super::*;
+
+    #[test]
+    fn sizes_match_the_documented_layouts() {
+        assert_eq!((SensorFrame::RAW_LEN, SensorFrame::WIRE_LEN), (26, 28));
+        assert_eq!((ActuationFrame::RAW_LEN, ActuationFrame::WIRE_LEN), (43, 45));
+        assert_eq!(<SensorFrame as Frame>::WIRE_LEN, SensorFrame::WIRE_LEN);
+        assert_eq!(<ActuationFrame as Frame>::WIRE_LEN, ActuationFrame::WIRE_LEN);
+        assert_eq!(RX_CAPACITY, 44);
+    }
+
+    #[test]
+    fn crc_is_ibm_3740() {
+        assert_eq!(CRC16.checksum(b"123456789"), 0x29B1);
+    }
+}
