@@ -511,3 +511,61 @@ pub fn figure(starts: &[Start]) -> crate::plot::Figure {
         size: None,
     }
 }
+
+// ---- The command.
+
+/// What `dcfo acquire` is asked to do.
+#[derive(Debug, Clone)]
+pub struct Params {
+    /// Print exactly one JSON object (the totals and the per-speed table) on stdout.
+    pub json: bool,
+    /// What tunes the DCFO's notch, in the recording drive and in the cold-started
+    /// estimators.
+    pub notch: dcfo::estimator::NotchTuning,
+    /// Directory for `acquire.json` (every cold start), `acquire.csv` (the table) and
+    /// `acquire.png` / `acquire.svg` (lock time against speed).
+    pub out: std::path::PathBuf,
+}
+
+/// `dcfo acquire`: the acquisition sweep on the simulated paper axis, its results in
+/// `params.out` and the table (or JSON) on stdout.
+pub fn run_command(params: &Params) -> anyhow::Result<()> {
+    use anyhow::Context;
+    let mut setup = Setup::paper(dcfo::observer::ObserverKind::Dcfo);
+    setup.drive.estimator.notch_tuning = params.notch;
+    let started = std::time::Instant::now();
+    let starts = sweep(&setup, &Options::full(), |done, total| eprintln!("acquire: {done}/{total} speeds"))
+        .map_err(|e| anyhow::anyhow!(e))?;
+    let summary = summarise(&starts);
+    let out = &params.out;
+    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    let all = serde_json::json!({ "summary": &summary, "starts": &starts });
+    std::fs::write(out.join("acquire.json"), serde_json::to_string_pretty(&all)?)
+        .with_context(|| format!("writing {}", out.join("acquire.json").display()))?;
+    let mut csv = String::from(
+        "speed_m_per_s,budget_s,lock_time_median_s,lock_time_max_s,budget_violations,runs,false_locks\n",
+    );
+    let opt = |x: Option<f64>| x.map(|v| format!("{v:.6}")).unwrap_or_default();
+    for r in &summary.speeds {
+        csv += &format!(
+            "{},{:.6},{},{},{},{},{}\n",
+            r.speed_m_per_s,
+            r.budget_s,
+            opt(r.lock_time_median_s),
+            opt(r.lock_time_max_s),
+            r.budget_violations,
+            r.runs,
+            r.false_locks
+        );
+    }
+    std::fs::write(out.join("acquire.csv"), csv)
+        .with_context(|| format!("writing {}", out.join("acquire.csv").display()))?;
+    crate::plot::write_figure(&figure(&starts), &out.join("acquire"))?;
+    eprintln!("acquire: {:.1} s; results in {}", started.elapsed().as_secs_f64(), out.display());
+    if params.json {
+        println!("{}", serde_json::to_string(&summary)?);
+    } else {
+        print!("{}", table(&summary));
+    }
+    Ok(())
+}

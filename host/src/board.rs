@@ -395,6 +395,7 @@ pub fn qemu_drive_motor() -> MotorParams {
 }
 
 /// Where `dcfo board` connects.
+#[derive(Debug, Clone)]
 pub enum Target {
     /// QEMU running the virtual-motor drive image.
     Qemu {
@@ -791,6 +792,53 @@ fn finish_download(
     board.download_more(samples, t.capture_len, u32::MAX)?;
     write_capture_trace(path, samples, CONTROL_PERIOD_S)?;
     eprintln!("capture: {} samples written to {}", samples.len(), path.display());
+    Ok(())
+}
+
+// ---- The command.
+
+/// What `dcfo board` is asked to do.
+#[derive(Debug, Clone)]
+pub struct Params {
+    /// The drive image: QEMU or a board on a serial port.
+    pub target: Target,
+    /// Download the capture into this trace (CSV, shared trace format) once it is over.
+    pub record: Option<PathBuf>,
+    /// Non-interactive: connect, arm the capture, enable at `speed_m_per_s`, wait until
+    /// the drive runs and the capture is over, download it, replay it, disable.
+    pub demo: bool,
+    /// Speed reference of the demo, m/s.
+    pub speed_m_per_s: f32,
+    /// With `demo`: print one JSON object on the last line of stdout.
+    pub json: bool,
+}
+
+/// `dcfo board`: the interactive session, or the demo (its report on stdout; an error
+/// when the replay of the capture differs from the drive's estimates).
+pub fn run_command(params: &Params) -> anyhow::Result<()> {
+    if !params.speed_m_per_s.is_finite() {
+        bail!("--speed must be a finite number of m/s");
+    }
+    catch_interrupt()?;
+    if !params.demo {
+        return run_interactive(&params.target, params.record.as_deref());
+    }
+    let report =
+        run_demo(&params.target, params.speed_m_per_s, params.record.as_deref(), Duration::from_secs(60))?;
+    if params.json {
+        println!("{}", serde_json::to_string(&report)?);
+    } else {
+        println!(
+            "drive reached {}; captured {} samples; replay {} ({} differ); download {:.1} s at {:.0} round trips/s",
+            report.state_reached,
+            report.capture_samples,
+            if report.replay_identical { "identical bit for bit" } else { "DIFFERS" },
+            report.replay_differing,
+            report.download_s,
+            report.round_trips_per_s
+        );
+    }
+    anyhow::ensure!(report.replay_identical, "the replay of the capture differs from the drive's estimates");
     Ok(())
 }
 

@@ -1,5 +1,9 @@
-//! The `dcfo` command line: argument definitions (clap derive) and the subcommands'
-//! entry points. `src/main.rs` parses [`Cli`] and calls [`run`].
+//! The `dcfo` command line: argument definitions (clap derive) and the dispatch
+//! ([`run`]), which turns each subcommand's arguments into the plain parameters of the
+//! module that implements it and calls that module's entry point: `dcfo X` is
+//! `crate::X::run_command` (`dcfo sim`: `crate::sim::report::run_command`, `dcfo hil`:
+//! `crate::hil::run_hil`, `dcfo motor-image`: `crate::motor_image::run_command`). No
+//! command module depends on this one. `src/main.rs` parses [`Cli`] and calls [`run`].
 //!
 //! Output discipline: results go to stdout (a human summary, or with `--json` exactly
 //! one JSON object and nothing else); progress and information go to stderr; errors go
@@ -10,20 +14,14 @@
 //! in brackets (`[V]`), which rustdoc would otherwise take for links.
 #![allow(rustdoc::broken_intra_doc_links)]
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::process::ExitCode;
-use std::sync::mpsc::{self, RecvTimeoutError};
-use std::time::{Duration, Instant};
 
-use anyhow::{Context, bail};
+use anyhow::bail;
 use clap::{Args, Parser, Subcommand, ValueEnum};
 use dcfo::observer::ObserverKind;
-use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 
-use crate::motor_file::load_motor;
-use crate::replay::{observer_name, replay_trace_with_progress};
-use crate::summary::{DEFAULT_SETTLE_S, Summary};
-use crate::trace::{InputTrace, write_output_trace};
+use crate::summary::DEFAULT_SETTLE_S;
 
 /// `dcfo`: host tools for the sensorless PMSLM drive with the disturbance compensated
 /// flux observer (DCFO).
@@ -257,7 +255,7 @@ pub struct HilArgs {
     /// QEMU board for --qemu: m4f (mps2-an386, f32 firmware) or m3 (mps2-an385, Q8.24
     /// fixed-point firmware).
     #[arg(long, value_enum, default_value = "m4f")]
-    pub cpu: crate::hil::QemuCpu,
+    pub cpu: crate::qemu::QemuCpu,
     /// Firmware ELF for --qemu (default: build and use
     /// target/<target>/release/examples/qemu_hil).
     #[arg(long, value_name = "FILE")]
@@ -405,431 +403,112 @@ fn parse_settle(text: &str) -> Result<f64, String> {
     }
 }
 
-/// Runs the parsed command; the exit status on success (errors are returned).
+/// Runs the parsed command: converts its arguments into the plain parameters of the
+/// command's module and calls its entry point; the exit status on success (errors are
+/// returned).
 pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
     match cli.command {
-        Command::Board(args) => {
-            run_board(&args)?;
+        Command::Board(a) => {
+            let target = match a.port {
+                Some(device) => crate::board::Target::Port { device, baud: a.baud },
+                None => crate::board::Target::Qemu { cpu: a.cpu, elf: a.elf },
+            };
+            crate::board::run_command(&crate::board::Params {
+                target,
+                record: a.record,
+                demo: a.demo,
+                speed_m_per_s: a.speed,
+                json: a.json,
+            })?;
             Ok(ExitCode::SUCCESS)
         }
-        Command::Replay(args) => {
-            run_replay(&args)?;
+        Command::Replay(a) => {
+            crate::replay::run_command(&crate::replay::Params {
+                motor: a.motor,
+                observer: a.observer.kind(),
+                trace: a.trace,
+                output: a.output,
+                json: a.json,
+                settle_s: a.settle,
+            })?;
             Ok(ExitCode::SUCCESS)
         }
-        Command::Paper(args) => Ok(run_paper(&args)),
-        Command::Sim(args) => Ok(run_sim(&args)),
-        Command::Hil(args) => {
-            crate::hil::run_hil(&args)?;
+        Command::Paper(a) => {
+            Ok(reported("paper", crate::paper::run_command(&crate::paper::Params { out: a.out })))
+        }
+        Command::Sim(a) => Ok(reported(
+            "sim",
+            crate::sim::report::run_command(&crate::sim::report::Params {
+                scenario: a.scenario,
+                motor: a.motor,
+                observer: a.observer.kind(),
+                out: a.out,
+            }),
+        )),
+        Command::Hil(a) => {
+            let target = match (a.qemu, a.port) {
+                (true, _) => crate::hil::Target::Qemu { cpu: a.cpu, elf: a.elf },
+                (false, Some(device)) => crate::hil::Target::Port { device, baud: a.baud },
+                (false, None) => bail!("give --qemu or --port DEVICE"),
+            };
+            crate::hil::run_hil(&crate::hil::Params {
+                target,
+                scenario: a.scenario,
+                duration_s: a.duration,
+                check: a.check,
+                out: a.out,
+            })?;
             Ok(ExitCode::SUCCESS)
         }
-        Command::MotorImage(args) => {
-            run_motor_image(&args)?;
+        Command::MotorImage(a) => {
+            crate::motor_image::run_command(&crate::motor_image::Params {
+                motor: a.motor,
+                bus_v: a.bus_v,
+                out: a.out,
+            })?;
             Ok(ExitCode::SUCCESS)
         }
-        Command::Acquire(args) => {
-            run_acquire(&args)?;
+        Command::Acquire(a) => {
+            crate::acquire::run_command(&crate::acquire::Params {
+                json: a.json,
+                notch: a.notch.tuning(),
+                out: a.out,
+            })?;
             Ok(ExitCode::SUCCESS)
         }
-        Command::Stroke(args) => {
-            run_stroke(&args)?;
+        Command::Stroke(a) => {
+            crate::stroke::run_command(&crate::stroke::Params { motor: a.motor, json: a.json, out: a.out })?;
             Ok(ExitCode::SUCCESS)
         }
-        Command::Identify(args) => run_identify(&args),
-        Command::Faults(args) => run_faults(&args),
+        Command::Identify(a) => {
+            use crate::identify::Where;
+            let place = match (a.qemu, a.port, a.sim) {
+                (true, _, _) => Where::Qemu,
+                (false, Some(device), _) => Where::Port(device),
+                (false, None, true) => Where::Sim,
+                (false, None, false) => Where::Unsaid,
+            };
+            crate::identify::run_command(&crate::identify::Params {
+                place,
+                motor: a.motor,
+                seed: a.seed,
+                output: a.output,
+                json: a.json,
+                steady_seeds: a.steady,
+            })
+        }
+        Command::Faults(a) => crate::faults::run_command(&crate::faults::Params { json: a.json, out: a.out }),
     }
 }
 
-/// `dcfo identify` (see `crate::identify`).
-pub fn run_identify(args: &IdentifyArgs) -> anyhow::Result<ExitCode> {
-    if args.qemu || args.port.is_some() {
-        eprintln!(
-            "dcfo identify: --qemu and --port are not implemented yet (the firmware images do \
-             not run commissioning over the link); use --sim"
-        );
-        return Ok(ExitCode::from(2));
-    }
-    if !args.sim {
-        anyhow::bail!("identify: say where to run the commissioning: --sim (or --qemu, --port)");
-    }
-    if let Some(seeds) = args.steady {
-        let median = |mut v: Vec<f64>| -> String {
-            if v.is_empty() {
-                return "-".into();
-            }
-            v.sort_by(f64::total_cmp);
-            let n = v.len();
-            format!("{:.3}", if n % 2 == 1 { v[n / 2] } else { 0.5 * (v[n / 2 - 1] + v[n / 2]) })
-        };
-        let show = |x: Option<f64>| x.map_or("lost".to_string(), |d| format!("{d:.3}"));
-        println!("seed  none(deg)  typed-in  identified-comp  identified-motor+comp");
-        let mut rows = Vec::new();
-        for seed in 1..=seeds {
-            let r = crate::identify::steady_row(seed).map_err(|e| anyhow::anyhow!("seed {seed}: {e}"))?;
-            println!(
-                "{:>4}  {:>9}  {:>8}  {:>15}  {:>21}",
-                seed,
-                show(r.none_deg),
-                show(r.typed_deg),
-                show(r.identified_comp_deg),
-                show(r.identified_all_deg)
-            );
-            rows.push(r);
-        }
-        let col = |f: fn(&crate::identify::SteadyRow) -> Option<f64>| -> (String, usize) {
-            let v: Vec<f64> = rows.iter().filter_map(f).collect();
-            let lost = rows.len() - v.len();
-            (median(v), lost)
-        };
-        let cols = [
-            col(|r| r.none_deg),
-            col(|r| r.typed_deg),
-            col(|r| r.identified_comp_deg),
-            col(|r| r.identified_all_deg),
-        ];
-        println!(
-            "median rms angle error (deg; runs lost): none {} ({}), typed-in {} ({}), identified comp {} ({}), \
-             identified motor + comp {} ({})",
-            cols[0].0, cols[0].1, cols[1].0, cols[1].1, cols[2].0, cols[2].1, cols[3].0, cols[3].1
-        );
-        if args.json {
-            println!("{}", serde_json::to_string(&rows)?);
-        }
-        return Ok(ExitCode::SUCCESS);
-    }
-    let motor = load_motor(&args.motor)?;
-    let report = crate::identify::identify(&args.motor, &motor.params, args.seed, Default::default())
-        .map_err(|e| anyhow::anyhow!("identify {}: {e}", args.motor))?;
-    if let Some(path) = &args.output {
-        let text = crate::identify::motor_toml(&report, &motor.params)?;
-        std::fs::write(path, text).with_context(|| format!("writing {}", path.display()))?;
-    }
-    print!("{}", crate::identify::table(&report));
-    if args.json {
-        println!("{}", crate::identify::json_line(&report));
-    }
-    Ok(ExitCode::SUCCESS)
-}
-
-/// `dcfo faults`: the fault campaign (see `crate::faults`). Exit status 1 when a floor
-/// is missed (a silent failure, a bridge switched off later than one period after its
-/// fault's condition); cases that miss their stated expectation are counted as `unmet`.
-pub fn run_faults(args: &FaultsArgs) -> anyhow::Result<ExitCode> {
-    let started = Instant::now();
-    let threads = std::thread::available_parallelism().map_or(2, |n| n.get());
-    let (campaign, logs) = crate::faults::run_all(threads, |name| eprintln!("faults: {name} done"))
-        .map_err(|e| anyhow::anyhow!(e))?;
-    std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
-    std::fs::write(args.out.join("faults.json"), serde_json::to_string_pretty(&campaign)?)
-        .with_context(|| format!("writing {}", args.out.join("faults.json").display()))?;
-    for (r, log) in campaign.results.iter().zip(&logs) {
-        crate::plot::write_figure(&crate::faults::figure(r, log), &args.out.join(&r.name))?;
-    }
-    eprintln!("faults: {:.1} s; results in {}", started.elapsed().as_secs_f64(), args.out.display());
-    if args.json {
-        println!("{}", serde_json::to_string(&campaign)?);
-    } else {
-        print!("{}", crate::faults::table(&campaign));
-    }
-    // The floors: no silent failure, the bridge off within one period on every trip.
-    let floors = campaign.silent_failures == 0 && campaign.max_bridge_off_periods <= 1;
-    Ok(if floors { ExitCode::SUCCESS } else { ExitCode::FAILURE })
-}
-
-/// `dcfo stroke`: the positioning drive over the stroke (see `crate::stroke`).
-pub fn run_stroke(args: &StrokeArgs) -> anyhow::Result<()> {
-    let motor = load_motor(&args.motor)?;
-    // The positioning drive's speed loop, feed-forward and low-speed damping are tuned
-    // on the mover's mass: a placeholder would tune them silently wrong.
-    if motor.defaulted.contains(&"mass_kg") {
-        anyhow::bail!(
-            "motor file {}: key `mass_kg` is required by the positioning drive (its speed loop, \
-             acceleration feed-forward and low-speed damping are tuned on the moving mass)",
-            args.motor
-        );
-    }
-    let started = Instant::now();
-    let (summary, rows) = crate::stroke::run(&args.motor, &motor.params, 10)
-        .map_err(|e| anyhow::anyhow!("{}: {e}", args.motor))?;
-    std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
-    std::fs::write(args.out.join("stroke.json"), serde_json::to_string_pretty(&summary)?)
-        .with_context(|| format!("writing {}", args.out.join("stroke.json").display()))?;
-    let mut csv =
-        String::from("t_s,x_m,x_hat_m,x_ref_m,v_m_per_s,v_ref_m_per_s,state,angle_err_deg,i_d_a,i_q_a\n");
-    for r in &rows {
-        csv += &format!(
-            "{},{},{},{},{},{},{},{},{},{}\n",
-            r.t_s,
-            r.x_m,
-            r.x_hat_m,
-            r.x_ref_m,
-            r.v_m_per_s,
-            r.v_ref_m_per_s,
-            r.state,
-            r.angle_err_deg,
-            r.i_d_a,
-            r.i_q_a
-        );
-    }
-    std::fs::write(args.out.join("stroke.csv"), csv)
-        .with_context(|| format!("writing {}", args.out.join("stroke.csv").display()))?;
-    crate::plot::write_figure(&crate::stroke::figure(&summary, &rows), &args.out.join("stroke"))?;
-    eprintln!("stroke: {:.1} s; results in {}", started.elapsed().as_secs_f64(), args.out.display());
-    if args.json {
-        println!("{}", serde_json::to_string(&summary)?);
-    } else {
-        print!("{}", crate::stroke::table(&summary));
-    }
-    Ok(())
-}
-
-/// `dcfo acquire`: the acquisition sweep on the simulated paper axis.
-pub fn run_acquire(args: &AcquireArgs) -> anyhow::Result<()> {
-    use crate::acquire::{Options, summarise, sweep, table};
-    let mut setup = crate::sim::Setup::paper(ObserverKind::Dcfo);
-    setup.drive.estimator.notch_tuning = args.notch.tuning();
-    let started = Instant::now();
-    let starts = sweep(&setup, &Options::full(), |done, total| eprintln!("acquire: {done}/{total} speeds"))
-        .map_err(|e| anyhow::anyhow!(e))?;
-    let summary = summarise(&starts);
-    std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
-    let all = serde_json::json!({ "summary": &summary, "starts": &starts });
-    std::fs::write(args.out.join("acquire.json"), serde_json::to_string_pretty(&all)?)
-        .with_context(|| format!("writing {}", args.out.join("acquire.json").display()))?;
-    let mut csv = String::from(
-        "speed_m_per_s,budget_s,lock_time_median_s,lock_time_max_s,budget_violations,runs,false_locks\n",
-    );
-    let opt = |x: Option<f64>| x.map(|v| format!("{v:.6}")).unwrap_or_default();
-    for r in &summary.speeds {
-        csv += &format!(
-            "{},{:.6},{},{},{},{},{}\n",
-            r.speed_m_per_s,
-            r.budget_s,
-            opt(r.lock_time_median_s),
-            opt(r.lock_time_max_s),
-            r.budget_violations,
-            r.runs,
-            r.false_locks
-        );
-    }
-    std::fs::write(args.out.join("acquire.csv"), csv)
-        .with_context(|| format!("writing {}", args.out.join("acquire.csv").display()))?;
-    crate::plot::write_figure(&crate::acquire::figure(&starts), &args.out.join("acquire"))?;
-    eprintln!("acquire: {:.1} s; results in {}", started.elapsed().as_secs_f64(), args.out.display());
-    if args.json {
-        println!("{}", serde_json::to_string(&summary)?);
-    } else {
-        print!("{}", table(&summary));
-    }
-    Ok(())
-}
-
-/// `dcfo motor-image`: validates the motor and the bus voltage exactly as the firmware
-/// will, then writes the record (nothing is written on an error).
-pub fn run_motor_image(args: &MotorImageArgs) -> anyhow::Result<()> {
-    use anyhow::Context;
-    let motor = load_motor(&args.motor)?;
-    let image = dcfo::motor_image::MotorImage::new(motor.params, args.bus_v)
-        .map_err(|e| anyhow::anyhow!("{}: {e}", args.motor))?;
-    let bytes = image.encode();
-    // The firmware's own check, on the bytes as written.
-    dcfo::motor_image::MotorImage::decode(&bytes).map_err(|e| anyhow::anyhow!("encoded image: {e}"))?;
-    std::fs::write(&args.out, bytes).with_context(|| format!("writing {}", args.out.display()))?;
-    println!(
-        "motor image of {} at {} V bus: {} bytes in {}",
-        motor.name,
-        args.bus_v,
-        bytes.len(),
-        args.out.display()
-    );
-    Ok(())
-}
-
-/// `dcfo paper`: every paper scenario with the CFO and the DCFO.
-pub fn run_paper(args: &PaperArgs) -> ExitCode {
-    match crate::sim::report::run_paper(&args.out) {
-        Ok(_) => ExitCode::SUCCESS,
+/// The exit status of a command that reports its own error on stderr, prefixed
+/// `dcfo NAME:` (`dcfo paper`, `dcfo sim`).
+fn reported(name: &str, result: anyhow::Result<()>) -> ExitCode {
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("dcfo paper: {e:#}");
+            eprintln!("dcfo {name}: {e:#}");
             ExitCode::FAILURE
-        }
-    }
-}
-
-/// `dcfo sim`: one scenario with one observer.
-pub fn run_sim(args: &SimArgs) -> ExitCode {
-    let run = || -> anyhow::Result<()> {
-        let scenario = crate::sim::report::load_scenario(&args.scenario)?;
-        let setup = match &args.motor {
-            None => crate::sim::Setup::paper(args.observer.kind()),
-            Some(m) => {
-                let motor = load_motor(m)?;
-                // The speed loop is tuned on the moving mass: a placeholder would tune it
-                // silently wrong.
-                if motor.defaulted.contains(&"mass_kg") {
-                    anyhow::bail!(
-                        "motor file {m}: key `mass_kg` is required to simulate the drive (its speed loop \
-                         is tuned on the moving mass)"
-                    );
-                }
-                crate::sim::Setup::for_axis(&motor.params, &scenario, args.observer.kind())
-            }
-        };
-        crate::sim::report::run_sim(&setup, &scenario, &args.out)?;
-        Ok(())
-    };
-    match run() {
-        Ok(_) => ExitCode::SUCCESS,
-        Err(e) => {
-            eprintln!("dcfo sim: {e:#}");
-            ExitCode::FAILURE
-        }
-    }
-}
-
-/// `dcfo board`: see [`BoardArgs`] and [`crate::board`].
-pub fn run_board(args: &BoardArgs) -> anyhow::Result<()> {
-    use crate::board::{Target, run_demo, run_interactive};
-    let target = match &args.port {
-        Some(device) => Target::Port { device: device.clone(), baud: args.baud },
-        None => Target::Qemu { cpu: args.cpu, elf: args.elf.clone() },
-    };
-    if !args.speed.is_finite() {
-        bail!("--speed must be a finite number of m/s");
-    }
-    crate::board::catch_interrupt()?;
-    if !args.demo {
-        return run_interactive(&target, args.record.as_deref());
-    }
-    let report = run_demo(&target, args.speed, args.record.as_deref(), Duration::from_secs(60))?;
-    if args.json {
-        println!("{}", serde_json::to_string(&report)?);
-    } else {
-        println!(
-            "drive reached {}; captured {} samples; replay {} ({} differ); download {:.1} s at {:.0} round trips/s",
-            report.state_reached,
-            report.capture_samples,
-            if report.replay_identical { "identical bit for bit" } else { "DIFFERS" },
-            report.replay_differing,
-            report.download_s,
-            report.round_trips_per_s
-        );
-    }
-    anyhow::ensure!(report.replay_identical, "the replay of the capture differs from the drive's estimates");
-    Ok(())
-}
-
-/// `dcfo replay`: read, replay, summarise, then write the output trace and print the
-/// summary. Nothing is written unless every step succeeds.
-pub fn run_replay(args: &ReplayArgs) -> anyhow::Result<()> {
-    let motor = load_motor(&args.motor)?;
-    if same_file(&args.trace, &args.output) {
-        bail!("output {} is the input trace; choose another output file", args.output.display());
-    }
-    let trace =
-        with_spinner(format!("reading {}", args.trace.display()), || InputTrace::read_path(&args.trace))?;
-    let kind = args.observer.kind();
-    let rows = trace.rows().len();
-    let mut progress = Progress::new(rows);
-    let estimates = replay_trace_with_progress(&trace, &motor.params, kind, |n| progress.update(n))
-        .with_context(|| {
-            format!("{}: replay with the {} observer stopped", args.trace.display(), observer_name(kind))
-        });
-    progress.finish();
-    let estimates = estimates?;
-    let summary = Summary::compute(&trace, &estimates, &motor.params, args.settle).with_context(|| {
-        format!("{}: cannot summarise (adjust --settle; no output was written)", args.trace.display())
-    })?;
-    with_spinner(format!("writing {}", args.output.display()), || {
-        write_output_trace(&args.output, &trace, &estimates)
-    })?;
-    if args.json {
-        println!("{}", summary.to_json());
-    } else {
-        let ts = trace.sample_period_s();
-        let span = match (trace.rows().first(), trace.rows().last()) {
-            (Some(a), Some(b)) => b.t - a.t,
-            _ => 0.0,
-        };
-        println!(
-            "replay of {} ({rows} rows, Ts = {:.4} ms, {span:.4} s) with the {} observer, motor {}",
-            args.trace.display(),
-            ts * 1e3,
-            observer_name(kind),
-            motor.name
-        );
-        println!("wrote {}", args.output.display());
-        println!("{summary}");
-    }
-    Ok(())
-}
-
-/// `true` when both paths name the same existing file.
-fn same_file(a: &Path, b: &Path) -> bool {
-    match (a.canonicalize(), b.canonicalize()) {
-        (Ok(a), Ok(b)) => a == b,
-        _ => false,
-    }
-}
-
-/// How long a step runs before its progress is shown.
-const PROGRESS_DELAY: Duration = Duration::from_secs(1);
-
-/// Runs `work`, showing a spinner with `message` on stderr if it takes longer than
-/// [`PROGRESS_DELAY`] (only when stderr is a terminal).
-fn with_spinner<T>(message: String, work: impl FnOnce() -> T) -> T {
-    // The spinner thread waits on a channel that is closed when `work` returns (or
-    // panics): the sender is dropped then.
-    let (done, finished) = mpsc::channel::<()>();
-    std::thread::scope(|scope| {
-        scope.spawn(move || {
-            if finished.recv_timeout(PROGRESS_DELAY) != Err(RecvTimeoutError::Timeout) {
-                return;
-            }
-            let spinner = ProgressBar::with_draw_target(None, ProgressDrawTarget::stderr());
-            let style = ProgressStyle::with_template("{spinner} {msg} ({elapsed})")
-                .unwrap_or_else(|_| ProgressStyle::default_spinner());
-            spinner.set_style(style);
-            spinner.set_message(message);
-            while finished.recv_timeout(Duration::from_millis(100)) == Err(RecvTimeoutError::Timeout) {
-                spinner.tick();
-            }
-            spinner.finish_and_clear();
-        });
-        let _done = done;
-        work()
-    })
-}
-
-/// A progress bar on stderr that appears only once a run has taken a second (and only
-/// when stderr is a terminal).
-struct Progress {
-    total: usize,
-    start: Instant,
-    bar: Option<ProgressBar>,
-}
-
-impl Progress {
-    fn new(total: usize) -> Self {
-        Progress { total, start: Instant::now(), bar: None }
-    }
-
-    fn update(&mut self, done: usize) {
-        if self.bar.is_none() && self.start.elapsed() >= PROGRESS_DELAY {
-            let bar = ProgressBar::with_draw_target(Some(self.total as u64), ProgressDrawTarget::stderr());
-            let style = ProgressStyle::with_template("replay [{bar:40}] {pos}/{len} rows, {eta} left")
-                .unwrap_or_else(|_| ProgressStyle::default_bar())
-                .progress_chars("=> ");
-            bar.set_style(style);
-            self.bar = Some(bar);
-        }
-        if let Some(bar) = &self.bar {
-            bar.set_position(done as u64);
-        }
-    }
-
-    fn finish(&mut self) {
-        if let Some(bar) = self.bar.take() {
-            bar.finish_and_clear();
         }
     }
 }
@@ -837,6 +516,7 @@ impl Progress {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::observer::observer_name;
     use clap::CommandFactory;
 
     #[test]
@@ -877,6 +557,20 @@ mod tests {
                 bad,
             ]);
             assert!(r.is_err(), "{bad}");
+        }
+    }
+
+    /// The observer arguments are spelled as the host names the observers everywhere
+    /// else (file names, summaries, messages).
+    #[test]
+    fn observer_arguments_are_the_observers_names() {
+        for arg in ObserverArg::value_variants() {
+            let name = arg.to_possible_value().expect("listed").get_name().to_string();
+            assert_eq!(name, observer_name(arg.kind()));
+        }
+        for arg in DriveObserverArg::value_variants() {
+            let name = arg.to_possible_value().expect("listed").get_name().to_string();
+            assert_eq!(name, observer_name(arg.kind()));
         }
     }
 

@@ -250,58 +250,101 @@ pub fn compare_runs(a: &crate::sim::Run, b: &crate::sim::Run) -> Equivalence {
     Equivalence { samples: n, differing, max_diff_deg }
 }
 
-/// `dcfo hil`: see [`crate::cli::HilArgs`].
-pub fn run_hil(args: &crate::cli::HilArgs) -> anyhow::Result<HilReport> {
+/// Where `dcfo hil` runs the drive.
+#[derive(Debug, Clone)]
+pub enum Target {
+    /// The HIL image on QEMU.
+    Qemu {
+        /// The board (and with it the numeric type).
+        cpu: QemuCpu,
+        /// The image; built with cargo ([`build_qemu_firmware`]) when `None`.
+        elf: Option<PathBuf>,
+    },
+    /// A board on a serial port running the HIL firmware (f32).
+    Port {
+        /// The device, e.g. `/dev/ttyACM0`.
+        device: PathBuf,
+        /// Bit rate, bit/s (8N1).
+        baud: u32,
+    },
+}
+
+/// What `dcfo hil` is asked to do.
+#[derive(Debug, Clone)]
+pub struct Params {
+    /// Where the drive runs.
+    pub target: Target,
+    /// Scenario by name (steady, speed-step or load-step: the link carries no observer
+    /// offsets).
+    pub scenario: String,
+    /// Simulated time, s (`None`: the scenario's full duration).
+    pub duration_s: Option<f64>,
+    /// Also run the scenario in this process (same numeric type as the firmware) and
+    /// require the link-reported angle estimates to be identical bit for bit.
+    pub check: bool,
+    /// Directory for the trace, summary and figures.
+    pub out: PathBuf,
+}
+
+/// `dcfo hil`: runs the scenario over the link, writes the outputs into `params.out`,
+/// prints the figures; an error when `check` finds a difference.
+pub fn run_hil(params: &Params) -> anyhow::Result<HilReport> {
     use crate::sim::{Setup, run_with, scenarios};
     use anyhow::Context;
-    let Some(mut scenario) = scenarios::scenario(&args.scenario) else {
-        anyhow::bail!("unknown scenario `{}`", args.scenario);
+    let Some(mut scenario) = scenarios::scenario(&params.scenario) else {
+        anyhow::bail!("unknown scenario `{}`", params.scenario);
     };
-    if let Some(d) = args.duration {
+    if let Some(d) = params.duration_s {
         anyhow::ensure!(d.is_finite() && d > 0.0, "--duration must be a positive number of seconds");
         scenario.duration_s = d;
         scenario.window_s = scenario.window_s.min((d - scenario.event_s).max(0.0));
     }
     // The firmware runs the DCFO drive of the paper axis.
     let setup = Setup::paper(dcfo::observer::ObserverKind::Dcfo);
-    std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
+    std::fs::create_dir_all(&params.out).with_context(|| format!("creating {}", params.out.display()))?;
     let bar = indicatif::ProgressBar::new(1000);
     let progress = |f: f64| bar.set_position((f * 1000.0) as u64);
     let mut stack = None;
-    let (hil_run, rate) = if args.qemu {
-        let workspace = Path::new(env!("CARGO_MANIFEST_DIR")).parent().unwrap_or(Path::new("."));
-        let elf = match &args.elf {
-            Some(e) => e.clone(),
-            None => build_qemu_firmware(workspace, args.cpu)?,
-        };
-        let (session, mut link) = QemuSession::start(&elf, args.cpu)?;
-        let run = run_with(&setup, &scenario, &mut link, progress)?;
-        // A monitor that does not answer costs the figure, not the run.
-        stack = match session.stack_high_water() {
-            Ok(bytes) => Some(bytes),
-            Err(e) => {
-                eprintln!("no stack figure: {e}");
-                None
-            }
-        };
-        (run, link.round_trips_per_s())
-    } else {
-        let Some(port) = &args.port else { anyhow::bail!("give --qemu or --port DEVICE") };
-        let dev = port.to_string_lossy().to_string();
-        let serial = serialport::new(&dev, args.baud)
-            .timeout(ANSWER_TIMEOUT)
-            .open()
-            .with_context(|| format!("opening {dev} at {} bit/s", args.baud))?;
-        let reader = serial.try_clone().with_context(|| format!("{dev}: second handle"))?;
-        let mut link = SerialController::new(serial, reader);
-        let run = run_with(&setup, &scenario, &mut link, progress)?;
-        (run, link.round_trips_per_s())
+    let (hil_run, rate) = match &params.target {
+        Target::Qemu { cpu, elf } => {
+            let workspace = Path::new(env!("CARGO_MANIFEST_DIR")).parent().unwrap_or(Path::new("."));
+            let elf = match elf {
+                Some(e) => e.clone(),
+                None => build_qemu_firmware(workspace, *cpu)?,
+            };
+            let (session, mut link) = QemuSession::start(&elf, *cpu)?;
+            let run = run_with(&setup, &scenario, &mut link, progress)?;
+            // A monitor that does not answer costs the figure, not the run.
+            stack = match session.stack_high_water() {
+                Ok(bytes) => Some(bytes),
+                Err(e) => {
+                    eprintln!("no stack figure: {e}");
+                    None
+                }
+            };
+            (run, link.round_trips_per_s())
+        }
+        Target::Port { device, baud } => {
+            let dev = device.to_string_lossy().to_string();
+            let serial = serialport::new(&dev, *baud)
+                .timeout(ANSWER_TIMEOUT)
+                .open()
+                .with_context(|| format!("opening {dev} at {baud} bit/s"))?;
+            let reader = serial.try_clone().with_context(|| format!("{dev}: second handle"))?;
+            let mut link = SerialController::new(serial, reader);
+            let run = run_with(&setup, &scenario, &mut link, progress)?;
+            (run, link.round_trips_per_s())
+        }
     };
     bar.finish_and_clear();
+    let qemu_cpu = match params.target {
+        Target::Qemu { cpu, .. } => Some(cpu),
+        Target::Port { .. } => None,
+    };
     let figures = (scenario.window_s > 0.0).then(|| scenarios::figures(&hil_run, &scenario));
-    let equivalence = if args.check {
-        // A board on --port runs the f32 firmware.
-        let cpu = if args.qemu { args.cpu } else { QemuCpu::M4f };
+    let equivalence = if params.check {
+        // A board on a serial port runs the f32 firmware.
+        let cpu = qemu_cpu.unwrap_or(QemuCpu::M4f);
         let local = run_with(&setup, &scenario, cpu.local_drive(&setup)?.as_mut(), |_| {})?;
         Some(compare_runs(&hil_run, &local))
     } else {
@@ -311,14 +354,14 @@ pub fn run_hil(args: &crate::cli::HilArgs) -> anyhow::Result<HilReport> {
         scenario: scenario.name.to_string(),
         figures,
         round_trips_per_s: rate,
-        qemu_cpu: args.qemu.then_some(args.cpu),
+        qemu_cpu,
         simulated_s: hil_run.simulated_s,
         equivalence,
         stack_high_water_bytes: stack,
     };
-    crate::sim::report::write_run_outputs(&hil_run, &scenario, &args.out, "hil")?;
-    std::fs::write(args.out.join("summary.json"), serde_json::to_string_pretty(&report)?)
-        .with_context(|| format!("writing {}/summary.json", args.out.display()))?;
+    crate::sim::report::write_run_outputs(&hil_run, &scenario, &params.out, "hil")?;
+    std::fs::write(params.out.join("summary.json"), serde_json::to_string_pretty(&report)?)
+        .with_context(|| format!("writing {}/summary.json", params.out.display()))?;
     let figures_text = match figures {
         Some(f) => {
             format!("theta_err max {:.2} deg, rms {:.2} deg", f.theta_err_max_deg, f.theta_err_rms_deg)

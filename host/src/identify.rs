@@ -348,3 +348,113 @@ pub fn steady_row(seed: u64) -> Result<SteadyRow, IdentifyError> {
         identified_all_deg: once(identified_motor, Some(comp)),
     })
 }
+
+// ---- The command.
+
+/// Where `dcfo identify` runs the commissioning.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Where {
+    /// In this process, against the simulated plant of the motor.
+    Sim,
+    /// The firmware under QEMU (not implemented: exit status 2).
+    Qemu,
+    /// A board on this serial port (not implemented: exit status 2).
+    Port(String),
+    /// Not said (an error).
+    Unsaid,
+}
+
+/// What `dcfo identify` is asked to do.
+#[derive(Debug, Clone)]
+pub struct Params {
+    /// Where the commissioning runs.
+    pub place: Where,
+    /// Motor the plant is built from: a preset name (`paper`) or a motor TOML file.
+    pub motor: String,
+    /// Seed of the plant's sensor noise.
+    pub seed: u64,
+    /// Write the identified motor (shared motor-file format) to this file.
+    pub output: Option<std::path::PathBuf>,
+    /// Print one JSON object on the last line of stdout.
+    pub json: bool,
+    /// Instead: the light-load steady angle error (electrical degrees) over this many
+    /// plant seeds (1..=N), and the medians.
+    pub steady_seeds: Option<u64>,
+}
+
+/// `dcfo identify`: runs the commissioning (or the steady-error comparison) and prints
+/// the table; exit status 2 for a place that is not implemented.
+pub fn run_command(params: &Params) -> anyhow::Result<std::process::ExitCode> {
+    use anyhow::Context;
+    use std::process::ExitCode;
+    match params.place {
+        Where::Qemu | Where::Port(_) => {
+            eprintln!(
+                "dcfo identify: --qemu and --port are not implemented yet (the firmware images do \
+                 not run commissioning over the link); use --sim"
+            );
+            return Ok(ExitCode::from(2));
+        }
+        Where::Unsaid => {
+            anyhow::bail!("identify: say where to run the commissioning: --sim (or --qemu, --port)")
+        }
+        Where::Sim => {}
+    }
+    if let Some(seeds) = params.steady_seeds {
+        let median = |mut v: Vec<f64>| -> String {
+            if v.is_empty() {
+                return "-".into();
+            }
+            v.sort_by(f64::total_cmp);
+            let n = v.len();
+            format!("{:.3}", if n % 2 == 1 { v[n / 2] } else { 0.5 * (v[n / 2 - 1] + v[n / 2]) })
+        };
+        let show = |x: Option<f64>| x.map_or("lost".to_string(), |d| format!("{d:.3}"));
+        println!("seed  none(deg)  typed-in  identified-comp  identified-motor+comp");
+        let mut rows = Vec::new();
+        for seed in 1..=seeds {
+            let r = steady_row(seed).map_err(|e| anyhow::anyhow!("seed {seed}: {e}"))?;
+            println!(
+                "{:>4}  {:>9}  {:>8}  {:>15}  {:>21}",
+                seed,
+                show(r.none_deg),
+                show(r.typed_deg),
+                show(r.identified_comp_deg),
+                show(r.identified_all_deg)
+            );
+            rows.push(r);
+        }
+        let col = |f: fn(&SteadyRow) -> Option<f64>| -> (String, usize) {
+            let v: Vec<f64> = rows.iter().filter_map(f).collect();
+            let lost = rows.len() - v.len();
+            (median(v), lost)
+        };
+        let cols = [
+            col(|r| r.none_deg),
+            col(|r| r.typed_deg),
+            col(|r| r.identified_comp_deg),
+            col(|r| r.identified_all_deg),
+        ];
+        println!(
+            "median rms angle error (deg; runs lost): none {} ({}), typed-in {} ({}), identified comp {} ({}), \
+             identified motor + comp {} ({})",
+            cols[0].0, cols[0].1, cols[1].0, cols[1].1, cols[2].0, cols[2].1, cols[3].0, cols[3].1
+        );
+        if params.json {
+            println!("{}", serde_json::to_string(&rows)?);
+        }
+        return Ok(ExitCode::SUCCESS);
+    }
+    let motor = crate::motor_file::load_motor(&params.motor)?;
+    let report = identify(&params.motor, &motor.params, params.seed, Default::default())
+        .map_err(|e| anyhow::anyhow!("identify {}: {e}", params.motor))?;
+    if let Some(path) = &params.output {
+        let text = motor_toml(&report, &motor.params)?;
+        std::fs::write(path, text).with_context(|| format!("writing {}", path.display()))?;
+    }
+    print!("{}", table(&report));
+    if params.json {
+        println!("{}", json_line(&report));
+    }
+    Ok(ExitCode::SUCCESS)
+}

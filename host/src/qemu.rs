@@ -1,7 +1,10 @@
 //! QEMU's MPS2 boards for the firmware images: which board and numeric type
 //! ([`QemuCpu`]), building an image, and a running QEMU ([`QemuSession`]) with UART0 on
 //! its standard I/O and its monitor on a socket. Shared by `dcfo hil` (the lock-step
-//! HIL image), `dcfo board` (the drive image with the virtual motor) and the tests.
+//! HIL image), `dcfo board` (the drive image with the virtual motor), the `bench_qemu`
+//! benchmark (the same command line with the exec log, [`qemu_command`] and
+//! [`qmp_human_command`]) and the tests: the one table of which image, board, machine
+//! and target belong together.
 //!
 //! QEMU 7.2+: `-display none -monitor none -serial stdio` (a display or a monitor on
 //! stdio would take the UART's place); the CMSDK UART model moves about 500 to 1,400
@@ -12,6 +15,7 @@ use std::io::Write;
 use std::os::unix::process::CommandExt;
 use std::path::{Path, PathBuf};
 use std::process::{Child, ChildStdin, ChildStdout, Command, Stdio};
+use std::time::Duration;
 
 /// The QEMU board of a HIL run, and with it the firmware's numeric type.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
@@ -67,10 +71,73 @@ pub fn missing_tools(cpu: QemuCpu) -> Option<String> {
     (!installed).then(|| format!("the {} target is not installed", cpu.target()))
 }
 
-/// The ELF of firmware image `example` (`qemu_hil`, `qemu_drive`, ...) for `cpu`, in the
-/// workspace's target directory.
+/// Cargo's target directory for the workspace at `workspace`: `$CARGO_TARGET_DIR`
+/// (relative to `workspace` when relative) if set, else `workspace/target`, where a
+/// `cargo build` run in `workspace` puts its output.
+pub fn target_dir(workspace: &Path) -> PathBuf {
+    match std::env::var_os("CARGO_TARGET_DIR") {
+        Some(dir) if !dir.is_empty() => workspace.join(dir),
+        _ => workspace.join("target"),
+    }
+}
+
+/// The ELF of firmware image `example` (`qemu_hil`, `qemu_drive`, `bench`, ...) for
+/// `cpu`, in the workspace's target directory ([`target_dir`]).
 pub fn qemu_example_elf(workspace: &Path, cpu: QemuCpu, example: &str) -> PathBuf {
-    workspace.join("target").join(cpu.target()).join("release/examples").join(example)
+    target_dir(workspace).join(cpu.target()).join("release/examples").join(example)
+}
+
+/// The command line that runs `elf` on `cpu`'s board: `-display none -monitor none
+/// -serial stdio` (UART0 on QEMU's standard I/O), semihosting on (the images exit
+/// through it), the monitor (QMP) on the Unix socket `qmp_socket`. Standard I/O is not
+/// set; callers add their own options (the benchmark: the exec log).
+pub fn qemu_command(elf: &Path, cpu: QemuCpu, qmp_socket: &Path) -> Command {
+    let (machine, core) = cpu.machine_and_cpu();
+    let mut command = Command::new("qemu-system-arm");
+    command
+        .args(["-M", machine, "-cpu", core, "-display", "none", "-monitor", "none"])
+        .arg("-qmp")
+        .arg(format!("unix:{},server=on,wait=off", qmp_socket.display()))
+        .args(["-semihosting-config", "enable=on,target=native", "-serial", "stdio", "-kernel"])
+        .arg(elf);
+    command
+}
+
+/// Runs one human-monitor command (`xp /4wx 0x0`, `log exec,nochain`) through QEMU's
+/// monitor (QMP) on the Unix socket `qmp_socket` and returns its text output; each read
+/// waits at most `timeout`. An error names the socket or QMP's refusal.
+pub fn qmp_human_command(
+    qmp_socket: &Path,
+    command_line: &str,
+    timeout: Duration,
+) -> Result<String, SimError> {
+    use std::io::BufRead;
+    let err = |what: &str| SimError::Controller(format!("QEMU monitor at {}: {what}", qmp_socket.display()));
+    let socket =
+        std::os::unix::net::UnixStream::connect(qmp_socket).map_err(|e| err(&format!("connecting: {e}")))?;
+    socket.set_read_timeout(Some(timeout)).map_err(|e| err(&e.to_string()))?;
+    let mut writer = socket.try_clone().map_err(|e| err(&e.to_string()))?;
+    let mut lines = std::io::BufReader::new(socket).lines();
+    // The greeting, then one answer per command (events in between are skipped).
+    let mut answer = |command: serde_json::Value| -> Result<serde_json::Value, SimError> {
+        writeln!(writer, "{command}").map_err(|e| err(&e.to_string()))?;
+        loop {
+            let line = lines.next().ok_or_else(|| err("closed"))?.map_err(|e| err(&e.to_string()))?;
+            let v: serde_json::Value = serde_json::from_str(&line).map_err(|e| err(&e.to_string()))?;
+            if let Some(r) = v.get("return") {
+                return Ok(r.clone());
+            }
+            if let Some(e) = v.get("error") {
+                return Err(err(&format!("`{command_line}` refused: {e}")));
+            }
+        }
+    };
+    answer(serde_json::json!({ "execute": "qmp_capabilities" }))?;
+    let text = answer(serde_json::json!({
+        "execute": "human-monitor-command",
+        "arguments": { "command-line": command_line },
+    }))?;
+    text.as_str().map(str::to_owned).ok_or_else(|| err(&format!("`{command_line}` answered no text")))
 }
 
 /// Builds the MPS2 firmware image `example` for `cpu` with cargo (release).
@@ -112,16 +179,10 @@ impl QemuSession {
     /// Starts `qemu-system-arm` on `cpu`'s board with `elf` (`-display none -monitor none
     /// -serial stdio`: UART0 on the returned pipes); returns the session and the pipes.
     pub fn spawn(elf: &Path, cpu: QemuCpu) -> Result<(QemuSession, ChildStdin, ChildStdout), SimError> {
-        let (machine, core) = cpu.machine_and_cpu();
         let dir =
             tempfile::tempdir().map_err(|e| SimError::Controller(format!("temporary directory: {e}")))?;
         let qmp_socket = dir.path().join("qmp.sock");
-        let mut child = Command::new("qemu-system-arm")
-            .args(["-M", machine, "-cpu", core, "-display", "none", "-monitor", "none"])
-            .arg("-qmp")
-            .arg(format!("unix:{},server=on,wait=off", qmp_socket.display()))
-            .args(["-semihosting-config", "enable=on,target=native", "-serial", "stdio", "-kernel"])
-            .arg(elf)
+        let mut child = qemu_command(elf, cpu, &qmp_socket)
             .stdin(Stdio::piped())
             .stdout(Stdio::piped())
             .stderr(Stdio::inherit())
@@ -144,33 +205,12 @@ impl QemuSession {
     /// Reads `count` 32-bit words of the target's memory from `addr`, through QEMU's
     /// monitor (QMP `human-monitor-command` with `xp`). The target keeps running.
     pub fn read_words(&self, addr: u32, count: u32) -> Result<Vec<u32>, SimError> {
-        use std::io::BufRead;
+        let text = qmp_human_command(
+            &self.qmp_socket,
+            &format!("xp /{count}wx {addr:#x}"),
+            crate::hil::ANSWER_TIMEOUT,
+        )?;
         let err = |what: &str| SimError::Controller(format!("QEMU monitor: {what}"));
-        let socket = std::os::unix::net::UnixStream::connect(&self.qmp_socket)
-            .map_err(|e| err(&format!("connecting to {}: {e}", self.qmp_socket.display())))?;
-        socket.set_read_timeout(Some(crate::hil::ANSWER_TIMEOUT)).map_err(|e| err(&e.to_string()))?;
-        let mut writer = socket.try_clone().map_err(|e| err(&e.to_string()))?;
-        let mut lines = std::io::BufReader::new(socket).lines();
-        // The greeting, then one answer per command (events in between are skipped).
-        let mut answer = |command: serde_json::Value| -> Result<serde_json::Value, SimError> {
-            writeln!(writer, "{command}").map_err(|e| err(&e.to_string()))?;
-            loop {
-                let line = lines.next().ok_or_else(|| err("closed"))?.map_err(|e| err(&e.to_string()))?;
-                let v: serde_json::Value = serde_json::from_str(&line).map_err(|e| err(&e.to_string()))?;
-                if let Some(r) = v.get("return") {
-                    return Ok(r.clone());
-                }
-                if let Some(e) = v.get("error") {
-                    return Err(err(&e.to_string()));
-                }
-            }
-        };
-        answer(serde_json::json!({ "execute": "qmp_capabilities" }))?;
-        let text = answer(serde_json::json!({
-            "execute": "human-monitor-command",
-            "arguments": { "command-line": format!("xp /{count}wx {addr:#x}") },
-        }))?;
-        let text = text.as_str().ok_or_else(|| err("xp answered no text"))?;
         // Lines `<address>: 0x<word> 0x<word> ...`.
         let words: Vec<u32> = text
             .lines()

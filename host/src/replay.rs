@@ -1,7 +1,7 @@
 //! Trace replay: runs the drive's estimator (flux observer + PLL) over an input trace.
 //!
 //! [`replay_trace`] is the whole algorithm; the `dcfo replay` command (see
-//! [`crate::cli`]) adds file I/O, the summary and a progress bar around it.
+//! [`run_command`]) adds file I/O, the summary and a progress bar around it.
 //!
 //! # Semantics (bit-exact with the closed-loop simulator)
 //!
@@ -28,6 +28,7 @@
 //! are returned, so no output can be written as if complete.
 
 use std::fmt;
+use std::path::{Path, PathBuf};
 
 use dcfo::estimator::{Estimator, EstimatorConfig, EstimatorConfigError, EstimatorFault};
 use dcfo::motor::MotorParams;
@@ -36,7 +37,11 @@ use dcfo::pll::PllFault;
 use dcfo::transforms::AlphaBeta;
 use dcfo::units::Base;
 
-use crate::trace::{Estimate, InputTrace, TraceRow};
+use crate::motor_file::load_motor;
+use crate::observer::observer_name;
+use crate::progress::{Progress, with_spinner};
+use crate::summary::Summary;
+use crate::trace::{Estimate, InputTrace, TraceRow, write_output_trace};
 
 /// How often (in rows) [`replay_trace_with_progress`] reports progress.
 pub const PROGRESS_EVERY_ROWS: usize = 4096;
@@ -92,16 +97,6 @@ pub struct KindName(pub ObserverKind);
 impl fmt::Display for KindName {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         f.write_str(observer_name(self.0))
-    }
-}
-
-/// The command-line name of an observer: `pi` (pure integrator), `cfo` (LPF, the
-/// paper's conventional observer) or `dcfo`.
-pub fn observer_name(kind: ObserverKind) -> &'static str {
-    match kind {
-        ObserverKind::PureIntegrator => "pi",
-        ObserverKind::Cfo => "cfo",
-        ObserverKind::Dcfo => "dcfo",
     }
 }
 
@@ -188,6 +183,80 @@ fn to_f32(row: &TraceRow, row_number: usize) -> Result<[f32; 4], ReplayError> {
         *slot = x;
     }
     Ok(out)
+}
+
+// ---- The command.
+
+/// What `dcfo replay` is asked to do.
+#[derive(Debug, Clone)]
+pub struct Params {
+    /// Motor: a preset name (`paper`) or a TOML motor file.
+    pub motor: String,
+    /// Flux observer feeding the PLL.
+    pub observer: ObserverKind,
+    /// Input trace (CSV, shared trace format).
+    pub trace: PathBuf,
+    /// Output trace (CSV), written atomically.
+    pub output: PathBuf,
+    /// Print the summary as exactly one JSON object on stdout.
+    pub json: bool,
+    /// Settle time, s: the summary covers the samples from the first row's time plus this.
+    pub settle_s: f64,
+}
+
+/// `dcfo replay`: read, replay, summarise, then write the output trace and print the
+/// summary. Nothing is written unless every step succeeds.
+pub fn run_command(params: &Params) -> anyhow::Result<()> {
+    use anyhow::{Context, bail};
+    let motor = load_motor(&params.motor)?;
+    if same_file(&params.trace, &params.output) {
+        bail!("output {} is the input trace; choose another output file", params.output.display());
+    }
+    let trace =
+        with_spinner(format!("reading {}", params.trace.display()), || InputTrace::read_path(&params.trace))?;
+    let kind = params.observer;
+    let rows = trace.rows().len();
+    let mut progress = Progress::new(rows);
+    let estimates = replay_trace_with_progress(&trace, &motor.params, kind, |n| progress.update(n))
+        .with_context(|| {
+            format!("{}: replay with the {} observer stopped", params.trace.display(), observer_name(kind))
+        });
+    progress.finish();
+    let estimates = estimates?;
+    let summary =
+        Summary::compute(&trace, &estimates, &motor.params, params.settle_s).with_context(|| {
+            format!("{}: cannot summarise (adjust --settle; no output was written)", params.trace.display())
+        })?;
+    with_spinner(format!("writing {}", params.output.display()), || {
+        write_output_trace(&params.output, &trace, &estimates)
+    })?;
+    if params.json {
+        println!("{}", summary.to_json());
+    } else {
+        let ts = trace.sample_period_s();
+        let span = match (trace.rows().first(), trace.rows().last()) {
+            (Some(a), Some(b)) => b.t - a.t,
+            _ => 0.0,
+        };
+        println!(
+            "replay of {} ({rows} rows, Ts = {:.4} ms, {span:.4} s) with the {} observer, motor {}",
+            params.trace.display(),
+            ts * 1e3,
+            observer_name(kind),
+            motor.name
+        );
+        println!("wrote {}", params.output.display());
+        println!("{summary}");
+    }
+    Ok(())
+}
+
+/// `true` when both paths name the same existing file.
+fn same_file(a: &Path, b: &Path) -> bool {
+    match (a.canonicalize(), b.canonicalize()) {
+        (Ok(a), Ok(b)) => a == b,
+        _ => false,
+    }
 }
 
 #[cfg(test)]

@@ -427,3 +427,67 @@ pub fn figure(s: &StrokeSummary, rows: &[Row]) -> crate::plot::Figure {
         ],
     )
 }
+
+// ---- The command.
+
+/// What `dcfo stroke` is asked to do.
+#[derive(Debug, Clone)]
+pub struct Params {
+    /// Motor: a preset name (`paper`) or a motor TOML file (it must give `mass_kg`).
+    pub motor: String,
+    /// Print exactly one JSON object (the summary) on stdout.
+    pub json: bool,
+    /// Directory for `stroke.json`, `stroke.csv` (every 10th period) and the figure
+    /// `stroke.png` / `stroke.svg`.
+    pub out: std::path::PathBuf,
+}
+
+/// `dcfo stroke`: the positioning drive over the stroke, its results in `params.out`
+/// and the table (or JSON) on stdout.
+pub fn run_command(params: &Params) -> anyhow::Result<()> {
+    use anyhow::Context;
+    let motor = crate::motor_file::load_motor(&params.motor)?;
+    // The positioning drive's speed loop, feed-forward and low-speed damping are tuned
+    // on the mover's mass: a placeholder would tune them silently wrong.
+    if motor.defaulted.contains(&"mass_kg") {
+        anyhow::bail!(
+            "motor file {}: key `mass_kg` is required by the positioning drive (its speed loop, \
+             acceleration feed-forward and low-speed damping are tuned on the moving mass)",
+            params.motor
+        );
+    }
+    let started = std::time::Instant::now();
+    let (summary, rows) =
+        run(&params.motor, &motor.params, 10).map_err(|e| anyhow::anyhow!("{}: {e}", params.motor))?;
+    let out = &params.out;
+    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    std::fs::write(out.join("stroke.json"), serde_json::to_string_pretty(&summary)?)
+        .with_context(|| format!("writing {}", out.join("stroke.json").display()))?;
+    let mut csv =
+        String::from("t_s,x_m,x_hat_m,x_ref_m,v_m_per_s,v_ref_m_per_s,state,angle_err_deg,i_d_a,i_q_a\n");
+    for r in &rows {
+        csv += &format!(
+            "{},{},{},{},{},{},{},{},{},{}\n",
+            r.t_s,
+            r.x_m,
+            r.x_hat_m,
+            r.x_ref_m,
+            r.v_m_per_s,
+            r.v_ref_m_per_s,
+            r.state,
+            r.angle_err_deg,
+            r.i_d_a,
+            r.i_q_a
+        );
+    }
+    std::fs::write(out.join("stroke.csv"), csv)
+        .with_context(|| format!("writing {}", out.join("stroke.csv").display()))?;
+    crate::plot::write_figure(&figure(&summary, &rows), &out.join("stroke"))?;
+    eprintln!("stroke: {:.1} s; results in {}", started.elapsed().as_secs_f64(), out.display());
+    if params.json {
+        println!("{}", serde_json::to_string(&summary)?);
+    } else {
+        print!("{}", table(&summary));
+    }
+    Ok(())
+}

@@ -3,7 +3,7 @@
 //! figure (with its reason) where not, and against the analysis where it predicts one.
 
 use dcfo::motor::MotorParams;
-use dcfo_host::sim::report::{PaperReport, ScenarioResult, paper_report};
+use dcfo_host::paper::{PaperReport, ScenarioResult, paper_report};
 use dcfo_host::sim::scenarios::Figures;
 use std::sync::OnceLock;
 

@@ -28,23 +28,26 @@
 use std::collections::BTreeMap;
 use std::fs::File;
 use std::io::{BufRead, BufReader, Write};
-use std::os::unix::net::UnixStream;
 use std::path::{Path, PathBuf};
 use std::process::{Command, ExitCode, Stdio};
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
+use dcfo_host::qemu::{
+    QemuCpu, build_qemu_example, qemu_command, qemu_example_elf, qmp_human_command, target_dir,
+};
 
 /// Control steps measured per type (`MEASURED_STEPS` in the firmware).
 const STEP_REGION: &str = "step";
 /// The baseline region.
 const EMPTY_REGION: &str = "empty";
 
-/// One benchmark image and the QEMU board it runs on (target, machine and CPU from
-/// `dcfo_host::qemu::QemuCpu`, shared with `dcfo hil` and `dcfo board`).
+/// One benchmark image and the QEMU board it runs on: target, machine, CPU, the
+/// image's path, how it is built and run all come from `dcfo_host::qemu`, shared with
+/// `dcfo hil` and `dcfo board`.
 struct Board {
     label: &'static str,
-    qemu: dcfo_host::qemu::QemuCpu,
+    qemu: QemuCpu,
 }
 
 impl Board {
@@ -54,15 +57,10 @@ impl Board {
     fn machine(&self) -> &'static str {
         self.qemu.machine_and_cpu().0
     }
-    fn cpu(&self) -> &'static str {
-        self.qemu.machine_and_cpu().1
-    }
 }
 
-const BOARDS: [Board; 2] = [
-    Board { label: "Cortex-M4F", qemu: dcfo_host::qemu::QemuCpu::M4f },
-    Board { label: "Cortex-M3", qemu: dcfo_host::qemu::QemuCpu::M3 },
-];
+const BOARDS: [Board; 2] =
+    [Board { label: "Cortex-M4F", qemu: QemuCpu::M4f }, Board { label: "Cortex-M3", qemu: QemuCpu::M3 }];
 
 /// What one run measured: per numeric type, the regions' instruction counts (in
 /// order), and the stack depth.
@@ -93,15 +91,14 @@ fn run() -> Result<()> {
         .parent()
         .context("host crate has no parent directory")?
         .to_path_buf();
-    let target_dir = std::env::var_os("CARGO_TARGET_DIR").map_or_else(|| root.join("target"), PathBuf::from);
     for board in &BOARDS {
-        build(&root, board.target(), "bench")?;
-        build(&root, board.target(), "qemu_hil")?;
+        build_qemu_example(&root, board.qemu, "bench")?;
+        build_qemu_example(&root, board.qemu, "qemu_hil")?;
     }
 
     let mut runs = Vec::new();
     for board in &BOARDS {
-        let elf = target_dir.join(board.target()).join("release/examples/bench");
+        let elf = qemu_example_elf(&root, board.qemu, "bench");
         let started = Instant::now();
         let run = run_traced(board, &elf)?;
         eprintln!(
@@ -166,14 +163,14 @@ fn run() -> Result<()> {
     for example in ["b_g431b_esc1", "b_g431b_esc1_hil"] {
         images.push((
             format!("{example} (STM32G431CB, thumbv7em-none-eabihf)"),
-            target_dir.join("thumbv7em-none-eabihf/release/examples").join(example),
+            target_dir(&root).join("thumbv7em-none-eabihf/release/examples").join(example),
         ));
     }
     for board in &BOARDS {
         for example in ["qemu_hil", "bench"] {
             images.push((
                 format!("{example} ({}, {})", board.label, board.target()),
-                target_dir.join(board.target()).join("release/examples").join(example),
+                qemu_example_elf(&root, board.qemu, example),
             ));
         }
     }
@@ -217,20 +214,6 @@ fn cell(regions: &[(String, u64)], name: &str) -> String {
             if name == STEP_REGION { format!("{mean:.0} [{min}..{max}]") } else { format!("{mean:.0}") }
         }
     }
-}
-
-fn build(root: &Path, target: &str, example: &str) -> Result<()> {
-    let cargo = std::env::var_os("CARGO").unwrap_or_else(|| "cargo".into());
-    let status = Command::new(cargo)
-        .current_dir(root)
-        .args(["build", "-p", "dcfo-firmware", "--release", "--features", "mps2", "--target", target])
-        .args(["--example", example])
-        .status()
-        .context("running cargo")?;
-    if !status.success() {
-        bail!("building {example} for {target} failed ({status})");
-    }
-    Ok(())
 }
 
 /// Builds the B-G431B-ESC1 images (feature `esc1`), for their sizes.
@@ -285,16 +268,9 @@ fn run_traced(board: &Board, elf: &Path) -> Result<Run> {
         None => dir.path().join("trace.log"),
     };
     let qmp = dir.path().join("qmp.sock");
-    let mut child = Command::new("qemu-system-arm")
-        .args(["-M", board.machine(), "-cpu", board.cpu()])
-        .args(["-display", "none", "-monitor", "none", "-serial", "stdio"])
-        .args(["-semihosting-config", "enable=on,target=native"])
+    let mut child = qemu_command(elf, board.qemu, &qmp)
         .args(["-singlestep", "-d", "nochain", "-D"])
         .arg(&trace)
-        .arg("-qmp")
-        .arg(format!("unix:{},server=on,wait=off", qmp.display()))
-        .arg("-kernel")
-        .arg(elf)
         .stdin(Stdio::piped())
         .stdout(Stdio::piped())
         .spawn()
@@ -361,31 +337,7 @@ fn run_traced(board: &Board, elf: &Path) -> Result<Run> {
 
 /// `log exec,nochain` over QMP.
 fn switch_exec_log_on(socket: &Path) -> Result<()> {
-    let stream =
-        UnixStream::connect(socket).with_context(|| format!("connecting to QMP at {}", socket.display()))?;
-    stream.set_read_timeout(Some(Duration::from_secs(30)))?;
-    let mut reader = BufReader::new(stream.try_clone()?);
-    let mut writer = stream;
-    let mut reply = String::new();
-    reader.read_line(&mut reply).context("reading the QMP greeting")?;
-    for command in [
-        r#"{"execute":"qmp_capabilities"}"#,
-        r#"{"execute":"human-monitor-command","arguments":{"command-line":"log exec,nochain"}}"#,
-    ] {
-        writeln!(writer, "{command}")?;
-        loop {
-            reply.clear();
-            if reader.read_line(&mut reply)? == 0 {
-                bail!("QMP closed the connection");
-            }
-            if reply.contains("\"error\"") {
-                bail!("QMP refused {command}: {reply}");
-            }
-            if reply.contains("\"return\"") {
-                break;
-            }
-        }
-    }
+    qmp_human_command(socket, "log exec,nochain", Duration::from_secs(30))?;
     Ok(())
 }
 

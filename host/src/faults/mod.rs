@@ -559,3 +559,42 @@ pub fn figure(result: &CaseResult, log: &[Period]) -> crate::plot::Figure {
         ],
     )
 }
+
+// ---- The command.
+
+/// What `dcfo faults` is asked to do.
+#[derive(Debug, Clone)]
+pub struct Params {
+    /// Print exactly one JSON object (the campaign) on stdout, on its last line.
+    pub json: bool,
+    /// Directory for `faults.json` and one figure per case (`CASE.png` / `CASE.svg`).
+    pub out: std::path::PathBuf,
+}
+
+/// `dcfo faults`: the fault campaign on every core, its results in `params.out` and the
+/// table (or JSON) on stdout. Exit status 1 when a floor is missed (a silent failure, a
+/// bridge switched off later than one period after its fault's condition); cases that
+/// miss their stated expectation are counted as `unmet`.
+pub fn run_command(params: &Params) -> anyhow::Result<std::process::ExitCode> {
+    use anyhow::Context;
+    let started = std::time::Instant::now();
+    let threads = std::thread::available_parallelism().map_or(2, |n| n.get());
+    let (campaign, logs) =
+        run_all(threads, |name| eprintln!("faults: {name} done")).map_err(|e| anyhow::anyhow!(e))?;
+    let out = &params.out;
+    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    std::fs::write(out.join("faults.json"), serde_json::to_string_pretty(&campaign)?)
+        .with_context(|| format!("writing {}", out.join("faults.json").display()))?;
+    for (r, log) in campaign.results.iter().zip(&logs) {
+        crate::plot::write_figure(&figure(r, log), &out.join(&r.name))?;
+    }
+    eprintln!("faults: {:.1} s; results in {}", started.elapsed().as_secs_f64(), out.display());
+    if params.json {
+        println!("{}", serde_json::to_string(&campaign)?);
+    } else {
+        print!("{}", table(&campaign));
+    }
+    // The floors: no silent failure, the bridge off within one period on every trip.
+    let floors = campaign.silent_failures == 0 && campaign.max_bridge_off_periods <= 1;
+    Ok(if floors { std::process::ExitCode::SUCCESS } else { std::process::ExitCode::FAILURE })
+}

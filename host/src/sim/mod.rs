@@ -1,5 +1,8 @@
-//! Closed-loop simulation: the plant model and the library's drive (`Drive<f32>`, the
-//! firmware's control step) in lock-step, with scenario events and ground truth.
+//! Closed-loop simulation: the plant model and the library's drive (the firmware's
+//! control step, `Drive<f32>` in SI units or `Drive<Q24>` per-unit: [`LocalDrive`]) in
+//! lock-step, with scenario events and ground truth. Both numeric types log the same
+//! detailed samples ([`StepDetail`], converted to SI through the drive's base); a drive
+//! behind a link ([`Controller`] in `crate::hil`) logs what the link carries.
 //!
 //! Per PWM period `k` (time `t_k`): the plant's sensors are sampled, the drive computes
 //! its step, the plant runs the period with the duties computed one step earlier (the
@@ -157,15 +160,69 @@ pub fn compensation_for(sim: &SimParams) -> dcfo::drive::DeadTimeCompensation {
 }
 
 /// One control step as the simulation sees it: the actuation frame (what a drive behind
-/// a serial link reports, with its conversions) and, for the in-process drive, the
-/// drive's full step output.
+/// a serial link reports, with its conversions) and, for the in-process drive of any
+/// numeric type, the drive's full step output in SI units.
 #[derive(Clone, Copy, Debug)]
 pub struct ControlStep {
     /// What the drive reports, exactly as the HIL link carries it.
     pub frame: ActuationFrame,
     /// The in-process drive's full output (observer inputs, currents); `None` over a
     /// link.
-    pub detail: Option<StepOutput<f32>>,
+    pub detail: Option<StepDetail>,
+}
+
+/// A drive step's full output ([`StepOutput`]) in SI units, converted from the drive's
+/// working units (f32 SI or Q8.24 per-unit) through its [`Base`]: for the f32 drive in
+/// SI the values are its own, bit for bit (the base's factors are 1).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct StepDetail {
+    /// Voltage applied during the present period as the observer sees it (α, β), V.
+    pub u_applied_v: [f64; 2],
+    /// Currents as the observer saw them this step (α, β), A.
+    pub i_observer_a: [f64; 2],
+    /// Measured currents in the control frame (d, q), A.
+    pub i_dq_a: [f64; 2],
+    /// Current references in the control frame (d, q), A.
+    pub i_dq_ref_a: [f64; 2],
+    /// The commanded electrical acceleration the estimator used, rad/s^2.
+    pub alpha_e_ref_rad_per_s2: f64,
+    /// The estimator's output, `None` while it is not running.
+    pub estimate: Option<EstimateDetail>,
+}
+
+/// The estimator's output of one step in SI units (see [`StepDetail`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct EstimateDetail {
+    /// Estimated electrical angle, rad in (-pi, pi].
+    pub theta_e_rad: f64,
+    /// Estimated mover flux (α, β), Wb.
+    pub psi_wb: [f64; 2],
+    /// The estimator's lock flag.
+    pub locked: bool,
+}
+
+impl StepDetail {
+    /// The step output `out` of a drive working in `base`, in SI units.
+    pub fn from_step<T: Scalar>(out: &StepOutput<T>, base: &Base) -> Self {
+        let volts =
+            |ab: AlphaBeta<T>| [f64::from(base.to_volts(ab.alpha)), f64::from(base.to_volts(ab.beta))];
+        let amperes = |x: T| f64::from(base.to_amperes(x));
+        StepDetail {
+            u_applied_v: volts(out.u_applied),
+            i_observer_a: [amperes(out.i_observer.alpha), amperes(out.i_observer.beta)],
+            i_dq_a: [amperes(out.i_dq.d), amperes(out.i_dq.q)],
+            i_dq_ref_a: [amperes(out.i_dq_ref.d), amperes(out.i_dq_ref.q)],
+            alpha_e_ref_rad_per_s2: f64::from(base.to_rad_per_s(out.alpha_e_ref) / base.time_s()),
+            estimate: out.estimate.map(|est| EstimateDetail {
+                theta_e_rad: est.theta_e.to_radians::<f64>(),
+                psi_wb: [
+                    f64::from(base.to_webers(est.psi_ab.alpha)),
+                    f64::from(base.to_webers(est.psi_ab.beta)),
+                ],
+                locked: est.locked,
+            }),
+        }
+    }
 }
 
 /// A drive the simulation can close the loop with: in-process ([`LocalDrive`]) or
@@ -211,7 +268,7 @@ impl LocalDrive<Q24> {
     }
 }
 
-impl<T: Scalar + 'static> Controller for LocalDrive<T> {
+impl<T: Scalar> Controller for LocalDrive<T> {
     fn reset_estimator(&mut self) -> Result<(), SimError> {
         self.drive.reset_estimator();
         Ok(())
@@ -227,13 +284,14 @@ impl<T: Scalar + 'static> Controller for LocalDrive<T> {
     }
 
     fn step(&mut self, sensor: &SensorFrame) -> Result<ControlStep, SimError> {
-        // The same three calls the firmware makes on a received frame.
+        // The same three calls the firmware makes on a received frame: the drive gets
+        // exactly the inputs (f32 conversions, per-unit scaling) the firmware's gets, and
+        // the frame carries exactly what the firmware would send, which keeps an
+        // in-process run bit-identical with a HIL run of the same numeric type.
         sensor.apply_commands(&mut self.drive);
         let out = self.drive.step(&sensor.measurements(&self.base));
         let frame = ActuationFrame::from_step(sensor.sequence, &out, &self.base, LinkStats::default());
-        // The full output is in SI units only for the f32 drive.
-        let detail = (&out as &dyn core::any::Any).downcast_ref::<StepOutput<f32>>().copied();
-        Ok(ControlStep { frame, detail })
+        Ok(ControlStep { frame, detail: Some(StepDetail::from_step(&out, &self.base)) })
     }
 }
 
@@ -311,18 +369,13 @@ pub fn run_with(
         }
         let Some(e) = f.estimate else { continue };
         let v_ref = if f.state() == DriveState::Running { v_ref_target } else { f64::NAN };
-        let locked = step.detail.and_then(|out| out.estimate).map(|est| est.locked);
-        let alpha_e_ref = step.detail.map_or(f64::NAN, |out| f64::from(out.alpha_e_ref));
+        let locked = step.detail.and_then(|d| d.estimate).map(|est| est.locked);
+        let alpha_e_ref = step.detail.map_or(f64::NAN, |d| d.alpha_e_ref_rad_per_s2);
         let (observer_u, observer_i, i_dq, i_dq_ref, theta_hat, psi_hat) = match step.detail {
-            Some(out) => match out.estimate {
-                Some(est) => (
-                    [out.u_applied.alpha as f64, out.u_applied.beta as f64],
-                    [out.i_observer.alpha as f64, out.i_observer.beta as f64],
-                    [out.i_dq.d as f64, out.i_dq.q as f64],
-                    [out.i_dq_ref.d as f64, out.i_dq_ref.q as f64],
-                    est.theta_e.to_radians::<f64>(),
-                    [est.psi_ab.alpha as f64, est.psi_ab.beta as f64],
-                ),
+            Some(d) => match d.estimate {
+                Some(est) => {
+                    (d.u_applied_v, d.i_observer_a, d.i_dq_a, d.i_dq_ref_a, est.theta_e_rad, est.psi_wb)
+                }
                 None => continue,
             },
             None => {
@@ -403,5 +456,39 @@ mod tests {
         assert_eq!(s.drive.moving_mass_kg, s.plant.plant.mass_kg as f32);
         let noise = s.plant.sensors.current_noise_rms_a;
         assert!((0.5 * noise..=2.0 * noise).contains(&f64::from(comp.current_band_a)));
+    }
+
+    /// The Q8.24 drive logs the same detailed samples as the f32 drive (lock flag,
+    /// observer inputs, control-frame currents, commanded acceleration), in SI units,
+    /// and its detailed angle is the one the link reports.
+    #[test]
+    fn fixed_point_runs_log_the_detailed_output() {
+        let setup = Setup::paper(ObserverKind::Dcfo);
+        let mut sc = scenarios::scenario("steady").expect("scenario");
+        sc.duration_s = 1.5;
+        let f = run(&setup, &sc, |_| {}).expect("f32 run");
+        let q = run_with(&setup, &sc, &mut LocalDrive::fixed_point(&setup).expect("drive"), |_| {})
+            .expect("q24 run");
+        assert!(q.samples.len() > 1000, "{} samples", q.samples.len());
+        for s in &q.samples {
+            assert!(s.locked.is_some(), "t = {}: no lock flag", s.row.t);
+            assert!(
+                s.alpha_e_ref.is_finite() && s.i_d.is_finite() && s.i_q_ref.is_finite(),
+                "t = {}",
+                s.row.t
+            );
+            let d = wrap_angle(s.theta_hat - f64::from(s.theta_hat_link));
+            assert!(d.abs() < 1e-6, "t = {}: detail {} vs link {}", s.row.t, s.theta_hat, s.theta_hat_link);
+        }
+        // Running at the same point of the same scenario, the two drives' observer
+        // inputs agree to the sensor noise and the per-unit rounding (SI, not per-unit).
+        let (a, b) = (f.samples.last().expect("f32 sample"), q.samples.last().expect("q24 sample"));
+        assert_eq!(a.row.t, b.row.t);
+        assert!(b.locked == Some(true) && a.locked == Some(true));
+        let amp = |s: &Sample| s.row.i_alpha.hypot(s.row.i_beta);
+        assert!((amp(a) - amp(b)).abs() < 0.2 * amp(a).max(0.1), "|i| f32 {} vs Q24 {}", amp(a), amp(b));
+        let (pa, pb) = (a.psi_hat[0].hypot(a.psi_hat[1]), b.psi_hat[0].hypot(b.psi_hat[1]));
+        assert!((pa - pb).abs() < 0.02 * pa, "|psi| f32 {pa} vs Q24 {pb} Wb");
+        assert!(report::trace_of(&q).expect("trace").0.commanded_acceleration().is_some());
     }
 }
