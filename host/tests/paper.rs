@@ -40,8 +40,9 @@ fn every_run_is_healthy_and_runs_faster_than_real_time() {
 fn steady_0_3_m_per_s() {
     let r = scenario("steady");
     // Issue floors: DCFO max <= 5 deg, rms <= 2.5 deg (paper: < 10 deg on hardware).
-    // Issue 8 also asks for no worse than 1.1 / 0.5 deg: measured 1.46 / 0.53, not met
-    // (README, status).
+    // Issue 8 also asks for no worse than 1.1 / 0.5 deg: measured 1.58 / 0.61 in this
+    // window (1.64 median over eight 1 s windows from 3 s on, 1.80 before the angle's
+    // phase compensation), not met (README, status).
     assert!(r.dcfo.theta_err_max_deg <= 5.0 && r.dcfo.theta_err_rms_deg <= 2.5);
     // The CFO's phase lead at 10 Hz is atan(wc / w) = 14.04 deg (digest §2); the closed
     // loop adds ripple around it.
@@ -62,7 +63,7 @@ fn speed_step_0_24_to_0_45_m_per_s() {
     // Issue floor <= 6 deg. The PLL's integrator lags the 0.5 m/s^2 ramp by kp a / ki
     // (pll module docs: 8 a / w^2 of observer phase, 11-13 deg); the drive feeds the
     // commanded acceleration forward to the notch (Estimator::set_commanded_acceleration):
-    // measured 4.1 deg, 4.1-5.8 over eight event instants 9 ms apart.
+    // measured 5.4 deg, 4.2-5.5 over eight event instants 9 ms apart.
     assert!(r.dcfo.theta_err_max_deg <= 6.0, "{}", r.dcfo.theta_err_max_deg);
 }
 
@@ -109,12 +110,14 @@ fn resistance_doubled_with_current_bias() {
 #[test]
 fn load_step_40_newtons_at_0_42_m_per_s() {
     let r = scenario("load-step");
-    // Issue target <= 8 deg and below the CFO (paper: 21 deg). Measured 12.3 deg against
-    // the CFO's 18.1 (9.3-12.9 over eight event instants 9 ms apart): the FLL pulls the
+    // Issue floor <= 8 deg and below the CFO (paper: 21 deg). Measured 7.0 deg against
+    // the CFO's 18.1 (6.3-8.7 over eight event instants 9 ms apart, median 7.5): the FLL pulls the
     // PLL's integrator back within 7 % of its own frequency while the integrator lags
-    // the speed dip (27 deg with the PLL-tuned notch alone).
+    // the speed dip, and the angle output is compensated for the phase the notch's
+    // remaining lag costs (estimator module docs; 12.3 deg without, 27 deg with the
+    // PLL-tuned notch alone).
     assert!(r.dcfo.theta_err_max_deg < r.cfo.theta_err_max_deg, "{}", r.dcfo.theta_err_max_deg);
-    assert!(r.dcfo.theta_err_max_deg <= 14.0, "{}", r.dcfo.theta_err_max_deg);
+    assert!(r.dcfo.theta_err_max_deg <= 8.0, "{}", r.dcfo.theta_err_max_deg);
     assert!(r.cfo.theta_err_max_deg <= 22.0);
     // The paper's speed-error figures (0.034-0.039 m/s) are in range of both.
     assert!(r.dcfo.v_err_max < 0.1 && r.cfo.v_err_max < 0.1);
