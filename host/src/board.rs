@@ -29,7 +29,7 @@ use dcfo::link::{LinkError, decode_raw};
 use dcfo::motor::MotorParams;
 use dcfo::observer::ObserverKind;
 
-use crate::qemu::{QemuCpu, QemuSession, build_qemu_example};
+use crate::qemu::{QemuSession, build_qemu_example};
 use crate::replay::replay_trace;
 use crate::sim::report::fault_names;
 use crate::trace::{COMMANDED_ACCEL_COLUMN, GroundTruth, InputTrace, InputTraceWriter, TraceRow};
@@ -37,8 +37,6 @@ use crate::trace::{COMMANDED_ACCEL_COLUMN, GroundTruth, InputTrace, InputTraceWr
 /// How long to wait for an answer before sending the command again (a booting QEMU can
 /// lose the first bytes).
 pub const RESEND_AFTER: Duration = Duration::from_millis(500);
-/// How long to wait for an answer at all.
-pub const ANSWER_TIMEOUT: Duration = Duration::from_secs(5);
 /// Telemetry poll period of the live display and the demo: 20 Hz.
 pub const POLL_PERIOD: Duration = Duration::from_millis(50);
 /// Capture chunks downloaded between two polls of the live display (about 0.1 s on
@@ -394,24 +392,7 @@ pub fn qemu_drive_motor() -> MotorParams {
     MotorParams::paper()
 }
 
-/// Where `dcfo board` connects.
-#[derive(Debug, Clone)]
-pub enum Target {
-    /// QEMU running the virtual-motor drive image.
-    Qemu {
-        /// The board (and numeric type).
-        cpu: QemuCpu,
-        /// The image; built with cargo when `None`.
-        elf: Option<PathBuf>,
-    },
-    /// A board on a serial port.
-    Port {
-        /// The device, e.g. `/dev/ttyACM0`.
-        device: String,
-        /// Bit rate.
-        baud: u32,
-    },
-}
+pub use crate::target::{ANSWER_TIMEOUT, Target};
 
 /// What `dcfo board --demo` did (its JSON line).
 #[derive(Debug, serde::Serialize)]
@@ -472,18 +453,14 @@ fn with_board<T>(
             f(&mut board)
         }
         Target::Port { device, baud } => {
-            let serial = serialport::new(device, *baud)
-                .timeout(ANSWER_TIMEOUT)
-                .open()
-                .with_context(|| format!("opening {device} at {baud} bit/s"))?;
-            let reader = serial.try_clone().with_context(|| format!("{device}: second handle"))?;
+            let (serial, reader) = crate::target::open_serial(device, *baud)?;
             let mut board = Board::new(BoardLink::new(serial, reader));
             f(&mut board)
         }
     }
 }
 
-/// [`Board`] without its writer type, for [`with_board`].
+/// [`Board`] without its writer type, for `with_board`.
 pub trait BoardOps {
     /// See [`Board::poll`].
     fn poll(&mut self, clear_faults: bool, arm_capture: bool) -> anyhow::Result<BoardTelemetry>;

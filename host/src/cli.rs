@@ -257,7 +257,7 @@ pub struct HilArgs {
     #[arg(long, value_enum, default_value = "m4f")]
     pub cpu: crate::qemu::QemuCpu,
     /// Firmware ELF for --qemu (default: build and use
-    /// target/<target>/release/examples/qemu_hil).
+    /// `target/<target>/release/examples/qemu_hil`).
     #[arg(long, value_name = "FILE")]
     pub elf: Option<PathBuf>,
     /// Also run the scenario with the drive in this process (same numeric type as the
@@ -410,7 +410,7 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
     match cli.command {
         Command::Board(a) => {
             let target = match a.port {
-                Some(device) => crate::board::Target::Port { device, baud: a.baud },
+                Some(device) => crate::board::Target::Port { device: device.into(), baud: a.baud },
                 None => crate::board::Target::Qemu { cpu: a.cpu, elf: a.elf },
             };
             crate::board::run_command(&crate::board::Params {

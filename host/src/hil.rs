@@ -25,9 +25,6 @@ use std::process::ChildStdin;
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
-/// How long to wait for an answer before declaring the link dead.
-pub const ANSWER_TIMEOUT: Duration = Duration::from_secs(5);
-
 /// Until the target has answered once, how long to wait before sending the frame again.
 pub const START_RESEND: Duration = Duration::from_millis(500);
 
@@ -250,29 +247,14 @@ pub fn compare_runs(a: &crate::sim::Run, b: &crate::sim::Run) -> Equivalence {
     Equivalence { samples: n, differing, max_diff_deg }
 }
 
-/// Where `dcfo hil` runs the drive.
-#[derive(Debug, Clone)]
-pub enum Target {
-    /// The HIL image on QEMU.
-    Qemu {
-        /// The board (and with it the numeric type).
-        cpu: QemuCpu,
-        /// The image; built with cargo ([`build_qemu_firmware`]) when `None`.
-        elf: Option<PathBuf>,
-    },
-    /// A board on a serial port running the HIL firmware (f32).
-    Port {
-        /// The device, e.g. `/dev/ttyACM0`.
-        device: PathBuf,
-        /// Bit rate, bit/s (8N1).
-        baud: u32,
-    },
-}
+pub use crate::target::{ANSWER_TIMEOUT, Target};
 
 /// What `dcfo hil` is asked to do.
 #[derive(Debug, Clone)]
 pub struct Params {
-    /// Where the drive runs.
+    /// Where the drive runs: the HIL image on QEMU (built with cargo,
+    /// [`build_qemu_firmware`], when no image is given) or a board on a serial port
+    /// running the HIL firmware (f32).
     pub target: Target,
     /// Scenario by name (steady, speed-step or load-step: the link carries no observer
     /// offsets).
@@ -325,22 +307,14 @@ pub fn run_hil(params: &Params) -> anyhow::Result<HilReport> {
             (run, link.round_trips_per_s())
         }
         Target::Port { device, baud } => {
-            let dev = device.to_string_lossy().to_string();
-            let serial = serialport::new(&dev, *baud)
-                .timeout(ANSWER_TIMEOUT)
-                .open()
-                .with_context(|| format!("opening {dev} at {baud} bit/s"))?;
-            let reader = serial.try_clone().with_context(|| format!("{dev}: second handle"))?;
+            let (serial, reader) = crate::target::open_serial(device, *baud)?;
             let mut link = SerialController::new(serial, reader);
             let run = run_with(&setup, &scenario, &mut link, progress)?;
             (run, link.round_trips_per_s())
         }
     };
     bar.finish_and_clear();
-    let qemu_cpu = match params.target {
-        Target::Qemu { cpu, .. } => Some(cpu),
-        Target::Port { .. } => None,
-    };
+    let qemu_cpu = params.target.qemu_cpu();
     let figures = (scenario.window_s > 0.0).then(|| scenarios::figures(&hil_run, &scenario));
     let equivalence = if params.check {
         // A board on a serial port runs the f32 firmware.

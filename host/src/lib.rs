@@ -21,4 +21,5 @@ pub mod scenario_file;
 pub mod sim;
 pub mod stroke;
 pub mod summary;
+pub mod target;
 pub mod trace;

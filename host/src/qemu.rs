@@ -208,7 +208,7 @@ impl QemuSession {
         let text = qmp_human_command(
             &self.qmp_socket,
             &format!("xp /{count}wx {addr:#x}"),
-            crate::hil::ANSWER_TIMEOUT,
+            crate::target::ANSWER_TIMEOUT,
         )?;
         let err = |what: &str| SimError::Controller(format!("QEMU monitor: {what}"));
         // Lines `<address>: 0x<word> 0x<word> ...`.
