@@ -176,8 +176,8 @@ pub const COMPENSATION_FADE_RAD: f32 = 2.0 * core::f32::consts::PI;
 /// Damping of the notch at the fundamental in the phase compensation (dimensionless):
 /// narrow (0.3), so that the compensation of a speed change (its spectrum below `w`)
 /// passes while the PLL error's ripple at `w` that a DC offset in the flux estimate causes
-/// is taken out. Measured in replay of the paper scenarios: 0.7 and 1.5 delayed the
-/// compensation of the load step (7.6 and 8.5 deg median against 6.5).
+/// is taken out. Measured in replay of the paper scenarios (before the FLL check): 0.7 and
+/// 1.5 delayed the compensation of the load step (7.6 and 8.5 deg median against 6.5).
 pub const COMPENSATION_NOTCH_DAMPING: f32 = 0.3;
 
 /// `|v|` within 12 % (`max + min / 2`, no square root): for thresholds.
@@ -581,8 +581,9 @@ impl<T: Scalar> Estimator<T> {
         } else {
             from_pll.max(confirmed.min(T::ZERO))
         };
-        // Notch at the fundamental (a SOGI, semi-implicit Euler; w dt stays below 0.1 at
-        // the speeds the drive runs). It runs from the hand-over on, armed or not.
+        // Notch at the fundamental (a SOGI, semi-implicit Euler, stable for w dt < 2; w dt
+        // is at most 0.13 at the PLL's speed limit and 10 kHz). It runs while tracking,
+        // armed or not.
         let h = w * dt;
         self.compensation_bp = (self.compensation_bp
             + h * (self.compensation_notch_k * (raw - self.compensation_bp) - self.compensation_q))
