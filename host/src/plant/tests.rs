@@ -695,19 +695,11 @@ fn bad_parameters_and_inputs_are_refused_or_sanitised() {
     assert!(s.i_d_a.is_finite() && s.i_q_a.is_finite());
 }
 
-/// `motors/salient.toml` (Lq/Ld = 1.5), as the HFI tests use it.
+/// `motors/salient.toml` (Lq/Ld = 1.5), as the HFI tests use it: read from the file, so
+/// the plant is tested on the motor the stroke and HFI drive tests run.
 fn salient_motor() -> MotorParams {
-    MotorParams {
-        rs_ohm: 2.0,
-        ld_h: 0.006,
-        lq_h: 0.009,
-        psi_f_wb: 0.12,
-        pole_pitch_m: 0.02,
-        mass_kg: 1.2,
-        viscous_n_s_per_m: 0.5,
-        rated_current_a: 3.0,
-        rated_voltage_v: 200.0,
-    }
+    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../motors/salient.toml");
+    crate::motor_file::load_motor(path).expect("motors/salient.toml").params
 }
 
 /// Square-wave injection `+-u_hf` along `theta - dth` (one PWM period each, from the
