@@ -49,6 +49,7 @@ pub mod estimator;
 pub mod fll;
 pub mod hfi;
 pub mod link;
+pub mod load_observer;
 pub mod motion;
 pub mod motor;
 pub mod motor_image;

@@ -37,12 +37,17 @@
 //!   speed (its tracking loop's integrator) and `i_d = 0` run as in `Running`, on the
 //!   fundamental current (the mean of two samples), with the injection added to the
 //!   command; the q reference is slewed (a step reads as an HF response) and the
-//!   friction learned while running is fed forward (at rest: towards the reference,
-//!   scaled within `tau / 60`). At rest (reference speed zero) a stiffer speed loop
-//!   (twice the drive's bandwidth, at most a quarter of HFI's) and position gain (half
-//!   that) hold against a load step, switched bumplessly; moving, the drive's own (the
-//!   stiff ones, used moving too, made the estimator lose lock after the hand-overs of
-//!   reversals). Leaving the band, the estimator is seeded from the HFI angle; entering
+//!   friction learned while running is fed forward. At rest (reference speed zero) the
+//!   speed loop gives way to a hold on a position, speed and load observer
+//!   ([`crate::load_observer`], at a quarter of HFI's bandwidth): thrust `M (k_v (v_ref -
+//!   v_hat) + k_x (x_ref - x_hat))` plus the estimated load, a critically damped PD at
+//!   half the observer's bandwidth. The observer's speed integrates the commanded thrust
+//!   instead of differentiating HFI's noisy angle, and its load estimate replaces an
+//!   integrator that wound up against static friction (stick-slip hunting of ±5 mm with
+//!   the speed PI it replaced; a 50 % load step deflected 12.9 mm, now 2.8 mm). Moving,
+//!   the running drive's loops (stiff ones disturbed the hand-overs: lock lost after
+//!   reversals); the speed loop takes over from the hold's output. Leaving the band, the
+//!   estimator is seeded from the HFI angle; entering
 //!   it, HFI is preset from the estimate.
 //!
 //! ## Transitions (bumpless)
@@ -134,18 +139,18 @@ pub(super) struct Positioning<T> {
     pub(super) hfi: Option<Hfi<T>>,
     /// Rate per period of the filter on HFI's speed estimate (the drive's speed filter).
     pub(super) hfi_speed_filter_rate: T,
-    /// With HFI, the low-speed mode's speed loop at rest (bandwidth `min(2 w_s, w_n / 4)`,
-    /// `w_s` the drive's speed bandwidth, `w_n` HFI's) and its position gain (1/s, half
-    /// that bandwidth: damping 0.7 of the P-PI cascade on the moving mass).
-    pub(super) hfi_speed_loop: crate::pi::Pi<T>,
-    pub(super) hfi_position_gain: f32,
-    /// The stiff (at rest) speed loop is the one running.
-    pub(super) hfi_stiff: bool,
-    /// `60 / tau` (1/m): at rest with HFI, the friction feed-forward is full beyond
-    /// `tau / 60` of position error and proportional within.
-    pub(super) rest_band_inv_m: f32,
+    /// With HFI, the hold at rest is the thrust law running (the speed loop takes over
+    /// from its output when the reference moves again).
+    pub(super) holding: bool,
     /// With HFI: the position estimate's angle (the HFI angle).
     pub(super) hfi_position_angle: Angle,
+    /// With HFI: position, speed and load observer on the HFI position and the commanded
+    /// thrust ([`crate::load_observer`]); at rest the drive holds the reference with a
+    /// PD law on its estimates and its load estimate fed forward.
+    pub(super) hold_observer: Option<crate::load_observer::LoadObserver>,
+    /// Closed-loop bandwidth of that hold, rad/s (critically damped PD: `k_v = 2 w_c`,
+    /// `k_x = w_c^2`).
+    pub(super) hold_bandwidth_rad_s: f32,
 }
 
 /// What HFI contributes to one step of the low-speed mode (working units).
@@ -378,11 +383,18 @@ impl<T: Scalar> Drive<T> {
             // HFI takes over from the estimated angle and speed; the polarity is known.
             h.preset(theta, omega, true);
         }
+        let (x_m, v_m_per_s) = (self.position_m(), estimate.speed_m_per_s.to_f32());
         if let Some(p) = &mut self.positioning
             && p.hfi.is_some()
         {
             p.hfi_position_angle = theta;
-            p.hfi_stiff = false;
+            p.holding = false;
+            // The hold's observer starts on the sensorless estimates and the load learned
+            // along the motion.
+            let load_n = p.load_force_n * v_m_per_s.signum();
+            if let Some(o) = &mut p.hold_observer {
+                o.preset(x_m, v_m_per_s, load_n);
+            }
         }
         (theta, omega)
     }
@@ -474,8 +486,7 @@ impl<T: Scalar> Drive<T> {
             p.speed_loop_out = T::ZERO;
             p.accel_ff_applied = T::ZERO;
             p.speed_error_rad_s = 0.0;
-            p.hfi_speed_loop.reset();
-            p.hfi_stiff = false;
+            p.holding = false;
             self.pi_speed.reset();
             self.omega_filtered = T::ZERO;
             self.position_counts =
@@ -487,6 +498,9 @@ impl<T: Scalar> Drive<T> {
             let x = self.position_m();
             if let Some(p) = &mut self.positioning {
                 p.profile.hold_at(x);
+                if let Some(o) = &mut p.hold_observer {
+                    o.preset(x, 0.0, 0.0);
+                }
             }
         }
         let x_hat = self.position_m();
@@ -505,12 +519,11 @@ impl<T: Scalar> Drive<T> {
         let alpha =
             T::from_f32(sp.accel_m_per_s2 * p.rad_per_m * self.k.inv_omega_base * self.k.inv_omega_base);
         self.estimator.set_commanded_acceleration(alpha);
-        // Position and speed loops on the HFI estimate, as in `Running`.
-        // At rest the stiff loops hold (a load step); moving, the running drive's (the
-        // stiff ones disturbed the hand-overs: lock lost after reversals).
+        // Moving: the position and speed loops on the HFI estimate, as in `Running`. At rest:
+        // the hold on the load observer (below). (A speed PI stiff enough to hold a load
+        // step, used while moving too, disturbed the hand-overs: lock lost after reversals.)
         let at_rest = sp.speed_m_per_s == 0.0;
-        let gain = if at_rest { p.hfi_position_gain } else { p.position_gain };
-        let v_cmd = sp.speed_m_per_s + gain * (sp.position_m - x_hat);
+        let v_cmd = sp.speed_m_per_s + p.position_gain * (sp.position_m - x_hat);
         let omega_cmd = T::from_f32(v_cmd * p.rad_per_m * self.k.inv_omega_base);
         let iq_ff = T::from_f32(sp.accel_m_per_s2 * p.accel_current_per_m_s2);
         self.omega_ref = omega_cmd;
@@ -521,40 +534,48 @@ impl<T: Scalar> Drive<T> {
         }
         let error = self.omega_ref - self.omega_filtered;
         let limit = self.k.current_limit;
+        let current_a = self.k.base.current_a;
+        let iq_applied_a = self.i_dq_ref.q.to_f32() * current_a;
         let Some(p) = &mut self.positioning else {
             return Some((theta, T::ZERO, step));
         };
-        if speed_loop_due {
-            // Bumpless switch between the two speed loops: the one taking over continues
-            // from the other's output.
-            if at_rest != p.hfi_stiff {
-                let out = p.speed_loop_out;
-                if at_rest {
-                    p.hfi_speed_loop.preset(out, error)
-                } else {
-                    self.pi_speed.preset(out, error)
-                }
-                p.hfi_stiff = at_rest;
+        // The observer sees the HFI position and the thrust commanded last period (the
+        // current loops follow their reference within a few periods). At rest the thrust
+        // current holds the reference: `M (k_v (v_ref - v_hat) + k_x (x_ref - x_hat))` plus
+        // the estimated load, no integrator to wind up against static friction.
+        let hold = match &mut p.hold_observer {
+            Some(o) => {
+                o.update(x_hat, iq_applied_a * p.thrust_n_per_a);
+                let wc = p.hold_bandwidth_rad_s;
+                let accel = sp.accel_m_per_s2
+                    + 2.0 * wc * (sp.speed_m_per_s - o.speed_m_per_s())
+                    + wc * wc * (sp.position_m - o.position_m());
+                Some(T::from_f32((p.mass_kg * accel + o.load_n()) / p.thrust_n_per_a / current_a))
             }
-            p.speed_loop_out =
-                if at_rest { p.hfi_speed_loop.update(error) } else { self.pi_speed.update(error) };
+            None => None,
+        };
+        let holding = at_rest && hold.is_some();
+        if holding {
+            p.holding = true;
+        } else if speed_loop_due {
+            if p.holding {
+                // Leaving the hold: the speed loop continues from the hold's thrust current.
+                self.pi_speed.preset(p.speed_loop_out, error);
+                p.holding = false;
+            }
+            p.speed_loop_out = self.pi_speed.update(error);
         }
         // Feed forward the profile's acceleration and, along the motion, the friction
         // learned while running sensorless (the speed loop's integrator then only takes
-        // what is unexpected). At rest, the friction towards the reference position,
-        // scaled down within a band of tau / 60 of it: without it the speed loop's
-        // integrator has to wind up to the break-away force from a small position error,
-        // then overshoots when the mover slips (stick-slip hunting, measured +-15 mm
-        // on the salient stroke).
-        let direction = if sp.speed_m_per_s == 0.0 {
-            ((sp.position_m - x_hat) * p.rest_band_inv_m).clamp(-1.0, 1.0)
-        } else {
-            sp.speed_m_per_s.signum()
-        };
+        // what is unexpected); at rest the hold's load estimate carries the friction.
+        let direction = if at_rest { 0.0 } else { sp.speed_m_per_s.signum() };
         let friction_ff = T::from_f32(direction * p.load_force_n / p.thrust_n_per_a / self.k.base.current_a);
         let iq_ff = iq_ff + friction_ff;
         let slew = p.slew_step;
         p.accel_ff_applied = p.accel_ff_applied + (iq_ff - p.accel_ff_applied).clamp_to(-slew, slew);
+        if let (true, Some(iq_hold)) = (holding, hold) {
+            p.speed_loop_out = iq_hold - p.accel_ff_applied;
+        }
         // Slewed: a step of the current reference makes the current loop step its voltage,
         // and a change of the fundamental's slope between two periods reads as an HF
         // response (`e` moves by `du / (2 L_q U_h D)`, 0.3 for 10 V on the salient motor,
