@@ -37,7 +37,6 @@ use cortex_m::peripheral::{SCB, SYST};
 use dcfo::capture::{Capture, CaptureScalar};
 use dcfo::link::board::{BoardTelemetry, CaptureChunk};
 use dcfo::link::encode;
-use dcfo::num::Scalar;
 
 use crate::board::{PhaseSensors, PowerStage};
 use crate::board_link::{BoardAnswer, BoardLinkServer, DriveStatus, answer};
