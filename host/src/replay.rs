@@ -297,6 +297,18 @@ pub fn run_command(params: &Params) -> anyhow::Result<()> {
     }
     let trace =
         with_spinner(format!("reading {}", params.trace.display()), || InputTrace::read_path(&params.trace))?;
+    if let Some(declared) = declared_numeric(&params.trace)
+        && declared != params.numeric
+    {
+        eprintln!(
+            "note: {} says it was captured in {} (`# numeric: {}`); replayed in {}, the estimates will not be the drive's (use --numeric {})",
+            params.trace.display(),
+            declared.name(),
+            declared.name(),
+            params.numeric.name(),
+            declared.name()
+        );
+    }
     let kind = params.observer;
     let rows = trace.rows().len();
     let mut progress = Progress::new(rows);
@@ -339,6 +351,28 @@ pub fn run_command(params: &Params) -> anyhow::Result<()> {
         println!("{summary}");
     }
     Ok(())
+}
+
+/// The number type a capture's trace declares in a comment line before its header
+/// (`# numeric: q24 ...`, as `dcfo board --record` writes it), if any.
+pub fn declared_numeric(path: &Path) -> Option<CaptureFormat> {
+    use std::io::BufRead;
+    let file = std::fs::File::open(path).ok()?;
+    for line in std::io::BufReader::new(file).lines() {
+        let line = line.ok()?;
+        let Some(comment) = line.trim_start_matches('\u{feff}').trim_start().strip_prefix('#') else {
+            // The header (or a blank line before it): comments after it are not looked at.
+            if line.trim().is_empty() {
+                continue;
+            }
+            return None;
+        };
+        if let Some(rest) = comment.trim_start().strip_prefix("numeric:") {
+            let name = rest.split_whitespace().next()?;
+            return [CaptureFormat::F32, CaptureFormat::Q24].into_iter().find(|f| f.name() == name);
+        }
+    }
+    None
 }
 
 /// `true` when both paths name the same existing file.
@@ -433,6 +467,33 @@ mod tests {
             other => panic!("{other:?}"),
         }
         assert!(err.to_string().contains("data row 5 (t = 4000 s)"), "{err}");
+    }
+
+    #[test]
+    fn the_declared_number_type_is_read_from_the_comments_before_the_header() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("t.csv");
+        let h = "t,u_alpha,u_beta,i_alpha,i_beta\n0,0,0,0,0\n";
+        std::fs::write(&p, format!("# dcfo capture\n# numeric: q24 (per unit)\n{h}")).unwrap();
+        assert_eq!(declared_numeric(&p), Some(CaptureFormat::Q24));
+        std::fs::write(&p, format!("\n#numeric: f32\n{h}")).unwrap();
+        assert_eq!(declared_numeric(&p), Some(CaptureFormat::F32));
+        std::fs::write(&p, format!("{h}# numeric: q24\n")).unwrap();
+        assert_eq!(declared_numeric(&p), None, "after the header: data, not metadata");
+        std::fs::write(&p, format!("# numeric: f64\n{h}")).unwrap();
+        assert_eq!(declared_numeric(&p), None);
+    }
+
+    /// The Q8.24 replay refuses a value beyond its range, naming the row, the column and
+    /// the number type.
+    #[test]
+    fn q24_values_beyond_the_range_are_refused_with_row_and_column() {
+        // 128 per unit of the paper motor's 179.6 V base is 23 kV.
+        let tr = trace(10, |k| if k == 4 { (3e4, 0.0) } else { (1.0, 2.0) }, |_| (0.0, 0.0));
+        let err =
+            replay_trace_as(&tr, &MotorParams::paper(), ObserverKind::Dcfo, CaptureFormat::Q24).unwrap_err();
+        let msg = err.to_string();
+        assert!(msg.contains("data row 5") && msg.contains("`u_alpha`") && msg.contains("q24"), "{msg}");
     }
 
     #[test]
