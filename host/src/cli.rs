@@ -98,8 +98,9 @@ pub struct BoardArgs {
     #[arg(long, value_name = "FILE")]
     pub elf: Option<PathBuf>,
     /// Download the capture into this trace (CSV, shared trace format: t [s], u_alpha and
-    /// u_beta [V], i_alpha and i_beta [A], alpha_e_ref [rad/s^2]) once it is over; the
-    /// capture is armed on connect and starts at the drive's next start.
+    /// u_beta [V], i_alpha and i_beta [A], alpha_e_ref [rad/s^2]; comment lines name the
+    /// drive's number type, f32 or q24: replay with `dcfo replay --numeric` of it) once it
+    /// is over; the capture is armed on connect and starts at the drive's next start.
     #[arg(long, value_name = "FILE.csv")]
     pub record: Option<PathBuf>,
     /// Non-interactive: connect, arm the capture, enable at --speed, wait until the drive
