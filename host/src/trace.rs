@@ -1616,6 +1616,26 @@ mod tests {
         assert!(dir_entries(dir.path()).is_empty());
     }
 
+    /// Comment lines before the header: written as `# text` (line breaks made blanks),
+    /// read back as comments, and counted in the line numbers of the writer's errors
+    /// as the reader would count them.
+    #[test]
+    fn input_writer_comments_precede_the_header_and_count_in_line_numbers() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("c.csv");
+        let mut w =
+            InputTraceWriter::create_with_comments(&path, GroundTruth::NONE, &[], &["numeric: q24", "a\nb"])
+                .unwrap();
+        w.write(&row(0.0), &[]).unwrap();
+        w.write(&row(1e-4), &[]).unwrap();
+        let m = w.write(&row(1e-4), &[]).unwrap_err().to_string();
+        assert_has(&m, &["c.csv:6:", "`t`"]);
+        w.finish().unwrap();
+        let text = std::fs::read_to_string(&path).unwrap();
+        assert!(text.starts_with("# numeric: q24\n# a b\nt,u_alpha,"), "{text}");
+        assert_eq!(InputTrace::read_path(&path).unwrap().rows().len(), 2);
+    }
+
     #[test]
     fn input_writer_refuses_bad_extra_column_names() {
         let dir = tempfile::tempdir().unwrap();
