@@ -395,7 +395,8 @@ fn every_two_and_three_bit_error_is_caught() {
 fn wrong_version_is_rejected() {
     let good = sensor();
     let mut rx = Receiver::<SensorFrame>::new();
-    for v in [0u8, 2, 0xFF] {
+    // 0, the version before this one (an older peer), the next one and 0xFF.
+    for v in [0u8, PROTOCOL_VERSION - 1, PROTOCOL_VERSION + 1, 0xFF] {
         let mut payload = raw_of(&wire(&good))[..24].to_vec();
         payload[0] = v;
         assert_eq!(assert_recovers(&mut rx, &frame_payload(&payload), &good), [LinkError::Version]);
@@ -403,7 +404,7 @@ fn wrong_version_is_rejected() {
     let good = actuation();
     let mut rx = Receiver::<ActuationFrame>::new();
     let mut payload = raw_of(&wire(&good))[..41].to_vec();
-    payload[0] = 2;
+    payload[0] = PROTOCOL_VERSION + 1;
     assert_eq!(assert_recovers(&mut rx, &frame_payload(&payload), &good), [LinkError::Version]);
     assert_eq!(rx.stats().malformed, 1);
 }

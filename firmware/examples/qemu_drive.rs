@@ -4,8 +4,9 @@
 //! - `thumbv7em-none-eabihf` on `mps2-an386` (Cortex-M4F): `Drive<f32>` in SI units, as
 //!   the ESC1 drive image; its capture replays bit for bit on the host (`dcfo replay`).
 //! - `thumbv7m-none-eabi` on `mps2-an385` (Cortex-M3): `Drive<Q24>` in the motor's
-//!   per-unit base (the capture is then in SI converted from Q8.24: not bit-replayable
-//!   by the f32 replay).
+//!   per-unit base; the capture holds the drive's Q8.24 words (format `q24` in each
+//!   chunk) and replays bit for bit through `Estimator<Q24>` (`dcfo replay --numeric
+//!   q24`; `dcfo board --qemu --cpu m3 --demo` checks it).
 //!
 //! The motor is the paper's, on the paper axis's carriage (`PAPER_AXIS_PAYLOAD_KG`),
 //! the drive `DriveConfig::for_motor` without inverter compensation (the virtual
@@ -24,6 +25,7 @@
 //! ```sh
 //! cargo build -p dcfo-firmware --release --features mps2 --example qemu_drive --target thumbv7em-none-eabihf
 //! dcfo board --qemu --demo --json      # or interactively: dcfo board --qemu
+//! dcfo board --qemu --cpu m3 --demo --json   # the Q8.24 image (thumbv7m-none-eabi)
 //! ```
 //!
 //! On the host this file builds to an empty `main`.

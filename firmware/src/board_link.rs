@@ -119,6 +119,7 @@ pub fn answer<const N: usize>(
             sequence: command.sequence,
             first: command.capture_read,
             count,
+            format: capture.format(),
             samples,
         });
     }
@@ -246,7 +247,7 @@ mod tests {
         let mut running_at = None;
         for k in 0..40_000u32 {
             let (out, sample) = control.period(&mut board, &sp);
-            capture.record(&out, control.base());
+            capture.record(&out);
             status.update(&out, &sample, control.base());
             if k % 1000 == 0 {
                 assert!(

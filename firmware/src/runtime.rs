@@ -34,10 +34,9 @@ use cortex_m::interrupt::{self, CriticalSection, Mutex};
 use cortex_m::peripheral::scb::SystemHandler;
 use cortex_m::peripheral::syst::SystClkSource;
 use cortex_m::peripheral::{SCB, SYST};
-use dcfo::capture::Capture;
+use dcfo::capture::{Capture, CaptureScalar};
 use dcfo::link::board::{BoardTelemetry, CaptureChunk};
 use dcfo::link::encode;
-use dcfo::num::Scalar;
 
 use crate::board::{PhaseSensors, PowerStage};
 use crate::board_link::{BoardAnswer, BoardLinkServer, DriveStatus, answer};
@@ -117,7 +116,7 @@ impl<const N: usize> BoardLinkState<N> {
     /// [`ControlLoop::period`] on the board, then [`Capture::record`] and
     /// [`DriveStatus::update`] (skipped should the thread hold them, which it cannot:
     /// its sections do not nest with this one). Bounded: the drive's step and O(1) more.
-    pub fn period<T: Scalar, B: PhaseSensors + PowerStage>(
+    pub fn period<T: CaptureScalar, B: PhaseSensors + PowerStage>(
         &self,
         cs: &CriticalSection,
         c: &mut DriveOnBoard<T, B>,
@@ -127,7 +126,7 @@ impl<const N: usize> BoardLinkState<N> {
         if let (Ok(mut capture), Ok(mut status)) =
             (self.capture.borrow(cs).try_borrow_mut(), self.status.borrow(cs).try_borrow_mut())
         {
-            capture.record(&out, c.control.base());
+            capture.record(&out);
             status.update(&out, &sample, c.control.base());
         }
     }

@@ -8,11 +8,13 @@
 //! sends one at least every [`POLL_PERIOD`]; the image disables the drive after 0.5 s
 //! without one, so a host that dies or hangs leaves the drive off.
 //!
-//! A downloaded capture becomes a trace in the shared format (`t`, `u_alpha`, `u_beta`,
+//! A downloaded capture ([`CaptureData`]: the drive's own words and their
+//! [`CaptureFormat`]) becomes a trace in the shared format (`t`, `u_alpha`, `u_beta`,
 //! `i_alpha`, `i_beta` and the commanded acceleration `alpha_e_ref`, see
-//! [`crate::trace::COMMANDED_ACCEL_COLUMN`]) starting at the estimator's reset, so that
-//! `dcfo replay` reproduces the drive's own estimates, which [`replay_matches`] checks
-//! bit for bit.
+//! [`crate::trace::COMMANDED_ACCEL_COLUMN`]; SI as `f64`, which for Q8.24 words converts
+//! back to the same bits; comment lines name the number type) starting at the
+//! estimator's reset, so that `dcfo replay` (`--numeric q24` for the M3 image) reproduces
+//! the drive's own estimates, which [`replay_matches`] checks bit for bit.
 
 use std::collections::VecDeque;
 use std::io::{BufRead, Read, Write};
@@ -22,7 +24,7 @@ use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, bail};
-use dcfo::capture::{CaptureSample, CaptureState};
+use dcfo::capture::{Capture, CaptureFormat, CaptureSample, CaptureState, Quantity, SiSample};
 use dcfo::drive::DriveState;
 use dcfo::link::board::{BoardCommand, BoardTelemetry, CaptureChunk, NO_CAPTURE_READ};
 use dcfo::link::{LinkError, decode_raw};
@@ -30,7 +32,7 @@ use dcfo::motor::MotorParams;
 use dcfo::observer::ObserverKind;
 
 use crate::qemu::{QemuSession, build_qemu_example};
-use crate::replay::replay_trace;
+use crate::replay::{replay_trace_as, working_base};
 use crate::sim::report::fault_names;
 use crate::trace::{COMMANDED_ACCEL_COLUMN, GroundTruth, InputTrace, InputTraceWriter, TraceRow};
 
@@ -257,11 +259,12 @@ impl<W: Write> Board<W> {
     /// Downloads the finished capture's `len` samples.
     ///
     /// # Errors
-    /// The link failed, the capture is not finished, or a chunk is not the one asked for.
-    pub fn download_capture(&mut self, len: u32) -> anyhow::Result<Vec<CaptureSample>> {
-        let mut samples = Vec::with_capacity(len as usize);
-        self.download_more(&mut samples, len, u32::MAX)?;
-        Ok(samples)
+    /// The link failed, the capture is not finished, a chunk is not the one asked for,
+    /// or chunks disagree on the samples' format.
+    pub fn download_capture(&mut self, len: u32) -> anyhow::Result<CaptureData> {
+        let mut data = CaptureData::default();
+        self.download_more(&mut data, len, u32::MAX)?;
+        Ok(data)
     }
 
     /// Appends the finished capture's next samples to `samples`, at most `chunks`
@@ -270,18 +273,24 @@ impl<W: Write> Board<W> {
     ///
     /// # Errors
     /// As [`Board::download_capture`].
-    pub fn download_more(
-        &mut self,
-        samples: &mut Vec<CaptureSample>,
-        len: u32,
-        chunks: u32,
-    ) -> anyhow::Result<()> {
+    pub fn download_more(&mut self, data: &mut CaptureData, len: u32, chunks: u32) -> anyhow::Result<()> {
         let mut asked = 0;
-        while (samples.len() as u32) < len && asked < chunks {
+        while (data.samples.len() as u32) < len && asked < chunks {
             asked += 1;
-            let first = samples.len() as u32;
+            let first = data.samples.len() as u32;
             match self.link.exchange(self.command(false, false, first))? {
-                Answer::Chunk(c) if c.first == first && c.count > 0 => samples.extend_from_slice(c.valid()),
+                Answer::Chunk(c) if c.first == first && c.count > 0 => {
+                    if first == 0 {
+                        data.format = c.format;
+                    } else if c.format != data.format {
+                        bail!(
+                            "board link: capture chunk from sample {first} in {}, the samples before in {}",
+                            c.format.name(),
+                            data.format.name()
+                        );
+                    }
+                    data.samples.extend_from_slice(c.valid());
+                }
                 Answer::Chunk(c) => bail!(
                     "board link: capture chunk from sample {} with {} samples, asked for sample {first} of {len}",
                     c.first,
@@ -294,7 +303,7 @@ impl<W: Write> Board<W> {
                 ),
             }
         }
-        samples.truncate(len as usize);
+        data.samples.truncate(len as usize);
         Ok(())
     }
 
@@ -318,76 +327,158 @@ impl<W: Write> Board<W> {
     }
 }
 
+/// A capture as downloaded: the drive's words and how they read.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct CaptureData {
+    /// The drive's number type and working units (the base then follows from the
+    /// motor: [`working_base`]).
+    pub format: CaptureFormat,
+    /// The samples, from the estimator's first step.
+    pub samples: Vec<CaptureSample>,
+}
+
+impl CaptureData {
+    /// What `capture` holds (e.g. a drive run in this process).
+    pub fn from_capture<const N: usize>(capture: &Capture<N>) -> Self {
+        CaptureData {
+            format: capture.format(),
+            samples: (0..capture.len()).filter_map(|k| capture.sample(k).copied()).collect(),
+        }
+    }
+}
+
+/// The comment lines of a capture's trace: what was recorded, the number type and
+/// working units, and the replay that reproduces it.
+pub fn capture_comments(data: &CaptureData, motor: &MotorParams) -> Vec<String> {
+    let base = working_base(data.format, motor);
+    let units = match data.format {
+        CaptureFormat::F32 => "f32 in SI units".to_string(),
+        CaptureFormat::Q24 => format!(
+            "Q8.24 in the motor's per-unit base (voltage {} V, current {} A, omega {} rad/s); \
+             each value is exactly bits * 2^-24 * base as f64",
+            base.voltage_v, base.current_a, base.omega_rad_s
+        ),
+    };
+    vec![
+        format!("dcfo capture: {} samples from the estimator's start", data.samples.len()),
+        format!("numeric: {} ({units})", data.format.name()),
+        format!(
+            "replay bit for bit: dcfo replay --numeric {} --observer dcfo --motor <the drive's motor>",
+            data.format.name()
+        ),
+    ]
+}
+
 /// The capture as a trace in the shared format: row `k` at `t = k Ts` (the estimator's
-/// first step is `t = 0`), with the commanded acceleration column.
+/// first step is `t = 0`), in SI ([`CaptureFormat::to_si`] in the working units of
+/// `motor`), with the commanded acceleration column.
 ///
 /// # Errors
 /// Fewer than two samples, or a value the trace format refuses.
-pub fn capture_trace(samples: &[CaptureSample], period_s: f64) -> anyhow::Result<InputTrace> {
-    let rows = samples.iter().enumerate().map(|(k, s)| capture_row(k, s, period_s)).collect();
-    let accel = samples.iter().map(|s| f64::from(s.alpha_e_ref)).collect();
+pub fn capture_trace(data: &CaptureData, motor: &MotorParams, period_s: f64) -> anyhow::Result<InputTrace> {
+    let base = working_base(data.format, motor);
+    let si: Vec<_> = data.samples.iter().map(|s| s.to_si(data.format, &base)).collect();
+    let rows = si.iter().enumerate().map(|(k, s)| capture_row(k, s, period_s)).collect();
+    let accel = si.iter().map(|s| s.alpha_e_ref).collect();
     Ok(InputTrace::from_rows(rows, "capture")?.with_commanded_acceleration(accel, "capture")?)
 }
 
-fn capture_row(k: usize, s: &CaptureSample, period_s: f64) -> TraceRow {
+fn capture_row(k: usize, s: &SiSample, period_s: f64) -> TraceRow {
     TraceRow {
         t: k as f64 * period_s,
-        u_alpha: f64::from(s.u_alpha),
-        u_beta: f64::from(s.u_beta),
-        i_alpha: f64::from(s.i_alpha),
-        i_beta: f64::from(s.i_beta),
+        u_alpha: s.u_alpha,
+        u_beta: s.u_beta,
+        i_alpha: s.i_alpha,
+        i_beta: s.i_beta,
         theta: None,
         v: None,
         x: None,
     }
 }
 
-/// Writes the capture to `path` as a trace (see [`capture_trace`]), atomically.
+/// Writes the capture to `path` as a trace (see [`capture_trace`]; the comment lines of
+/// [`capture_comments`] first), atomically.
 ///
 /// # Errors
 /// As [`InputTraceWriter`]: the file, the line and the column.
-pub fn write_capture_trace(path: &Path, samples: &[CaptureSample], period_s: f64) -> anyhow::Result<()> {
-    let mut w = InputTraceWriter::create(path, GroundTruth::NONE, &[COMMANDED_ACCEL_COLUMN])?;
-    for (k, s) in samples.iter().enumerate() {
-        w.write(&capture_row(k, s, period_s), &[f64::from(s.alpha_e_ref)])?;
+pub fn write_capture_trace(
+    path: &Path,
+    data: &CaptureData,
+    motor: &MotorParams,
+    period_s: f64,
+) -> anyhow::Result<()> {
+    let base = working_base(data.format, motor);
+    let comments = capture_comments(data, motor);
+    let comments: Vec<&str> = comments.iter().map(String::as_str).collect();
+    let mut w = InputTraceWriter::create_with_comments(
+        path,
+        GroundTruth::NONE,
+        &[COMMANDED_ACCEL_COLUMN],
+        &comments,
+    )?;
+    for (k, s) in data.samples.iter().enumerate() {
+        let s = s.to_si(data.format, &base);
+        w.write(&capture_row(k, &s, period_s), &[s.alpha_e_ref])?;
     }
     w.finish()?;
     Ok(())
 }
 
-/// Replays `trace` through the estimator of `motor` (DCFO, f32: what `dcfo replay` runs)
-/// and counts the samples whose angle, speed or flux estimate differs in any bit from
-/// what the drive estimated on the target.
+/// How a replay compares with the drive's own estimates.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+pub struct Comparison {
+    /// Samples whose angle, speed or flux estimate differs in any bit.
+    pub differing: usize,
+    /// The first of them (0 is the estimator's first step), `None` when identical.
+    pub first_differing: Option<usize>,
+}
+
+impl Comparison {
+    /// Every sample identical (and there was at least one).
+    pub fn identical(&self, samples: usize) -> bool {
+        self.differing == 0 && samples > 0
+    }
+}
+
+/// Replays `trace` through the estimator of `motor` (DCFO, in the capture's number
+/// type: what `dcfo replay --numeric` runs) and compares, sample by sample, the angle,
+/// speed and flux estimates with what the drive estimated on the target: the same words
+/// bit for bit (compared in SI as `f64`, which is one to one with the words).
 ///
 /// # Errors
 /// The replay refused the trace.
 pub fn replay_matches(
     trace: &InputTrace,
     motor: &MotorParams,
-    samples: &[CaptureSample],
-) -> anyhow::Result<usize> {
-    let replayed = replay_trace(trace, motor, ObserverKind::Dcfo)?;
+    data: &CaptureData,
+) -> anyhow::Result<Comparison> {
+    let replayed = replay_trace_as(trace, motor, ObserverKind::Dcfo, data.format)?;
     anyhow::ensure!(
-        replayed.len() == samples.len(),
+        replayed.len() == data.samples.len(),
         "replay gave {} rows for {} samples",
         replayed.len(),
-        samples.len()
+        data.samples.len()
     );
-    Ok(replayed
-        .iter()
-        .zip(samples)
-        .filter(|(r, s)| {
-            r.theta_hat.to_bits() != s.theta_hat.to_radians::<f64>().to_bits()
-                || r.v_hat.to_bits() != f64::from(s.v_hat).to_bits()
-                || r.psi_alpha_hat.to_bits() != f64::from(s.psi_alpha_hat).to_bits()
-                || r.psi_beta_hat.to_bits() != f64::from(s.psi_beta_hat).to_bits()
-        })
-        .count())
+    let base = working_base(data.format, motor);
+    let si = |w: u32, q: Quantity| data.format.to_si(w, q, &base).to_bits();
+    let mut cmp = Comparison::default();
+    for (k, (r, s)) in replayed.iter().zip(&data.samples).enumerate() {
+        let same = r.theta_hat.to_bits() == s.theta_hat.to_radians::<f64>().to_bits()
+            && r.v_hat.to_bits() == si(s.v_hat, Quantity::Speed)
+            && r.psi_alpha_hat.to_bits() == si(s.psi_alpha_hat, Quantity::Flux)
+            && r.psi_beta_hat.to_bits() == si(s.psi_beta_hat, Quantity::Flux);
+        if !same {
+            cmp.differing += 1;
+            cmp.first_differing.get_or_insert(k);
+        }
+    }
+    Ok(cmp)
 }
 
 /// The motor the QEMU drive image runs (`examples/qemu_drive.rs`): the paper motor, its
 /// drive tuned by `DriveConfig::for_motor` for the paper axis's bus; the replay needs
-/// only the motor (its estimator is `EstimatorConfig::for_motor`, as the drive's).
+/// only the motor (its estimator is `EstimatorConfig::for_motor`, as the drive's; the
+/// M3 image's Q8.24 drive runs in `Base::for_motor` of it, see [`working_base`]).
 pub fn qemu_drive_motor() -> MotorParams {
     MotorParams::paper()
 }
@@ -407,10 +498,14 @@ pub struct DemoReport {
     pub speed_m_per_s: Option<f32>,
     /// Samples captured and downloaded (full rate, from the estimator's start).
     pub capture_samples: usize,
+    /// The drive's number type, as the capture reported it (`f32`, `q24`).
+    pub numeric: &'static str,
     /// Every replayed estimate equals the drive's own, bit for bit.
     pub replay_identical: bool,
     /// Replayed samples that differ.
     pub replay_differing: usize,
+    /// The first replayed sample that differs (0: the estimator's first step).
+    pub replay_first_differing: Option<usize>,
     /// Time to download the capture, s.
     pub download_s: f64,
     /// Commands answered per second during the download.
@@ -465,14 +560,9 @@ pub trait BoardOps {
     /// See [`Board::poll`].
     fn poll(&mut self, clear_faults: bool, arm_capture: bool) -> anyhow::Result<BoardTelemetry>;
     /// See [`Board::download_capture`].
-    fn download_capture(&mut self, len: u32) -> anyhow::Result<Vec<CaptureSample>>;
+    fn download_capture(&mut self, len: u32) -> anyhow::Result<CaptureData>;
     /// See [`Board::download_more`].
-    fn download_more(
-        &mut self,
-        samples: &mut Vec<CaptureSample>,
-        len: u32,
-        chunks: u32,
-    ) -> anyhow::Result<()>;
+    fn download_more(&mut self, data: &mut CaptureData, len: u32, chunks: u32) -> anyhow::Result<()>;
     /// See [`Board::disable`].
     fn disable(&mut self) -> anyhow::Result<BoardTelemetry>;
     /// The wish sent with every command.
@@ -485,16 +575,11 @@ impl<W: Write> BoardOps for Board<W> {
     fn poll(&mut self, clear_faults: bool, arm_capture: bool) -> anyhow::Result<BoardTelemetry> {
         Board::poll(self, clear_faults, arm_capture)
     }
-    fn download_capture(&mut self, len: u32) -> anyhow::Result<Vec<CaptureSample>> {
+    fn download_capture(&mut self, len: u32) -> anyhow::Result<CaptureData> {
         Board::download_capture(self, len)
     }
-    fn download_more(
-        &mut self,
-        samples: &mut Vec<CaptureSample>,
-        len: u32,
-        chunks: u32,
-    ) -> anyhow::Result<()> {
-        Board::download_more(self, samples, len, chunks)
+    fn download_more(&mut self, data: &mut CaptureData, len: u32, chunks: u32) -> anyhow::Result<()> {
+        Board::download_more(self, data, len, chunks)
     }
     fn disable(&mut self) -> anyhow::Result<BoardTelemetry> {
         Board::disable(self)
@@ -569,13 +654,14 @@ pub fn run_demo(
         let (state_before, faults, speed_now) = (t.state(), t.faults(), t.estimate.map(|e| e.1));
         let trips_before = board.round_trips();
         let download_started = Instant::now();
-        let samples = board.download_capture(t.capture_len)?;
+        let data = board.download_capture(t.capture_len)?;
         let download_s = download_started.elapsed().as_secs_f64();
         let round_trips_per_s = (board.round_trips() - trips_before) as f64 / download_s.max(1e-9);
         let last = board.disable()?;
         eprintln!(
-            "downloaded {} samples in {download_s:.1} s ({round_trips_per_s:.0} round trips/s); drive {:?}",
-            samples.len(),
+            "downloaded {} samples ({}) in {download_s:.1} s ({round_trips_per_s:.0} round trips/s); drive {:?}",
+            data.samples.len(),
+            data.format.name(),
             last.state()
         );
         // Through the file, as `dcfo replay` reads it.
@@ -584,17 +670,20 @@ pub fn run_demo(
             Some(p) => p.to_path_buf(),
             None => dir.path().join("capture.csv"),
         };
-        write_capture_trace(&path, &samples, CONTROL_PERIOD_S)?;
+        let motor = qemu_drive_motor();
+        write_capture_trace(&path, &data, &motor, CONTROL_PERIOD_S)?;
         let trace = InputTrace::read_path(&path)?;
-        let differing = replay_matches(&trace, &qemu_drive_motor(), &samples)?;
+        let comparison = replay_matches(&trace, &motor, &data)?;
         Ok(DemoReport {
             state_reached: format!("{best:?}"),
             state_before_disable: format!("{state_before:?}"),
             faults: fault_names(faults),
             speed_m_per_s: speed_now,
-            capture_samples: samples.len(),
-            replay_identical: differing == 0 && !samples.is_empty(),
-            replay_differing: differing,
+            capture_samples: data.samples.len(),
+            numeric: data.format.name(),
+            replay_identical: comparison.identical(data.samples.len()),
+            replay_differing: comparison.differing,
+            replay_first_differing: comparison.first_differing,
             download_s,
             round_trips_per_s,
             simulated_s: f64::from(last.periods) * CONTROL_PERIOD_S,
@@ -700,7 +789,8 @@ pub fn run_interactive(target: &Target, record: Option<&Path>) -> anyhow::Result
         let mut clear = false;
         let mut arm = record.is_some();
         let mut downloaded = false;
-        let mut samples = Vec::new();
+        let mut data = CaptureData::default();
+        let motor = qemu_drive_motor();
         loop {
             let t = board.poll(std::mem::take(&mut clear), std::mem::take(&mut arm))?;
             eprint!("\r{}\x1b[K", status_line(&t));
@@ -710,20 +800,25 @@ pub fn run_interactive(target: &Target, record: Option<&Path>) -> anyhow::Result
             {
                 // A slice at a time (about 0.1 s), so that the display and the keys stay
                 // live while a long capture downloads.
-                board.download_more(&mut samples, t.capture_len, DOWNLOAD_SLICE_CHUNKS)?;
-                eprint!(" | download {}/{}", samples.len(), t.capture_len);
-                if samples.len() as u32 >= t.capture_len {
-                    write_capture_trace(path, &samples, CONTROL_PERIOD_S)?;
-                    eprintln!("\ncapture: {} samples written to {}", samples.len(), path.display());
+                board.download_more(&mut data, t.capture_len, DOWNLOAD_SLICE_CHUNKS)?;
+                eprint!(" | download {}/{}", data.samples.len(), t.capture_len);
+                if data.samples.len() as u32 >= t.capture_len {
+                    write_capture_trace(path, &data, &motor, CONTROL_PERIOD_S)?;
+                    eprintln!(
+                        "\ncapture: {} samples ({}) written to {}",
+                        data.samples.len(),
+                        data.format.name(),
+                        path.display()
+                    );
                     downloaded = true;
-                    samples.clear();
+                    data.samples.clear();
                 }
             }
             std::thread::sleep(POLL_PERIOD);
             if interrupted() {
                 let t = board.disable()?;
                 eprintln!("\r{}\x1b[K\ninterrupted: drive disabled", status_line(&t));
-                return finish_download(board, record, &mut samples, &t);
+                return finish_download(board, record, &mut data, &motor, &t);
             }
             while let Ok(line) = typed.try_recv() {
                 if line.trim().is_empty() {
@@ -737,7 +832,7 @@ pub fn run_interactive(target: &Target, record: Option<&Path>) -> anyhow::Result
                     Ok(Typed::Record) => {
                         arm = true;
                         downloaded = false;
-                        samples.clear();
+                        data.samples.clear();
                         if record.is_none() {
                             eprintln!("\n(no --record FILE: the capture will not be downloaded)");
                         }
@@ -745,7 +840,7 @@ pub fn run_interactive(target: &Target, record: Option<&Path>) -> anyhow::Result
                     Ok(Typed::Quit) => {
                         let t = board.disable()?;
                         eprintln!("\r{}\x1b[K\ndrive disabled", status_line(&t));
-                        return finish_download(board, record, &mut samples, &t);
+                        return finish_download(board, record, &mut data, &motor, &t);
                     }
                     Err(e) => eprintln!("\n{e}"),
                 }
@@ -759,16 +854,17 @@ pub fn run_interactive(target: &Target, record: Option<&Path>) -> anyhow::Result
 fn finish_download(
     board: &mut dyn BoardOps,
     record: Option<&Path>,
-    samples: &mut Vec<CaptureSample>,
+    data: &mut CaptureData,
+    motor: &MotorParams,
     t: &BoardTelemetry,
 ) -> anyhow::Result<()> {
     let Some(path) = record else { return Ok(()) };
-    if samples.is_empty() || t.capture != CaptureState::Done {
+    if data.samples.is_empty() || t.capture != CaptureState::Done {
         return Ok(());
     }
-    board.download_more(samples, t.capture_len, u32::MAX)?;
-    write_capture_trace(path, samples, CONTROL_PERIOD_S)?;
-    eprintln!("capture: {} samples written to {}", samples.len(), path.display());
+    board.download_more(data, t.capture_len, u32::MAX)?;
+    write_capture_trace(path, data, motor, CONTROL_PERIOD_S)?;
+    eprintln!("capture: {} samples written to {}", data.samples.len(), path.display());
     Ok(())
 }
 
@@ -806,11 +902,16 @@ pub fn run_command(params: &Params) -> anyhow::Result<()> {
         println!("{}", serde_json::to_string(&report)?);
     } else {
         println!(
-            "drive reached {}; captured {} samples; replay {} ({} differ); download {:.1} s at {:.0} round trips/s",
+            "drive reached {}; captured {} samples ({}); replay {} ({} differ{}); download {:.1} s at {:.0} round trips/s",
             report.state_reached,
             report.capture_samples,
+            report.numeric,
             if report.replay_identical { "identical bit for bit" } else { "DIFFERS" },
             report.replay_differing,
+            match report.replay_first_differing {
+                Some(k) => format!(", the first at sample {k}"),
+                None => String::new(),
+            },
             report.download_s,
             report.round_trips_per_s
         );

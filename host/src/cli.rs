@@ -98,8 +98,9 @@ pub struct BoardArgs {
     #[arg(long, value_name = "FILE")]
     pub elf: Option<PathBuf>,
     /// Download the capture into this trace (CSV, shared trace format: t [s], u_alpha and
-    /// u_beta [V], i_alpha and i_beta [A], alpha_e_ref [rad/s^2]) once it is over; the
-    /// capture is armed on connect and starts at the drive's next start.
+    /// u_beta [V], i_alpha and i_beta [A], alpha_e_ref [rad/s^2]; comment lines name the
+    /// drive's number type, f32 or q24: replay with `dcfo replay --numeric` of it) once it
+    /// is over; the capture is armed on connect and starts at the drive's next start.
     #[arg(long, value_name = "FILE.csv")]
     pub record: Option<PathBuf>,
     /// Non-interactive: connect, arm the capture, enable at --speed, wait until the drive
@@ -346,10 +347,36 @@ pub struct ReplayArgs {
     /// Settle time [s]: the summary covers the samples from t_first + S on.
     #[arg(long, value_name = "S", default_value_t = DEFAULT_SETTLE_S, value_parser = parse_settle)]
     pub settle: f64,
+
+    /// The estimator's number type: f32 (SI units, as the M4F drives) or q24 (Q8.24 in the
+    /// motor's per-unit base, as the M3 image's fixed-point drive; replays its
+    /// `dcfo board --cpu m3 --record` capture bit for bit).
+    #[arg(long, value_enum, value_name = "TYPE", default_value = "f32")]
+    pub numeric: NumericArg,
+}
+
+/// Number types the replay can run the estimator in.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum NumericArg {
+    /// f32 in SI units.
+    F32,
+    /// Q8.24 fixed point in the motor's per-unit base (dcfo::units::Base::for_motor).
+    Q24,
+}
+
+impl NumericArg {
+    /// The library's name for it.
+    pub fn format(self) -> dcfo::capture::CaptureFormat {
+        match self {
+            NumericArg::F32 => dcfo::capture::CaptureFormat::F32,
+            NumericArg::Q24 => dcfo::capture::CaptureFormat::Q24,
+        }
+    }
 }
 
 const REPLAY_AFTER_HELP: &str = "\
-Timing: the estimator (observer + PLL in f32, SI units, as the drive runs it) is given, for row k, \
+Timing: the estimator (observer + PLL in f32, SI units, as the drive runs it; with --numeric q24 in \
+Q8.24 in the motor's per-unit base) is given, for row k, \
 the voltage of row k-1 (the one applied during the period that ends at t_k; zero for row 0) and \
 the currents of row k; the period is the trace's mean step. Output row k is the estimate at t_k.
 
@@ -430,6 +457,7 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                 output: a.output,
                 json: a.json,
                 settle_s: a.settle,
+                numeric: a.numeric.format(),
             })?;
             Ok(ExitCode::SUCCESS)
         }

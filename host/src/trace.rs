@@ -961,6 +961,8 @@ pub fn write_output_trace(
 /// written as given (even if not finite: readers ignore unknown columns).
 pub struct InputTraceWriter {
     out: AtomicFile,
+    /// Line number of the first data row (after the comments and the header).
+    first_line: u64,
     ground_truth: GroundTruth,
     extra_columns: Vec<String>,
     prev: Option<TraceRow>,
@@ -976,6 +978,18 @@ impl InputTraceWriter {
         path: impl AsRef<Path>,
         ground_truth: GroundTruth,
         extra_columns: &[&str],
+    ) -> Result<Self, TraceError> {
+        Self::create_with_comments(path, ground_truth, extra_columns, &[])
+    }
+
+    /// [`InputTraceWriter::create`] with comment lines before the header (each written
+    /// as `# ` and the text, line breaks in it replaced by blanks): metadata such as the
+    /// number type a capture was recorded in. Line numbers in errors count them.
+    pub fn create_with_comments(
+        path: impl AsRef<Path>,
+        ground_truth: GroundTruth,
+        extra_columns: &[&str],
+        comments: &[&str],
     ) -> Result<Self, TraceError> {
         let path = path.as_ref();
         let file = path.display().to_string();
@@ -1000,6 +1014,9 @@ impl InputTraceWriter {
             }
         }
         let mut out = AtomicFile::create(path)?;
+        for c in comments {
+            out.write_line(&format!("# {}", c.replace(['\n', '\r'], " ")))?;
+        }
         let mut header: Vec<&str> = REQUIRED_COLUMNS.to_vec();
         for (name, on) in [("theta", ground_truth.theta), ("v", ground_truth.v), ("x", ground_truth.x)] {
             if on {
@@ -1010,6 +1027,7 @@ impl InputTraceWriter {
         out.write_line(&header.join(","))?;
         Ok(InputTraceWriter {
             out,
+            first_line: comments.len() as u64 + 2,
             ground_truth,
             extra_columns: extra_columns.iter().map(|s| s.to_string()).collect(),
             prev: None,
@@ -1023,7 +1041,7 @@ impl InputTraceWriter {
     /// standard values must be finite and `t` must exceed the previous row's.
     pub fn write(&mut self, row: &TraceRow, extra: &[f64]) -> Result<(), TraceError> {
         let file = &self.out.file;
-        let line_no = self.times.len() as u64 + 2;
+        let line_no = self.times.len() as u64 + self.first_line;
         check_row_shape(file, line_no, row, self.ground_truth)?;
         if extra.len() != self.extra_columns.len() {
             let column = if extra.len() > self.extra_columns.len() {
@@ -1077,11 +1095,11 @@ impl InputTraceWriter {
         if self.times.len() < 2 {
             return Err(TraceError::TooFewRows {
                 file: self.out.file.clone(),
-                line: self.times.len() as u64 + 2,
+                line: self.times.len() as u64 + self.first_line,
                 rows: self.times.len(),
             });
         }
-        let lines: Vec<u64> = (0..self.times.len() as u64).map(|k| k + 2).collect();
+        let lines: Vec<u64> = (0..self.times.len() as u64).map(|k| k + self.first_line).collect();
         check_time_step(&self.out.file, &self.times, &lines)?;
         self.out.commit()
     }
@@ -1596,6 +1614,26 @@ mod tests {
         w.write(&good(1), &[0.0]).unwrap();
         drop(w);
         assert!(dir_entries(dir.path()).is_empty());
+    }
+
+    /// Comment lines before the header: written as `# text` (line breaks made blanks),
+    /// read back as comments, and counted in the line numbers of the writer's errors
+    /// as the reader would count them.
+    #[test]
+    fn input_writer_comments_precede_the_header_and_count_in_line_numbers() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("c.csv");
+        let mut w =
+            InputTraceWriter::create_with_comments(&path, GroundTruth::NONE, &[], &["numeric: q24", "a\nb"])
+                .unwrap();
+        w.write(&row(0.0), &[]).unwrap();
+        w.write(&row(1e-4), &[]).unwrap();
+        let m = w.write(&row(1e-4), &[]).unwrap_err().to_string();
+        assert_has(&m, &["c.csv:6:", "`t`"]);
+        w.finish().unwrap();
+        let text = std::fs::read_to_string(&path).unwrap();
+        assert!(text.starts_with("# numeric: q24\n# a b\nt,u_alpha,"), "{text}");
+        assert_eq!(InputTrace::read_path(&path).unwrap().rows().len(), 2);
     }
 
     #[test]

@@ -3,25 +3,31 @@
 //! - The firmware's virtual motor (`dcfo::virtual_motor`, f32, averaged inverter) agrees
 //!   with the host's f64 plant (switched ideal inverter, RK4) on the same duties.
 //! - The drive on the virtual motor, captured as the drive image captures it, replays
-//!   through `dcfo replay`'s code bit for bit (in process, no QEMU).
-//! - `dcfo board --qemu --demo --json` on the virtual-motor image: Running at 0.3 m/s,
-//!   at least 1000 samples captured, the replay identical; and the image's command
-//!   watchdog disables the drive when the host goes silent.
+//!   through `dcfo replay`'s code bit for bit (in process, no QEMU), in f32 (the M4F
+//!   image's `Drive<f32>`) and in Q8.24 (the M3 image's `Drive<Q24>`), also after the
+//!   trip through the trace file.
+//! - `dcfo board --qemu --demo --json` on the virtual-motor image, on both QEMU boards
+//!   (`--cpu m4f`, `--cpu m3`): Running at 0.3 m/s, at least 1000 samples captured, the
+//!   replay identical, and `dcfo replay --numeric` of the recorded file gives the
+//!   drive's estimates; and the image's command watchdog disables the drive when the
+//!   host goes silent.
 //!
 //! The QEMU tests skip with a message when `qemu-system-arm` or the thumb target is
 //! missing, unless `DCFO_REQUIRE_QEMU=1` (CI sets it), as `qemu_hil.rs` does.
 
-use dcfo::capture::{Capture, CaptureState};
+use dcfo::capture::{Capture, CaptureFormat, CaptureScalar, CaptureState, Quantity};
 use dcfo::drive::{Drive, DriveConfig, DriveState, Measurements, PAPER_AXIS_BUS_V, PAPER_AXIS_PAYLOAD_KG};
 use dcfo::motor::MotorParams;
+use dcfo::num::Q24;
 use dcfo::observer::ObserverKind;
 use dcfo::svpwm::svpwm;
 use dcfo::transforms::{Abc, AlphaBeta};
-use dcfo::units::Base;
 use dcfo::virtual_motor::{VirtualAxis, VirtualMotor};
-use dcfo_host::board::{Board, BoardLink, capture_trace, replay_matches};
+use dcfo_host::board::{Board, BoardLink, CaptureData, capture_trace, replay_matches, write_capture_trace};
 use dcfo_host::plant::{Plant, SimParams};
 use dcfo_host::qemu::{QemuCpu, QemuSession, build_qemu_example, missing_tools};
+use dcfo_host::replay::working_base;
+use dcfo_host::trace::InputTrace;
 use std::path::Path;
 use std::process::Command;
 use std::time::{Duration, Instant};
@@ -73,17 +79,17 @@ fn virtual_motor_agrees_with_the_host_plant() {
 }
 
 /// The drive of the QEMU image (`examples/qemu_drive.rs`: paper motor, paper axis's
-/// carriage, no inverter compensation) on the virtual motor with the board's one-period
-/// delay, captured from the estimator's start as the image captures it: it reaches
-/// `Running` at 0.3 m/s, and the capture, as a trace, replays to the drive's own
-/// estimates bit for bit.
-#[test]
-fn captured_drive_on_the_virtual_motor_replays_bit_for_bit() {
+/// carriage, no inverter compensation) in the number type `T` and its working units, on
+/// the virtual motor with the board's one-period delay, captured from the estimator's
+/// start as the image captures it: it reaches `Running` at 0.3 m/s, and its capture
+/// (24,000 samples, as the image's).
+fn captured_drive<T: CaptureScalar>() -> CaptureData {
     let motor = MotorParams::paper();
     let mut config = DriveConfig::for_motor(&motor, PAPER_AXIS_BUS_V, ObserverKind::Dcfo);
     config.moving_mass_kg = motor.mass_kg + PAPER_AXIS_PAYLOAD_KG;
     config.dead_time_compensation = None;
-    let mut drive = Drive::<f32>::new(&motor, &config, &Base::SI).expect("drive");
+    let base = working_base(T::FORMAT, &motor);
+    let mut drive = Drive::<T>::new(&motor, &config, &base).expect("drive");
     let axis = VirtualAxis {
         payload_kg: PAPER_AXIS_PAYLOAD_KG,
         load_n: 0.0,
@@ -101,23 +107,88 @@ fn captured_drive_on_the_virtual_motor_replays_bit_for_bit() {
     for _ in 0..26_000 {
         vm.step(pending.0, pending.1);
         let i = vm.phase_currents_a();
-        let out = drive.step(&Measurements { i_abc: Abc { a: i[0], b: i[1], c: i[2] }, vdc: vm.bus_v() });
-        capture.record(&out, &Base::SI);
-        pending = ([out.duties.a, out.duties.b, out.duties.c], out.bridge_enabled);
+        let measured = Measurements {
+            i_abc: Abc { a: base.current(i[0]), b: base.current(i[1]), c: base.current(i[2]) },
+            vdc: base.voltage(vm.bus_v()),
+        };
+        let out = drive.step(&measured);
+        capture.record(&out);
+        pending = ([out.duties.a, out.duties.b, out.duties.c].map(|d| d.to_f32()), out.bridge_enabled);
         running |= out.state == DriveState::Running;
     }
     assert!(running && drive.state() == DriveState::Running, "faults {:?}", drive.faults());
     let v = vm.state().v_m_per_s;
     assert!((v - 0.3).abs() < 0.02, "mover at {v} m/s");
-    assert_eq!((capture.state(), capture.len()), (CaptureState::Done, 24_000));
-    let samples: Vec<_> = (0..capture.len()).map(|k| *capture.sample(k).expect("sample")).collect();
-    let trace = capture_trace(&samples, f64::from(config.control_period_s)).expect("trace");
-    assert_eq!(replay_matches(&trace, &motor, &samples).expect("replay"), 0);
+    assert_eq!((capture.state(), capture.len(), capture.format()), (CaptureState::Done, 24_000, T::FORMAT));
+    CaptureData::from_capture(&capture)
+}
+
+/// The f32 drive's capture, as a trace, replays to the drive's own estimates bit for bit;
+/// and the check can fail.
+#[test]
+fn captured_drive_on_the_virtual_motor_replays_bit_for_bit() {
+    let motor = MotorParams::paper();
+    let data = captured_drive::<f32>();
+    let ts = 1e-4;
+    let trace = capture_trace(&data, &motor, ts).expect("trace");
+    let cmp = replay_matches(&trace, &motor, &data).expect("replay");
+    assert_eq!((cmp.differing, cmp.first_differing), (0, None));
     // And the check can fail: one current 1 mA off changes the estimates from there on.
-    let mut altered = samples.clone();
-    altered[100].i_alpha += 1e-3;
-    let trace = capture_trace(&altered, f64::from(config.control_period_s)).expect("trace");
-    assert!(replay_matches(&trace, &motor, &samples).expect("replay") > 0);
+    let mut altered = data.clone();
+    altered.samples[100].i_alpha = (f32::from_bits(altered.samples[100].i_alpha) + 1e-3).to_bits();
+    let trace = capture_trace(&altered, &motor, ts).expect("trace");
+    let cmp = replay_matches(&trace, &motor, &data).expect("replay");
+    assert!(cmp.differing > 0);
+    assert!(cmp.first_differing.expect("one differs") >= 100, "{cmp:?}");
+}
+
+/// The Q8.24 drive (the M3 image's `Drive<Q24>` in the motor's per-unit base), run in
+/// this process: its capture, written to a trace file and read back, replays through
+/// `Estimator<Q24>` to the drive's own estimates bit for bit. The file holds SI `f64`
+/// that convert back to the captured Q8.24 words exactly, and names the number type in
+/// its comments. Replayed in f32 instead, it does not match (the check is real), and
+/// one current 4096 LSB (1 mA) off shows at that sample or after (a single LSB can
+/// vanish in the observer's truncating products).
+#[test]
+fn q24_drive_capture_replays_bit_for_bit_through_the_trace_file() {
+    let motor = MotorParams::paper();
+    let data = captured_drive::<Q24>();
+    assert_eq!(data.format, CaptureFormat::Q24);
+    let dir = tempfile::tempdir().expect("temp dir");
+    let path = dir.path().join("q24.csv");
+    write_capture_trace(&path, &data, &motor, 1e-4).expect("written");
+    let text = std::fs::read_to_string(&path).expect("read");
+    assert!(text.starts_with("# dcfo capture: 24000 samples"), "{}", &text[..200]);
+    assert!(text.lines().any(|l| l.starts_with("# numeric: q24")), "{}", &text[..400]);
+    let trace = InputTrace::read_path(&path).expect("the file is a trace");
+    // Every input word survives the file.
+    let base = working_base(CaptureFormat::Q24, &motor);
+    let accel = trace.commanded_acceleration().expect("alpha_e_ref column");
+    for (k, (row, s)) in trace.rows().iter().zip(&data.samples).enumerate() {
+        let back = |si: f64, q: Quantity| CaptureFormat::Q24.from_si(si, q, &base);
+        assert_eq!(back(row.u_alpha, Quantity::Voltage), Some(s.u_alpha), "row {k}");
+        assert_eq!(back(row.u_beta, Quantity::Voltage), Some(s.u_beta), "row {k}");
+        assert_eq!(back(row.i_alpha, Quantity::Current), Some(s.i_alpha), "row {k}");
+        assert_eq!(back(row.i_beta, Quantity::Current), Some(s.i_beta), "row {k}");
+        assert_eq!(back(accel[k], Quantity::Acceleration), Some(s.alpha_e_ref), "row {k}");
+    }
+    let cmp = replay_matches(&trace, &motor, &data).expect("replay");
+    assert_eq!((cmp.differing, cmp.first_differing), (0, None));
+    // The same file through the f32 estimator: not the drive's estimates.
+    let f32_replay = dcfo_host::replay::replay_trace(&trace, &motor, ObserverKind::Dcfo).expect("replay");
+    let same = f32_replay
+        .iter()
+        .zip(&data.samples)
+        .filter(|(r, s)| r.theta_hat.to_bits() == s.theta_hat.to_radians::<f64>().to_bits())
+        .count();
+    assert!(same < data.samples.len() / 2, "{same} angles agree");
+    // One current 4096 LSB (4096 * 2^-24 per unit of 4.2 A: 1.0 mA) off.
+    let mut altered = data.clone();
+    altered.samples[5000].i_beta = altered.samples[5000].i_beta.wrapping_add(4096);
+    let trace = capture_trace(&altered, &motor, 1e-4).expect("trace");
+    let cmp = replay_matches(&trace, &motor, &data).expect("replay");
+    assert!(cmp.differing > 0);
+    assert!(cmp.first_differing.expect("one differs") >= 5000, "{cmp:?}");
 }
 
 /// The drive image for `cpu`, or `None` (after saying why) when the test must skip.
@@ -131,14 +202,14 @@ fn drive_image(cpu: QemuCpu) -> Option<std::path::PathBuf> {
     Some(build_qemu_example(workspace, cpu, "qemu_drive").expect("the drive image builds"))
 }
 
-/// `dcfo board --qemu --demo --json`: the whole path from the command line.
-#[test]
-fn board_demo_on_qemu_runs_captures_and_replays_identically() {
-    let Some(elf) = drive_image(QemuCpu::M4f) else { return };
+/// `dcfo board --qemu --cpu <cpu> --demo --json`: the whole path from the command line,
+/// then `dcfo replay --numeric <the image's number type>` of the recorded file.
+fn board_demo_runs_captures_and_replays_identically(cpu: QemuCpu, cpu_arg: &str, numeric: &str) {
+    let Some(elf) = drive_image(cpu) else { return };
     let dir = tempfile::tempdir().expect("temp dir");
     let trace = dir.path().join("capture.csv");
     let out = Command::new(env!("CARGO_BIN_EXE_dcfo"))
-        .args(["board", "--qemu", "--demo", "--json", "--elf"])
+        .args(["board", "--qemu", "--cpu", cpu_arg, "--demo", "--json", "--elf"])
         .arg(&elf)
         .arg("--record")
         .arg(&trace)
@@ -151,14 +222,19 @@ fn board_demo_on_qemu_runs_captures_and_replays_identically() {
     let report: serde_json::Value = serde_json::from_str(last).expect("the last line is JSON");
     assert_eq!(report["state_reached"], "Running");
     assert_eq!(report["faults"], "none");
+    assert_eq!(report["numeric"], numeric);
     assert!(report["capture_samples"].as_u64().expect("count") >= 1000);
     assert_eq!(report["replay_identical"], true);
+    assert_eq!(report["replay_differing"], 0);
+    assert_eq!(report["replay_first_differing"], serde_json::Value::Null);
     let speed = report["speed_m_per_s"].as_f64().expect("speed");
     assert!((speed - 0.3).abs() < 0.03, "speed estimate {speed} m/s");
+    let text = std::fs::read_to_string(&trace).expect("recorded");
+    assert!(text.lines().any(|l| l.starts_with(&format!("# numeric: {numeric}"))), "{}", &text[..300]);
     // The recorded file is a trace `dcfo replay` takes.
     let replayed = dir.path().join("replayed.csv");
     let status = Command::new(env!("CARGO_BIN_EXE_dcfo"))
-        .args(["replay", "--motor", "paper", "--observer", "dcfo"])
+        .args(["replay", "--motor", "paper", "--observer", "dcfo", "--numeric", numeric])
         .arg(&trace)
         .arg("-o")
         .arg(&replayed)
@@ -167,6 +243,19 @@ fn board_demo_on_qemu_runs_captures_and_replays_identically() {
     assert!(status.success());
     let rows = std::fs::read_to_string(&replayed).expect("replayed").lines().count();
     assert_eq!(rows as u64, report["capture_samples"].as_u64().expect("count") + 1);
+}
+
+/// The M4F image (mps2-an386): `Drive<f32>` in SI.
+#[test]
+fn board_demo_on_qemu_m4f_runs_captures_and_replays_identically() {
+    board_demo_runs_captures_and_replays_identically(QemuCpu::M4f, "m4f", "f32");
+}
+
+/// The M3 image (mps2-an385): `Drive<Q24>` in the motor's per-unit base, replayed
+/// through `Estimator<Q24>`.
+#[test]
+fn board_demo_on_qemu_m3_runs_captures_and_replays_identically() {
+    board_demo_runs_captures_and_replays_identically(QemuCpu::M3, "m3", "q24");
 }
 
 /// The image's command watchdog: a running drive whose host goes silent for 1 s is

@@ -36,7 +36,7 @@
 //! | 32, 36 | u32 | capture: samples held, capacity |
 //! | 40 | u32 | control periods run since boot (wrapping) |
 //!
-//! [`CaptureChunk`] payload (224 B):
+//! [`CaptureChunk`] payload (225 B):
 //!
 //! | offset | type | field |
 //! |---|---|---|
@@ -44,14 +44,15 @@
 //! | 1 | u16 | sequence number of the command answered |
 //! | 3 | u32 | index of the first sample |
 //! | 7 | u8 | samples in this chunk, 0 to [`CAPTURE_CHUNK_SAMPLES`] (0: past the end) |
-//! | 8 | 6 × 36 B | [`CaptureSample::to_le_bytes`]; unused slots zero |
+//! | 8 | u8 | how the samples' words read ([`CaptureFormat::code`]: 0 `f32` SI, 1 Q8.24 per unit) |
+//! | 9 | 6 × 36 B | [`CaptureSample::to_le_bytes`]: nine 32-bit words each, the drive's own bits; unused slots zero |
 
 use super::codec::{EncodeError, LinkError, Reader, Writer};
 use super::frame::{
     ACTUATION_FLAG_BRIDGE_ENABLED, ACTUATION_FLAG_ESTIMATE_VALID, CRC_LEN, Frame, PROTOCOL_VERSION,
     state_code_ok, wire_len,
 };
-use crate::capture::{CaptureSample, CaptureState};
+use crate::capture::{CaptureFormat, CaptureSample, CaptureState};
 
 /// [`BoardCommand`] flag: the drive should run (clear: disable).
 pub const BOARD_FLAG_ENABLE: u8 = 1 << 0;
@@ -271,13 +272,15 @@ pub struct CaptureChunk {
     pub first: u32,
     /// Valid samples, `0..=CAPTURE_CHUNK_SAMPLES` (0: `first` is past the end).
     pub count: u8,
+    /// How the samples' words read (the drive's number type and working units).
+    pub format: CaptureFormat,
     /// The samples; those from `count` on are unused (zero).
     pub samples: [CaptureSample; CAPTURE_CHUNK_SAMPLES],
 }
 
 impl CaptureChunk {
     /// Payload length (bytes).
-    pub const PAYLOAD_LEN: usize = 8 + CAPTURE_CHUNK_SAMPLES * CaptureSample::WIRE_LEN;
+    pub const PAYLOAD_LEN: usize = 9 + CAPTURE_CHUNK_SAMPLES * CaptureSample::WIRE_LEN;
     /// Raw length (bytes): payload and CRC.
     pub const RAW_LEN: usize = Self::PAYLOAD_LEN + CRC_LEN;
     /// Length on the wire (bytes).
@@ -301,9 +304,10 @@ impl Frame for CaptureChunk {
         w.u16(self.sequence);
         w.u32(self.first);
         w.u8(self.count);
+        w.u8(self.format.code());
         for (k, s) in self.samples.iter().enumerate() {
             if k < usize::from(self.count) {
-                if CaptureSample::from_le_bytes(&s.to_le_bytes()).is_none() {
+                if !s.valid(self.format) {
                     return Err(EncodeError::InvalidValue);
                 }
                 w.bytes(&s.to_le_bytes());
@@ -323,16 +327,21 @@ impl Frame for CaptureChunk {
         if usize::from(count) > CAPTURE_CHUNK_SAMPLES {
             return Err(LinkError::Value);
         }
+        let format = CaptureFormat::from_code(r.u8()).ok_or(LinkError::Value)?;
         let mut samples = [CaptureSample::default(); CAPTURE_CHUNK_SAMPLES];
         for (k, slot) in samples.iter_mut().enumerate() {
             let bytes = r.bytes::<{ CaptureSample::WIRE_LEN }>();
             if k < usize::from(count) {
-                *slot = CaptureSample::from_le_bytes(&bytes).ok_or(LinkError::Value)?;
+                let s = CaptureSample::from_le_bytes(&bytes);
+                if !s.valid(format) {
+                    return Err(LinkError::Value);
+                }
+                *slot = s;
             } else if bytes.iter().any(|&b| b != 0) {
                 return Err(LinkError::Value);
             }
         }
-        Ok(CaptureChunk { sequence, first, count, samples })
+        Ok(CaptureChunk { sequence, first, count, format, samples })
     }
 }
 
@@ -379,14 +388,23 @@ mod tests {
             periods: 123_456,
         };
         assert_eq!(round_trip(t), t);
-        let s =
-            CaptureSample { u_alpha: 3.0, theta_hat: Angle::from_bits(99), v_hat: 0.3, ..Default::default() };
+        let s = CaptureSample {
+            u_alpha: 3.0f32.to_bits(),
+            theta_hat: Angle::from_bits(99),
+            v_hat: 0.3f32.to_bits(),
+            ..Default::default()
+        };
         let mut samples = [CaptureSample::default(); CAPTURE_CHUNK_SAMPLES];
         samples[0] = s;
         samples[1] = s;
-        let k = CaptureChunk { sequence: 3, first: 600, count: 2, samples };
+        let k = CaptureChunk { sequence: 3, first: 600, count: 2, format: CaptureFormat::F32, samples };
         assert_eq!(round_trip(k), k);
         assert_eq!(k.valid(), &[s, s]);
+        // Q8.24 words: any bits, including those that are NaN as f32.
+        samples[1].v_hat = f32::NAN.to_bits();
+        samples[1].psi_beta_hat = i32::MIN as u32;
+        let q = CaptureChunk { sequence: 4, first: 6, count: 2, format: CaptureFormat::Q24, samples };
+        assert_eq!(round_trip(q), q);
         let lengths = [
             super::super::SensorFrame::RAW_LEN,
             super::super::ActuationFrame::RAW_LEN,
@@ -408,9 +426,16 @@ mod tests {
     #[test]
     fn bad_content_is_refused() {
         let mut samples = [CaptureSample::default(); CAPTURE_CHUNK_SAMPLES];
-        samples[0].v_hat = f32::NAN;
-        let k = CaptureChunk { sequence: 0, first: 0, count: 1, samples };
+        samples[0].v_hat = f32::NAN.to_bits();
+        let k = CaptureChunk { sequence: 0, first: 0, count: 1, format: CaptureFormat::F32, samples };
         assert_eq!(encode(&k, &mut [0u8; 256]), Err(EncodeError::InvalidValue));
+        // An unknown format code: payload byte 8.
+        let ok = CaptureChunk { format: CaptureFormat::Q24, ..k };
+        let mut payload = [0u8; CaptureChunk::PAYLOAD_LEN];
+        ok.write_payload(&mut payload).unwrap();
+        assert_eq!(CaptureChunk::read_payload(&payload), Ok(ok));
+        payload[8] = 2;
+        assert_eq!(CaptureChunk::read_payload(&payload), Err(LinkError::Value));
         let k = CaptureChunk { count: 7, samples: [CaptureSample::default(); 6], ..k };
         assert_eq!(encode(&k, &mut [0u8; 256]), Err(EncodeError::InvalidValue));
         // A command with an unknown flag bit: payload byte 7.

@@ -6,7 +6,9 @@ use super::codec::{EncodeError, LinkError, Reader, Writer};
 use super::session::LinkStats;
 
 /// The protocol version carried in byte 0 of every frame; any other value is rejected.
-pub const PROTOCOL_VERSION: u8 = 1;
+/// 2: the board link's [`CaptureChunk`](super::board::CaptureChunk) carries the drive's
+/// own words and their format (1: SI `f32` converted on the target).
+pub const PROTOCOL_VERSION: u8 = 2;
 
 /// Bytes of the CRC after the payload (CRC-16, little-endian).
 pub const CRC_LEN: usize = 2;

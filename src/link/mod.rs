@@ -36,7 +36,7 @@
 //! | [`ActuationFrame`] | 41 B | 43 B | 45 B |
 //! | [`board::BoardCommand`] | 12 B | 14 B | 16 B |
 //! | [`board::BoardTelemetry`] | 44 B | 46 B | 48 B |
-//! | [`board::CaptureChunk`] | 224 B | 226 B | 228 B |
+//! | [`board::CaptureChunk`] | 225 B | 227 B | 229 B |
 //!
 //! The board link's frames ([`board`]: a drive image operated from the host) share the
 //! framing; every frame type has its own length.
