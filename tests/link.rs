@@ -4,9 +4,10 @@
 use dcfo::drive::{Drive, DriveConfig, DriveState, Faults};
 use dcfo::link::{
     ActuationFrame, EncodeError, EstimateReport, Frame, LinkError, LinkStats, LinkWatchdog, PROTOCOL_VERSION,
-    RX_CAPACITY, Receiver, SILENT_LINK_PERIODS, SensorFrame, SequenceOrder, SequenceTracker,
+    PositionReport, RX_CAPACITY, Receiver, SILENT_LINK_PERIODS, SensorFrame, SequenceOrder, SequenceTracker,
     classify_sequence, decode_in_place, decode_raw, encode,
 };
+use dcfo::motion::Move;
 use dcfo::motor::MotorParams;
 use dcfo::observer::ObserverKind;
 use dcfo::units::Base;
@@ -72,6 +73,7 @@ fn sensor() -> SensorFrame {
         speed_ref: 0.3,
         enable: true,
         clear_faults: false,
+        move_to: None,
     }
 }
 
@@ -86,6 +88,14 @@ fn actuation() -> ActuationFrame {
         fault_bits: (Faults::OVER_CURRENT | Faults::EXTERNAL).bits(),
         estimate: Some(EstimateReport { theta_hat: -1.0, speed: 0.29, psi_alpha: 0.1, psi_beta: -0.2 }),
         stats: LinkStats { malformed: 1, bad_crc: 2, out_of_order: 3 },
+        position: Some(PositionReport {
+            x_hat_m: 0.125,
+            x_ref_m: 0.25,
+            v_ref_m_per_s: -0.5,
+            moves_queued: 7,
+            idle: false,
+            moves_rejected: 0x0102,
+        }),
     }
 }
 
@@ -139,10 +149,25 @@ fn state() -> impl Strategy<Value = DriveState> {
 }
 
 prop_compose! {
+    fn arb_move()(target_m in finite_f32(), dwell_s in finite_f32()) -> Move {
+        Move { target_m, dwell_s }
+    }
+}
+
+prop_compose! {
     fn arb_sensor()(sequence in any::<u16>(), i_a in finite_f32(), i_b in finite_f32(), i_c in finite_f32(),
                     vdc in finite_f32(), speed_ref in finite_f32(), enable in any::<bool>(),
-                    clear_faults in any::<bool>()) -> SensorFrame {
-        SensorFrame { sequence, i_a, i_b, i_c, vdc, speed_ref, enable, clear_faults }
+                    clear_faults in any::<bool>(),
+                    move_to in proptest::option::of(arb_move())) -> SensorFrame {
+        SensorFrame { sequence, i_a, i_b, i_c, vdc, speed_ref, enable, clear_faults, move_to }
+    }
+}
+
+prop_compose! {
+    fn arb_position()(x_hat_m in finite_f32(), x_ref_m in finite_f32(), v_ref_m_per_s in finite_f32(),
+                      moves_queued in any::<u8>(), idle in any::<bool>(),
+                      moves_rejected in any::<u16>()) -> PositionReport {
+        PositionReport { x_hat_m, x_ref_m, v_ref_m_per_s, moves_queued, idle, moves_rejected }
     }
 }
 
@@ -157,11 +182,13 @@ prop_compose! {
     fn arb_actuation()(sequence in any::<u16>(), duty_a in duty(), duty_b in duty(), duty_c in duty(),
                        bridge_enabled in any::<bool>(), state in state(), faults in any::<u16>(),
                        estimate in proptest::option::of(arb_estimate()),
-                       stats in any::<(u16, u16, u16)>()) -> ActuationFrame {
+                       stats in any::<(u16, u16, u16)>(),
+                       position in proptest::option::of(arb_position())) -> ActuationFrame {
         ActuationFrame {
             sequence, duty_a, duty_b, duty_c, bridge_enabled, state_code: state.code(),
             fault_bits: faults, estimate,
             stats: LinkStats { malformed: stats.0, bad_crc: stats.1, out_of_order: stats.2 },
+            position,
         }
     }
 }
@@ -170,22 +197,25 @@ prop_compose! {
 
 #[test]
 fn sizes_are_constant_and_as_documented() {
-    assert_eq!((SensorFrame::PAYLOAD_LEN, SensorFrame::RAW_LEN, SensorFrame::WIRE_LEN), (24, 26, 28));
+    assert_eq!((SensorFrame::PAYLOAD_LEN, SensorFrame::RAW_LEN, SensorFrame::WIRE_LEN), (32, 34, 36));
     assert_eq!(
         (ActuationFrame::PAYLOAD_LEN, ActuationFrame::RAW_LEN, ActuationFrame::WIRE_LEN),
-        (41, 43, 45)
+        (56, 58, 60)
     );
     assert_eq!(RX_CAPACITY, ActuationFrame::WIRE_LEN - 1);
     // Worst case for COBS: no zero byte at all, and all zeros.
     let mut s = sensor();
     s.sequence = 0;
     s.i_a = 0.0;
-    assert_eq!(wire(&s).len(), 28);
+    assert_eq!(wire(&s).len(), 36);
+    s.move_to = Some(Move { target_m: 0.3, dwell_s: 0.2 });
+    assert_eq!(wire(&s).len(), 36);
     let mut a = actuation();
     a.estimate = None;
+    a.position = None;
     a.stats = LinkStats::default();
     a.fault_bits = Faults::NONE.bits();
-    assert_eq!(wire(&a).len(), 45);
+    assert_eq!(wire(&a).len(), 60);
 }
 
 #[test]
@@ -205,9 +235,17 @@ fn sensor_frame_layout_is_byte_exact() {
         expected.extend_from_slice(&x.to_le_bytes());
     }
     expected.push(0b11);
-    assert_eq!(expected.len(), 24);
+    expected.extend_from_slice(&[0; 8]); // no move: zero bytes
+    assert_eq!(expected.len(), 32);
     expected.extend_from_slice(&crc16(&expected.clone()).to_le_bytes());
     assert_eq!(raw, expected);
+
+    // With a move: flag bit 2, target and dwell at offsets 24 and 28.
+    let m = SensorFrame { move_to: Some(Move { target_m: 0.3, dwell_s: 0.2 }), ..f };
+    let raw = raw_of(&wire(&m));
+    assert_eq!(raw[23], 0b111);
+    assert_eq!(raw[24..28], 0.3f32.to_le_bytes());
+    assert_eq!(raw[28..32], 0.2f32.to_le_bytes());
 }
 
 #[test]
@@ -219,7 +257,7 @@ fn actuation_frame_layout_is_byte_exact() {
     for x in [0.25f32, 0.5, 1.0] {
         expected.extend_from_slice(&x.to_le_bytes());
     }
-    expected.push(0b11); // bridge enabled, estimate valid
+    expected.push(0b111); // bridge enabled, estimate valid, position valid (not idle)
     expected.push(3); // Running
     expected.extend_from_slice(&(1u16 | 1 << 8).to_le_bytes());
     for x in [-1.0f32, 0.29, 0.1, -0.2] {
@@ -228,14 +266,81 @@ fn actuation_frame_layout_is_byte_exact() {
     for x in [1u16, 2, 3] {
         expected.extend_from_slice(&x.to_le_bytes());
     }
-    assert_eq!(expected.len(), 41);
+    for x in [0.125f32, 0.25, -0.5] {
+        expected.extend_from_slice(&x.to_le_bytes());
+    }
+    expected.push(7);
+    expected.extend_from_slice(&0x0102u16.to_le_bytes());
+    assert_eq!(expected.len(), 56);
     expected.extend_from_slice(&crc16(&expected.clone()).to_le_bytes());
     assert_eq!(raw, expected);
 
-    // Without an estimate: flag clear, sixteen zero bytes.
-    let raw = raw_of(&wire(&ActuationFrame { estimate: None, bridge_enabled: false, ..f }));
+    // Without an estimate and a position: flags clear, zero bytes.
+    let raw = raw_of(&wire(&ActuationFrame { estimate: None, bridge_enabled: false, position: None, ..f }));
     assert_eq!(raw[15], 0);
     assert!(raw[19..35].iter().all(|&b| b == 0));
+    assert!(raw[41..56].iter().all(|&b| b == 0));
+    // Idle: flag bit 3.
+    let idle = PositionReport { idle: true, ..f.position.unwrap() };
+    let raw = raw_of(&wire(&ActuationFrame { position: Some(idle), ..f }));
+    assert_eq!(raw[15], 0b1111);
+}
+
+#[test]
+fn move_and_position_fields_without_their_flag_and_non_finite_values_are_rejected() {
+    // A sensor frame: move bytes without the move flag; a non-finite target or dwell.
+    let base = wire(&SensorFrame { move_to: Some(Move { target_m: 0.3, dwell_s: 0.0 }), ..sensor() });
+    let mut payload = raw_of(&base);
+    payload.truncate(SensorFrame::PAYLOAD_LEN);
+    let mut rx = Receiver::<SensorFrame>::new();
+    let mut no_flag = payload.clone();
+    no_flag[23] &= !dcfo::link::SENSOR_FLAG_MOVE;
+    assert_eq!(feed(&mut rx, &frame_payload(&no_flag)), [Err(LinkError::Value)]);
+    for bad in [f32::NAN, f32::INFINITY, f32::NEG_INFINITY] {
+        for offset in [24, 28] {
+            let mut p = payload.clone();
+            p[offset..offset + 4].copy_from_slice(&bad.to_le_bytes());
+            assert_eq!(feed(&mut rx, &frame_payload(&p)), [Err(LinkError::Value)], "{bad} at {offset}");
+        }
+    }
+    let mut unknown = payload.clone();
+    unknown[23] |= 1 << 3;
+    assert_eq!(feed(&mut rx, &frame_payload(&unknown)), [Err(LinkError::Flags)]);
+    assert_eq!(feed(&mut rx, &frame_payload(&payload)).len(), 1);
+
+    // An actuation frame: position bytes or the idle flag without the position flag; a
+    // non-finite position field.
+    let mut payload = raw_of(&wire(&actuation()));
+    payload.truncate(ActuationFrame::PAYLOAD_LEN);
+    let mut rx = Receiver::<ActuationFrame>::new();
+    let mut no_flag = payload.clone();
+    no_flag[15] &= !dcfo::link::ACTUATION_FLAG_POSITION_VALID;
+    assert_eq!(feed(&mut rx, &frame_payload(&no_flag)), [Err(LinkError::Value)]);
+    let mut p = raw_of(&wire(&ActuationFrame { position: None, ..actuation() }));
+    p.truncate(ActuationFrame::PAYLOAD_LEN);
+    p[15] |= dcfo::link::ACTUATION_FLAG_MOTION_IDLE;
+    assert_eq!(feed(&mut rx, &frame_payload(&p)), [Err(LinkError::Value)]);
+    for bad in [f32::NAN, f32::INFINITY] {
+        for offset in [41, 45, 49] {
+            let mut p = payload.clone();
+            p[offset..offset + 4].copy_from_slice(&bad.to_le_bytes());
+            assert_eq!(feed(&mut rx, &frame_payload(&p)), [Err(LinkError::Value)], "{bad} at {offset}");
+        }
+    }
+    let mut unknown = payload.clone();
+    unknown[15] |= 1 << 4;
+    assert_eq!(feed(&mut rx, &frame_payload(&unknown)), [Err(LinkError::Flags)]);
+    assert_eq!(feed(&mut rx, &frame_payload(&payload)), [Ok(actuation())]);
+
+    // Encoding refuses what decoding would.
+    let mut out = [0u8; 64];
+    let nan_move = SensorFrame { move_to: Some(Move { target_m: 0.0, dwell_s: f32::NAN }), ..sensor() };
+    assert_eq!(encode(&nan_move, &mut out), Err(EncodeError::InvalidValue));
+    let nan_x = PositionReport { x_hat_m: f32::INFINITY, ..actuation().position.unwrap() };
+    assert_eq!(
+        encode(&ActuationFrame { position: Some(nan_x), ..actuation() }, &mut out),
+        Err(EncodeError::InvalidValue)
+    );
 }
 
 // ---------------------------------------------------------------- round trips
@@ -281,11 +386,11 @@ proptest! {
 #[test]
 fn encode_refuses_a_short_buffer_and_bad_values() {
     let mut out = [0u8; 64];
-    assert_eq!(encode(&sensor(), &mut out[..27]), Err(EncodeError::BufferTooSmall { needed: 28 }));
-    assert_eq!(encode(&sensor(), &mut out[..28]), Ok(28));
-    assert_eq!(encode(&actuation(), &mut out[..44]), Err(EncodeError::BufferTooSmall { needed: 45 }));
-    assert_eq!(encode(&actuation(), &mut out[..]), Ok(45));
-    assert_eq!(encode(&actuation(), &mut []), Err(EncodeError::BufferTooSmall { needed: 45 }));
+    assert_eq!(encode(&sensor(), &mut out[..35]), Err(EncodeError::BufferTooSmall { needed: 36 }));
+    assert_eq!(encode(&sensor(), &mut out[..36]), Ok(36));
+    assert_eq!(encode(&actuation(), &mut out[..59]), Err(EncodeError::BufferTooSmall { needed: 60 }));
+    assert_eq!(encode(&actuation(), &mut out[..]), Ok(60));
+    assert_eq!(encode(&actuation(), &mut []), Err(EncodeError::BufferTooSmall { needed: 60 }));
 
     for bad in [f32::NAN, f32::INFINITY, f32::NEG_INFINITY] {
         assert_eq!(encode(&SensorFrame { vdc: bad, ..sensor() }, &mut out), Err(EncodeError::InvalidValue));
@@ -397,14 +502,14 @@ fn wrong_version_is_rejected() {
     let mut rx = Receiver::<SensorFrame>::new();
     // 0, the version before this one (an older peer), the next one and 0xFF.
     for v in [0u8, PROTOCOL_VERSION - 1, PROTOCOL_VERSION + 1, 0xFF] {
-        let mut payload = raw_of(&wire(&good))[..24].to_vec();
+        let mut payload = raw_of(&wire(&good))[..32].to_vec();
         payload[0] = v;
         assert_eq!(assert_recovers(&mut rx, &frame_payload(&payload), &good), [LinkError::Version]);
     }
     let good = actuation();
     let mut rx = Receiver::<ActuationFrame>::new();
-    let mut payload = raw_of(&wire(&good))[..41].to_vec();
-    payload[0] = PROTOCOL_VERSION + 1;
+    let mut payload = raw_of(&wire(&good))[..56].to_vec();
+    payload[0] = PROTOCOL_VERSION - 1; // the version before the move and position fields
     assert_eq!(assert_recovers(&mut rx, &frame_payload(&payload), &good), [LinkError::Version]);
     assert_eq!(rx.stats().malformed, 1);
 }
@@ -412,9 +517,9 @@ fn wrong_version_is_rejected() {
 #[test]
 fn unknown_flags_and_bad_values_are_malformed() {
     let good = sensor();
-    let payload = raw_of(&wire(&good))[..24].to_vec();
+    let payload = raw_of(&wire(&good))[..32].to_vec();
     let mut rx = Receiver::<SensorFrame>::new();
-    for flags in [0b100u8, 0x80, 0xFF] {
+    for flags in [0b1000u8, 0x80, 0xFF] {
         let mut p = payload.clone();
         p[23] = flags;
         assert_eq!(assert_recovers(&mut rx, &frame_payload(&p), &good), [LinkError::Flags]);
@@ -433,11 +538,11 @@ fn unknown_flags_and_bad_values_are_malformed() {
     assert_eq!(rx.stats(), LinkStats { malformed: 8, bad_crc: 0, out_of_order: 0 });
 
     let good = actuation();
-    let payload = raw_of(&wire(&good))[..41].to_vec();
+    let payload = raw_of(&wire(&good))[..56].to_vec();
     let mut rx = Receiver::<ActuationFrame>::new();
     let mut cases: Vec<(Vec<u8>, LinkError)> = Vec::new();
     let mut p = payload.clone();
-    p[15] |= 0b100;
+    p[15] |= 0b1_0000;
     cases.push((p, LinkError::Flags));
     for bad in [f32::NAN, -0.5, 1.5] {
         let mut p = payload.clone();
@@ -795,7 +900,7 @@ fn a_drive_answers_sensor_frames_over_the_link() {
         let frame = frames.pop().expect("one frame").expect("decodes");
         assert_eq!(tracker.check(frame.sequence), SequenceOrder::InOrder { skipped: 0 });
         assert!(!watchdog.period(true));
-        frame.apply_commands(&mut drive);
+        assert_eq!(frame.apply_commands(&mut drive), Ok(()));
         let out = drive.step(&frame.measurements(&Base::SI));
         let reply = ActuationFrame::from_step(frame.sequence, &out, &Base::SI, ctl_rx.stats());
         let n = encode(&reply, &mut buf).expect("encodes");
@@ -844,6 +949,7 @@ fn link_server_answers_in_order_frames_and_trips_a_silent_link() {
         speed_ref: 0.3,
         enable: true,
         clear_faults: false,
+        move_to: None,
     };
     let mut wire = [0u8; SensorFrame::WIRE_LEN];
     let n = encode(&frame, &mut wire).unwrap();

@@ -296,6 +296,7 @@ mod firmware {
             speed_ref: SPEED_M_PER_S,
             enable: true,
             clear_faults: false,
+            move_to: None,
         };
         let mut wire = [0u8; SensorFrame::WIRE_LEN];
         let Ok(n) = encode(&frame, &mut wire) else { return 0 };

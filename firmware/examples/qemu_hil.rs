@@ -5,7 +5,12 @@
 //!
 //! The drive runs `DriveConfig::paper_axis` (DCFO), the settings of the host's
 //! simulated axis, so a HIL run and an in-process run of the same numeric type agree bit
-//! for bit. Each in-order `dcfo::link::SensorFrame` from the host is one PWM period: its
+//! for bit. Started with the command line `stroke <motor image in hex>` (QEMU's
+//! `-append`, read through semihosting; `dcfo stroke --qemu` passes it), it runs the
+//! positioning drive of `dcfo stroke` instead: `DriveConfig::stroke_axis` of the image's
+//! motor and bus, the function the host's in-process stroke builds its drive with. The
+//! host queues moves through the sensor frames (`Drive::push_move`; a refused move is
+//! counted in the answers, never acted on) and reads x̂ in the answers. Each in-order `dcfo::link::SensorFrame` from the host is one PWM period: its
 //! arrival plays the part of the ADC's end-of-conversion interrupt on a drive board.
 //!
 //! | context | priority | work | budget |
@@ -52,9 +57,12 @@ mod firmware {
     use dcfo::drive::{Drive, DriveConfig};
     use dcfo::link::ActuationFrame;
     use dcfo::motor::MotorParams;
+    use dcfo::motor_image::MotorImage;
     use dcfo::observer::ObserverKind;
     use dcfo::units::Base;
-    use dcfo_firmware::board::mps2::{self, CmsdkUart, SYSCLK_HZ, UART0_RX_IRQN, Uart0RxIrq, UartRx, halt};
+    use dcfo_firmware::board::mps2::{
+        self, CmsdkUart, SYSCLK_HZ, UART0_RX_IRQN, Uart0RxIrq, UartRx, UartTx, halt,
+    };
     use dcfo_firmware::hil::HilServer;
     use dcfo_firmware::queue::{Producer, Queue};
     use dcfo_firmware::runtime::{Slot, install, slot, start_systick, with_slot};
@@ -95,41 +103,24 @@ mod firmware {
         let Some(mut uart) = CmsdkUart::take_uart0() else { halt("UART0 already taken") };
         uart.init(115_200);
         let Some(mut cp) = cortex_m::Peripherals::take() else { halt("core peripherals taken twice") };
+        let Some(queue) = cortex_m::singleton!(: Queue<u8, TX_QUEUE_BYTES> = Queue::new()) else {
+            halt("transmit queue taken twice")
+        };
+        let (producer, mut consumer) = queue.split();
+        // The drive, for the axis the command line names, into the control state first:
+        // the 512-byte line buffer, the axis's tuning, the drive's construction and its
+        // moves into the state are one-offs at boot, done before the paint, so the
+        // high-water mark measures the control path.
+        let mut tx = match start(uart, producer) {
+            Ok(tx) => tx,
+            Err(why) => halt(why),
+        };
         // The stack: paint it for the high-water mark (the host reads it through QEMU's
         // monitor), then the MPU guard at its bottom (QEMU ignores writes below RAM,
         // where flip-link's guard relies on a bus error).
         stack::paint();
         if !stack::guard(&mut cp.MPU) {
             halt("no MPU guard for the stack");
-        }
-
-        let motor = MotorParams::paper();
-        let config = DriveConfig::paper_axis(ObserverKind::Dcfo);
-        let base = working_base(&motor);
-        let drive = match Drive::<Work>::new(&motor, &config, &base) {
-            Ok(d) => d,
-            Err(e) => halt(e.field),
-        };
-
-        // The banner states the numeric type and, with an FPU, the access mode
-        // (CPACR CP10/CP11) cortex-m-rt set before `main`. The 0x00 after it is a link
-        // frame delimiter: the host's receiver drops the banner as one bad frame.
-        #[cfg(target_abi = "eabihf")]
-        let _ = write!(
-            uart,
-            "dcfo-firmware qemu_hil: f32, fpu {:?}\r\n\0",
-            cortex_m::peripheral::SCB::fpu_access_mode()
-        );
-        #[cfg(not(target_abi = "eabihf"))]
-        let _ = write!(uart, "dcfo-firmware qemu_hil: Q8.24 fixed point, no fpu\r\n\0");
-
-        let Some(queue) = cortex_m::singleton!(: Queue<u8, TX_QUEUE_BYTES> = Queue::new()) else {
-            halt("transmit queue taken twice")
-        };
-        let (producer, mut consumer) = queue.split();
-        let (rx, mut tx) = uart.into_interrupt_driven();
-        if !install(&CONTROL, Control { server: HilServer::new(drive), rx, tx: producer }) {
-            halt("control state busy at start-up");
         }
 
         // SAFETY: set before the interrupt is unmasked; no critical section here relies on
@@ -156,6 +147,70 @@ mod firmware {
                 }
             });
         }
+    }
+
+    /// Builds the drive (the stroke axis of the command line's motor image, or without
+    /// one the paper axis), prints the banner, installs the control state with UART0's
+    /// receiver and `producer`, and returns UART0's transmitter for the thread. Not
+    /// inlined (see `main`).
+    #[inline(never)]
+    fn start(
+        mut uart: CmsdkUart,
+        producer: Producer<'static, u8, TX_QUEUE_BYTES>,
+    ) -> Result<UartTx, &'static str> {
+        let (motor, config, axis) = match stroke_axis() {
+            Some(image) => {
+                let image = image?;
+                (image.motor, DriveConfig::stroke_axis(&image.motor, image.bus_v), "stroke axis")
+            }
+            None => (MotorParams::paper(), DriveConfig::paper_axis(ObserverKind::Dcfo), "paper axis"),
+        };
+        let drive = Drive::<Work>::new(&motor, &config, &working_base(&motor)).map_err(|e| e.field)?;
+
+        // The banner states the numeric type and, with an FPU, the access mode
+        // (CPACR CP10/CP11) cortex-m-rt set before `main`. The 0x00 after it is a link
+        // frame delimiter: the host's receiver drops the banner as one bad frame.
+        #[cfg(target_abi = "eabihf")]
+        let _ = write!(
+            uart,
+            "dcfo-firmware qemu_hil: f32, fpu {:?}, {axis}\r\n\0",
+            cortex_m::peripheral::SCB::fpu_access_mode()
+        );
+        #[cfg(not(target_abi = "eabihf"))]
+        let _ = write!(uart, "dcfo-firmware qemu_hil: Q8.24 fixed point, no fpu, {axis}\r\n\0");
+
+        let (rx, tx) = uart.into_interrupt_driven();
+        if !install(&CONTROL, Control { server: HilServer::new(drive), rx, tx: producer }) {
+            return Err("control state busy at start-up");
+        }
+        Ok(tx)
+    }
+
+    /// The stroke axis's motor image from the command line `... stroke <hex>`: `None`
+    /// without the word `stroke`, an error naming what is wrong with the image. Not
+    /// inlined: its line buffer is given back before the control loop runs.
+    #[inline(never)]
+    fn stroke_axis() -> Option<Result<MotorImage, &'static str>> {
+        let mut line = [0u8; 512];
+        let line = mps2::semihosting_cmdline(&mut line)?;
+        let mut words = line.split(|&b| b == b' ').filter(|w| !w.is_empty());
+        words.by_ref().find(|w| *w == b"stroke")?;
+        let Some(hex) = words.next() else { return Some(Err("stroke: no motor image after `stroke`")) };
+        let mut bytes = [0u8; MotorImage::LEN];
+        if hex.len() != 2 * MotorImage::LEN {
+            return Some(Err("stroke: the motor image is not 56 bytes of hex"));
+        }
+        let digit = |c: u8| (c as char).to_digit(16);
+        for (byte, pair) in bytes.iter_mut().zip(hex.chunks_exact(2)) {
+            let (Some(&hi), Some(&lo)) = (pair.first(), pair.get(1)) else {
+                return Some(Err("stroke: bad hex"));
+            };
+            match (digit(hi), digit(lo)) {
+                (Some(h), Some(l)) => *byte = (h * 16 + l) as u8,
+                _ => return Some(Err("stroke: bad hex in the motor image")),
+            }
+        }
+        Some(MotorImage::decode(&bytes).map_err(|_| "stroke: the motor image is invalid"))
     }
 
     /// UART0 RX: drain the receiver through the HIL server; an in-order frame runs one

@@ -101,6 +101,7 @@ mod tests {
             speed_ref: 0.3,
             enable: true,
             clear_faults: false,
+            move_to: None,
         };
         let mut wire = [0u8; SensorFrame::WIRE_LEN];
         let n = encode(&f, &mut wire).unwrap();

@@ -5,7 +5,7 @@
 //! server sends is a valid actuation frame (duties in [0, 1]).
 //!
 //! Random bytes almost never carry a valid CRC-16, so with the first byte odd the rest is
-//! taken as a sequence of 24-byte sensor-frame payloads, each framed on the wire with
+//! taken as a sequence of 32-byte sensor-frame payloads, each framed on the wire with
 //! its correct CRC and COBS: the fuzzer then explores the payload checks (version,
 //! flags, values), the sequence logic and the drive's step behind the server.
 #![no_main]

@@ -186,6 +186,27 @@ pub struct StrokeArgs {
     /// `stroke.png` / `stroke.svg`.
     #[arg(long, value_name = "DIR", default_value = "out/stroke")]
     pub out: PathBuf,
+    /// Number of moves between the stroke's ends (each after the first reverses).
+    #[arg(long, value_name = "N", default_value_t = crate::stroke::MOVES as u16,
+          value_parser = clap::value_parser!(u16).range(1..))]
+    pub moves: u16,
+    /// Run the drive on QEMU through the lock-step HIL link (board: --cpu; the
+    /// `qemu_hil` image, built with cargo unless --elf is given, started with the stroke
+    /// axis of the motor). Needs qemu-system-arm.
+    #[arg(long)]
+    pub qemu: bool,
+    /// QEMU board for --qemu: m4f (mps2-an386, f32 firmware) or m3 (mps2-an385, Q8.24
+    /// fixed-point firmware).
+    #[arg(long, value_enum, default_value = "m4f", requires = "qemu")]
+    pub cpu: crate::qemu::QemuCpu,
+    /// Firmware ELF for --qemu (default: build and use
+    /// `target/<target>/release/examples/qemu_hil`).
+    #[arg(long, value_name = "FILE", requires = "qemu")]
+    pub elf: Option<PathBuf>,
+    /// With --qemu: also run the in-process drive of the firmware's numeric type and
+    /// fail unless every period's angle and position estimates are identical bit for bit.
+    #[arg(long, requires = "qemu")]
+    pub check: bool,
 }
 
 /// Arguments of `dcfo faults`.
@@ -505,7 +526,14 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             Ok(ExitCode::SUCCESS)
         }
         Command::Stroke(a) => {
-            crate::stroke::run_command(&crate::stroke::Params { motor: a.motor, json: a.json, out: a.out })?;
+            crate::stroke::run_command(&crate::stroke::Params {
+                motor: a.motor,
+                json: a.json,
+                out: a.out,
+                moves: usize::from(a.moves),
+                qemu: a.qemu.then_some((a.cpu, a.elf)),
+                check: a.check,
+            })?;
             Ok(ExitCode::SUCCESS)
         }
         Command::Identify(a) => {

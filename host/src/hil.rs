@@ -187,6 +187,17 @@ impl QemuSession {
         let (session, stdin, stdout) = QemuSession::spawn(elf, cpu)?;
         Ok((session, SerialController::new(stdin, stdout)))
     }
+
+    /// [`QemuSession::start`] with `cmdline` for the image (e.g. the stroke axis,
+    /// `crate::stroke::qemu_cmdline`).
+    pub fn start_with_cmdline(
+        elf: &Path,
+        cpu: QemuCpu,
+        cmdline: &str,
+    ) -> Result<(QemuSession, SerialController<ChildStdin>), SimError> {
+        let (session, stdin, stdout) = QemuSession::spawn_with_cmdline(elf, cpu, Some(cmdline))?;
+        Ok((session, SerialController::new(stdin, stdout)))
+    }
 }
 
 /// The HIL firmware ELF for `cpu`, in the workspace's target directory.

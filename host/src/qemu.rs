@@ -179,10 +179,24 @@ impl QemuSession {
     /// Starts `qemu-system-arm` on `cpu`'s board with `elf` (`-display none -monitor none
     /// -serial stdio`: UART0 on the returned pipes); returns the session and the pipes.
     pub fn spawn(elf: &Path, cpu: QemuCpu) -> Result<(QemuSession, ChildStdin, ChildStdout), SimError> {
+        Self::spawn_with_cmdline(elf, cpu, None)
+    }
+
+    /// [`QemuSession::spawn`], passing `cmdline` to the image (QEMU's `-append`: the
+    /// image reads `<elf> <cmdline>` through semihosting `SYS_GET_CMDLINE`).
+    pub fn spawn_with_cmdline(
+        elf: &Path,
+        cpu: QemuCpu,
+        cmdline: Option<&str>,
+    ) -> Result<(QemuSession, ChildStdin, ChildStdout), SimError> {
         let dir =
             tempfile::tempdir().map_err(|e| SimError::Controller(format!("temporary directory: {e}")))?;
         let qmp_socket = dir.path().join("qmp.sock");
-        let mut child = qemu_command(elf, cpu, &qmp_socket)
+        let mut command = qemu_command(elf, cpu, &qmp_socket);
+        if let Some(line) = cmdline {
+            command.arg("-append").arg(line);
+        }
+        let mut child = command
             .stdin(Stdio::piped())
             .stdout(Stdio::piped())
             .stderr(Stdio::inherit())

@@ -19,24 +19,23 @@
 
 use std::f64::consts::PI;
 
-use dcfo::drive::{DeadTimeCompensation, Drive, DriveConfig, DriveState, MotionConfig};
-use dcfo::motion::{Move, ProfileLimits};
+use dcfo::drive::{DriveConfig, DriveState};
+use dcfo::link::SensorFrame;
+use dcfo::motion::Move;
 use dcfo::motor::MotorParams;
-use dcfo::observer::ObserverKind;
-use dcfo::transforms::{Dq, inverse_park};
-use dcfo::units::Base;
 use serde::Serialize;
 
 use crate::plant::{InverterParams, Plant, PlantParams, SimParams};
+use crate::sim::{Controller, LocalDrive, Setup};
 
 /// Carriage and load moved besides the mover, kg.
 pub const PAYLOAD_KG: f64 = dcfo::drive::PAPER_AXIS_PAYLOAD_KG as f64;
 /// Stroke, m.
-pub const STROKE_M: f32 = 0.3;
+pub const STROKE_M: f32 = dcfo::drive::STROKE_AXIS_STROKE_M;
 /// Speed limit of the moves, m/s.
-pub const MAX_SPEED_M_PER_S: f32 = 0.5;
+pub const MAX_SPEED_M_PER_S: f32 = dcfo::drive::STROKE_AXIS_LIMITS.max_speed_m_per_s;
 /// Acceleration limit of the moves, m/s^2.
-pub const MAX_ACCEL_M_PER_S2: f32 = 3.0;
+pub const MAX_ACCEL_M_PER_S2: f32 = dcfo::drive::STROKE_AXIS_LIMITS.max_accel_m_per_s2;
 /// Number of moves (end to end); each after the first reverses.
 pub const MOVES: usize = 12;
 /// Dwell at each end, s.
@@ -62,11 +61,11 @@ pub struct Row {
     /// Drive state code.
     pub state: u8,
     /// True minus control angle, electrical degrees (in the low-speed mode: how far the
-    /// mover trails the current vector's reference position).
+    /// mover trails the current vector's reference position); NaN over a link.
     pub angle_err_deg: f64,
-    /// Measured d and q current in the control frame, A.
+    /// Measured d current in the control frame, A; NaN over a link.
     pub i_d_a: f64,
-    /// Measured q current in the control frame, A.
+    /// Measured q current in the control frame, A; NaN over a link.
     pub i_q_a: f64,
 }
 
@@ -93,13 +92,14 @@ pub struct StrokeSummary {
     /// Number of low-speed exits measured.
     pub relocks: usize,
     /// Largest change of the current reference vector between two periods, A, over the
-    /// whole run (beyond its rotation at the reference speed).
-    pub current_ref_step_max_a: f64,
+    /// whole run (beyond its rotation at the reference speed); `None` over a link, which
+    /// does not carry the current references.
+    pub current_ref_step_max_a: Option<f64>,
     /// The same within five periods of a change of the drive's state: the mode
-    /// transitions (the bumpless floor), A.
-    pub current_ref_step_transition_max_a: f64,
-    /// When the largest current reference step happened, s.
-    pub current_ref_step_max_t_s: f64,
+    /// transitions (the bumpless floor), A; `None` over a link.
+    pub current_ref_step_transition_max_a: Option<f64>,
+    /// When the largest current reference step happened, s; `None` over a link.
+    pub current_ref_step_max_t_s: Option<f64>,
     /// When the largest position error happened, s.
     pub x_err_max_t_s: f64,
     /// 5 % of the rated peak current, A (the bumpless floor).
@@ -108,10 +108,13 @@ pub struct StrokeSummary {
     pub low_speed_m_per_s: f64,
     /// Low-speed current amplitude, A.
     pub low_speed_current_a: f64,
-    /// Largest |true - control angle| while running sensorless, electrical degrees.
-    pub angle_err_running_max_deg: f64,
+    /// Largest |true - control angle| while running sensorless, electrical degrees;
+    /// `None` over a link, which does not carry the control angle.
+    pub angle_err_running_max_deg: Option<f64>,
     /// Moves completed.
     pub moves_done: usize,
+    /// Moves sent to the drive (all of the run's, unless it ended early).
+    pub moves_sent: usize,
 }
 
 /// The plant for `motor`: carriage, friction, R +20 %, L -5 %; for a salient motor
@@ -134,92 +137,193 @@ pub fn plant_for(motor: &MotorParams) -> SimParams {
     p
 }
 
-/// The drive for `motor` from the motor file alone, positioning over the stroke.
-pub fn drive_for(motor: &MotorParams) -> DriveConfig {
-    let bus = InverterParams::from_motor(motor).dc_bus_v as f32;
-    let mut d = DriveConfig::for_motor(motor, bus, ObserverKind::Dcfo);
-    d.moving_mass_kg = motor.mass_kg + PAYLOAD_KG as f32;
-    d.dead_time_compensation =
-        Some(DeadTimeCompensation { dead_time_s: 2e-6, device_drop_v: 0.95, current_band_a: 0.01 });
-    let limits = ProfileLimits {
-        max_speed_m_per_s: MAX_SPEED_M_PER_S,
-        max_accel_m_per_s2: MAX_ACCEL_M_PER_S2,
-        stroke_min_m: -0.01,
-        stroke_max_m: STROKE_M + 0.01,
-    };
-    d.motion = Some(MotionConfig::for_drive(motor, &d, limits));
-    d
+/// The nominal bus of the simulated inverter for `motor`, V ([`InverterParams::from_motor`]).
+pub fn bus_for(motor: &MotorParams) -> f32 {
+    InverterParams::from_motor(motor).dc_bus_v as f32
 }
 
-/// Runs the stroke on `motor` (named `name`), logging every `log_every` periods.
+/// The drive for `motor` from the motor file alone, positioning over the stroke:
+/// [`DriveConfig::stroke_axis`] on the simulated inverter's bus ([`bus_for`]), the
+/// function the HIL firmware builds its drive with.
+pub fn drive_for(motor: &MotorParams) -> DriveConfig {
+    DriveConfig::stroke_axis(motor, bus_for(motor))
+}
+
+/// The plant, the motor and the drive of a stroke run on `motor` ([`plant_for`],
+/// [`drive_for`]).
+pub fn setup_for(motor: &MotorParams) -> Setup {
+    Setup { motor: *motor, plant: plant_for(motor), drive: drive_for(motor) }
+}
+
+/// What the link carried in one period, for the bit-for-bit comparison of two runs.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LinkEstimate {
+    /// The angle estimate θ̂ (electrical rad) as sent, `None` without an estimate.
+    pub theta_hat: Option<f32>,
+    /// The position estimate x̂ (m) as sent.
+    pub x_hat_m: f32,
+}
+
+/// One stroke run: the figures, the logged rows and every period's estimates.
+#[derive(Clone, Debug)]
+pub struct StrokeRun {
+    /// The figures.
+    pub summary: StrokeSummary,
+    /// Every `log_every`-th period.
+    pub rows: Vec<Row>,
+    /// Every period's θ̂ and x̂ as the link carried them.
+    pub estimates: Vec<LinkEstimate>,
+}
+
+/// Bit-for-bit comparison of the estimates of two stroke runs.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct StrokeEquivalence {
+    /// Periods compared (the shorter run's).
+    pub periods: usize,
+    /// Periods whose θ̂ or x̂ differ in any bit (or whose estimate is present in one
+    /// run only), plus the longer run's extra periods.
+    pub differing: usize,
+    /// Largest |x̂ difference|, m.
+    pub max_x_diff_m: f64,
+}
+
+/// Compares the per-period estimates of two runs bit for bit.
+pub fn compare(a: &[LinkEstimate], b: &[LinkEstimate]) -> StrokeEquivalence {
+    let bits = |e: &LinkEstimate| (e.theta_hat.map(f32::to_bits), e.x_hat_m.to_bits());
+    let mut differing = a.len().abs_diff(b.len());
+    let mut max_x_diff_m = 0.0f64;
+    for (x, y) in a.iter().zip(b) {
+        if bits(x) != bits(y) {
+            differing += 1;
+            max_x_diff_m = max_x_diff_m.max((f64::from(x.x_hat_m) - f64::from(y.x_hat_m)).abs());
+        }
+    }
+    StrokeEquivalence { periods: a.len().min(b.len()), differing, max_x_diff_m }
+}
+
+/// The moves of a stroke run: `count` moves between the stroke's ends, the first to
+/// [`STROKE_M`], each with a [`DWELL_S`] dwell.
+pub fn moves(count: usize) -> Vec<Move> {
+    (0..count).map(|i| Move { target_m: if i % 2 == 0 { STROKE_M } else { 0.0 }, dwell_s: DWELL_S }).collect()
+}
+
+/// Simulated time of a run of `moves` moves, s: the alignment (0.3 s), then each move
+/// takes `d / v + v / a` plus its dwell; margin 1 s.
+pub fn duration_s(moves: usize) -> f64 {
+    let per_move = f64::from(STROKE_M / MAX_SPEED_M_PER_S + MAX_SPEED_M_PER_S / MAX_ACCEL_M_PER_S2 + DWELL_S);
+    0.3 + moves as f64 * per_move + 1.0
+}
+
+/// Runs the stroke on `motor` (named `name`) with the in-process `Drive<f32>` and all
+/// [`MOVES`] moves, logging every `log_every` periods.
 pub fn run(name: &str, motor: &MotorParams, log_every: usize) -> Result<(StrokeSummary, Vec<Row>), String> {
-    let sim = plant_for(motor);
-    let config = drive_for(motor);
-    let motion = config.motion.ok_or("no motion config")?;
-    let mut drive =
-        Drive::<f32>::new(motor, &config, &Base::SI).map_err(|e| format!("drive config: {e:?}"))?;
-    let mut plant = Plant::new(&sim).map_err(|e| e.to_string())?;
-    // The host feeds the drive's fixed-capacity queue as it drains, as a host over a
-    // link would.
-    let mut moves: std::collections::VecDeque<Move> = (0..MOVES)
-        .map(|i| Move { target_m: if i % 2 == 0 { STROKE_M } else { 0.0 }, dwell_s: DWELL_S })
-        .collect();
+    let setup = setup_for(motor);
+    let mut drive = LocalDrive::new(&setup).map_err(|e| e.to_string())?;
+    let r = run_with(name, &setup, &mut drive, MOVES, log_every, |_| {})?;
+    Ok((r.summary, r.rows))
+}
+
+/// Runs `moves` moves of the stroke on `setup`'s plant in closed loop with `controller`
+/// (the in-process drive of either numeric type, or the firmware behind the HIL link:
+/// the same loop, the same frames), logging every `log_every` periods and calling
+/// `progress(fraction)` now and then.
+///
+/// Moves reach the drive as the link carries them: one per sensor frame
+/// ([`SensorFrame::move_to`]), while the last answer shows room in the drive's
+/// fixed-capacity queue. Position, reference and queue come back in the answer's
+/// [`dcfo::link::PositionReport`]. The figures that need the drive's internals (control
+/// angle, current references) are `None` over a link.
+pub fn run_with(
+    name: &str,
+    setup: &Setup,
+    controller: &mut dyn Controller,
+    moves_count: usize,
+    log_every: usize,
+    mut progress: impl FnMut(f64),
+) -> Result<StrokeRun, String> {
+    let motor = &setup.motor;
+    let motion = setup.drive.motion.ok_or("no motion config")?;
+    let mut plant = Plant::new(&setup.plant).map_err(|e| e.to_string())?;
+    let mut moves: std::collections::VecDeque<Move> = moves(moves_count).into();
     let ts = plant.pwm_period_s();
     let tau = f64::from(motor.pole_pitch_m);
     let rated_peak = f64::from(motor.rated_current_a) * 2f64.sqrt();
-    // Long enough for every move: each takes d / v + v / a plus the dwell; margin 1 s.
-    let per_move = f64::from(STROKE_M / MAX_SPEED_M_PER_S + MAX_SPEED_M_PER_S / MAX_ACCEL_M_PER_S2 + DWELL_S);
-    let duration = 0.3 + MOVES as f64 * per_move + 1.0;
-    let n = (duration / ts).round() as usize;
+    let n = (duration_s(moves_count) / ts).round() as usize;
+    let log_every = log_every.max(1);
     let mut pending = [0.5f64; 3];
     let mut pending_on = false;
     let mut rows = Vec::new();
+    let mut estimates = Vec::with_capacity(n);
     let (mut x_err_max, mut x_err_final) = (0.0f64, 0.0f64);
     let mut aligned = false;
     let mut prev_ref_ab: Option<(f64, f64)> = None;
-    let mut step_max = 0.0f64;
-    let mut step_max_t = 0.0f64;
-    let mut transition_step_max = 0.0f64;
+    let mut step_max: Option<f64> = None;
+    let mut step_max_t: Option<f64> = None;
+    let mut transition_step_max: Option<f64> = None;
     let mut last_change = 0usize;
     let mut last_state = DriveState::Disabled;
     let mut x_err_max_t = 0.0f64;
     let mut exit_since: Option<f64> = None;
     let mut relocks = Vec::new();
-    let mut angle_err_running = 0.0f64;
+    let mut angle_err_running: Option<f64> = None;
     let mut prev_v_ref = 0.0f64;
     let mut reversals = 0usize;
     let mut last_dir = 0.0f64;
     let exit_speed = f64::from(motion.low_speed_m_per_s * motion.low_speed_exit_ratio);
     let mut moves_done = 0usize;
+    // Room in the drive's queue as the last answer reported it (before the first
+    // answer: the queue is empty).
+    let mut queue_room = dcfo::drive::MOVE_QUEUE;
+    let mut rejected = 0u16;
+    let mut faults = dcfo::drive::Faults::NONE;
     for k in 0..n {
         let t = k as f64 * ts;
-        while let Some(&m) = moves.front() {
-            match drive.push_move(m) {
-                Ok(()) => {
-                    moves.pop_front();
-                }
-                Err(dcfo::motion::MotionError::QueueFull) => break,
-                Err(e) => return Err(format!("move to {} m: {e:?}", m.target_m)),
-            }
-        }
+        let move_to = if queue_room > 0 { moves.pop_front() } else { None };
         let reading = plant.sample();
         let truth = plant.state();
-        drive.enable();
-        let m = reading.measurements();
-        let out = drive.step(&m);
+        let sensor = SensorFrame {
+            sequence: k as u16,
+            i_a: reading.i_abc_a[0] as f32,
+            i_b: reading.i_abc_a[1] as f32,
+            i_c: reading.i_abc_a[2] as f32,
+            vdc: reading.vdc_v as f32,
+            speed_ref: 0.0,
+            enable: true,
+            clear_faults: false,
+            move_to,
+        };
+        let step = controller.step(&sensor).map_err(|e| e.to_string())?;
+        let f = step.frame;
+        let Some(pos) = f.position else {
+            return Err(format!(
+                "period {k}: the drive reports no position (not a positioning drive: a HIL image \
+                 must be started with the stroke axis)"
+            ));
+        };
+        if pos.moves_rejected != rejected {
+            return Err(format!(
+                "period {k}: the drive refused a move ({} refused in all){}",
+                pos.moves_rejected,
+                move_to.map_or(String::new(), |m| format!(", the last sent to {} m", m.target_m))
+            ));
+        }
+        rejected = pos.moves_rejected;
+        queue_room = dcfo::drive::MOVE_QUEUE.saturating_sub(usize::from(pos.moves_queued));
         if pending_on {
             plant.step(pending, 0.0);
         } else {
             plant.step_open(0.0);
         }
-        pending_on = out.bridge_enabled;
-        pending = [f64::from(out.duties.a), f64::from(out.duties.b), f64::from(out.duties.c)];
-        if out.state != last_state {
+        pending_on = f.bridge_enabled;
+        pending = if f.bridge_enabled { [f.duty_a, f.duty_b, f.duty_c].map(f64::from) } else { [0.5; 3] };
+        let state = f.state();
+        faults = f.faults();
+        estimates.push(LinkEstimate { theta_hat: f.estimate.map(|e| e.theta_hat), x_hat_m: pos.x_hat_m });
+        if state != last_state {
             last_change = k;
-            last_state = out.state;
+            last_state = state;
         }
-        let sp = drive.setpoint().unwrap_or_default();
-        let v_ref = f64::from(sp.speed_m_per_s);
+        let v_ref = f64::from(pos.v_ref_m_per_s);
         let dir = if v_ref > 1e-9 {
             1.0
         } else if v_ref < -1e-9 {
@@ -237,16 +341,15 @@ pub fn run(name: &str, motor: &MotorParams, log_every: usize) -> Result<(StrokeS
             moves_done += 1;
         }
         prev_v_ref = v_ref;
-        let x_hat = f64::from(drive.position_m());
+        let x_hat = f64::from(pos.x_hat_m);
         let x = truth.x_m;
-        let angle_err =
-            crate::trace::wrap_angle(truth.theta_e_rad - out.theta_control.to_radians::<f64>()).to_degrees();
-        if out.state == DriveState::LowSpeed && !aligned && sp.position_m == 0.0 && t > 0.2 {
+        let angle_err = step
+            .detail
+            .map(|d| crate::trace::wrap_angle(truth.theta_e_rad - d.theta_control_rad).to_degrees());
+        if state == DriveState::LowSpeed && !aligned && pos.x_ref_m == 0.0 && t > 0.2 {
             aligned = true;
         }
-        if out.state != DriveState::LowSpeed
-            && out.state != DriveState::Disabled
-            && out.state != DriveState::Calibrating
+        if state != DriveState::LowSpeed && state != DriveState::Disabled && state != DriveState::Calibrating
         {
             aligned = true;
         }
@@ -257,35 +360,41 @@ pub fn run(name: &str, motor: &MotorParams, log_every: usize) -> Result<(StrokeS
             }
             x_err_final = (x_hat - x).abs();
         }
-        if out.state == DriveState::Running {
-            angle_err_running = angle_err_running.max(angle_err.abs());
+        if state == DriveState::Running
+            && let Some(a) = angle_err
+        {
+            angle_err_running = Some(angle_err_running.unwrap_or(0.0).max(a.abs()));
         }
-        // Bumpless: the reference current vector in alpha-beta, step by step.
-        if matches!(out.state, DriveState::Running | DriveState::LowSpeed | DriveState::Reacquiring) {
-            let cs = dcfo::transforms::CosSin::<f32>::new(out.theta_control);
-            let r = inverse_park(Dq::new(out.i_dq_ref.d, out.i_dq_ref.q), &cs);
-            let r = (f64::from(r.alpha), f64::from(r.beta));
-            if let Some(p) = prev_ref_ab {
-                // Discount the rotation of a constant vector at the reference speed.
-                let turn = (v_ref * PI / tau * ts).abs();
-                let mag = (r.0 * r.0 + r.1 * r.1).sqrt();
-                let step = ((r.0 - p.0).powi(2) + (r.1 - p.1).powi(2)).sqrt() - mag * turn;
-                if step > step_max {
-                    step_max = step;
-                    step_max_t = t;
+        // Bumpless: the reference current vector in alpha-beta, step by step (the
+        // in-process drive's detail only).
+        match step.detail {
+            Some(d)
+                if matches!(state, DriveState::Running | DriveState::LowSpeed | DriveState::Reacquiring) =>
+            {
+                let (s, c) = d.theta_control_rad.sin_cos();
+                let [i_d, i_q] = d.i_dq_ref_a;
+                let r = (i_d * c - i_q * s, i_d * s + i_q * c);
+                if let Some(p) = prev_ref_ab {
+                    // Discount the rotation of a constant vector at the reference speed.
+                    let turn = (v_ref * PI / tau * ts).abs();
+                    let mag = (r.0 * r.0 + r.1 * r.1).sqrt();
+                    let step = ((r.0 - p.0).powi(2) + (r.1 - p.1).powi(2)).sqrt() - mag * turn;
+                    if step_max.is_none_or(|m| step > m) {
+                        step_max = Some(step);
+                        step_max_t = Some(t);
+                    }
+                    if k < last_change + 5 && transition_step_max.is_none_or(|m| step > m) {
+                        transition_step_max = Some(step);
+                    }
                 }
-                if k < last_change + 5 && step > transition_step_max {
-                    transition_step_max = step;
-                }
+                prev_ref_ab = Some(r);
             }
-            prev_ref_ab = Some(r);
-        } else {
-            prev_ref_ab = None;
+            _ => prev_ref_ab = None,
         }
         // Re-lock: from the reference speed leaving the low-speed band to Running.
-        if out.state == DriveState::LowSpeed && v_ref.abs() > exit_speed {
+        if state == DriveState::LowSpeed && v_ref.abs() > exit_speed {
             exit_since.get_or_insert(t);
-        } else if out.state == DriveState::Running {
+        } else if state == DriveState::Running {
             if let Some(t0) = exit_since.take() {
                 relocks.push(t - t0);
             }
@@ -297,20 +406,23 @@ pub fn run(name: &str, motor: &MotorParams, log_every: usize) -> Result<(StrokeS
                 t_s: t,
                 x_m: x,
                 x_hat_m: x_hat,
-                x_ref_m: f64::from(sp.position_m),
+                x_ref_m: f64::from(pos.x_ref_m),
                 v_m_per_s: truth.v_m_per_s,
                 v_ref_m_per_s: v_ref,
-                state: out.state.code(),
-                angle_err_deg: angle_err,
-                i_d_a: f64::from(out.i_dq.d),
-                i_q_a: f64::from(out.i_dq.q),
+                state: state.code(),
+                angle_err_deg: angle_err.unwrap_or(f64::NAN),
+                i_d_a: step.detail.map_or(f64::NAN, |d| d.i_dq_a[0]),
+                i_q_a: step.detail.map_or(f64::NAN, |d| d.i_dq_a[1]),
             });
         }
-        if out.state == DriveState::Fault {
+        if k % 4096 == 0 {
+            progress(k as f64 / n as f64);
+        }
+        if state == DriveState::Fault {
             break;
         }
     }
-    let faults = drive.faults();
+    progress(1.0);
     let summary = StrokeSummary {
         motor: name.to_string(),
         pole_pitch_m: tau,
@@ -330,8 +442,9 @@ pub fn run(name: &str, motor: &MotorParams, log_every: usize) -> Result<(StrokeS
         low_speed_current_a: f64::from(motion.low_speed_current_a),
         angle_err_running_max_deg: angle_err_running,
         moves_done,
+        moves_sent: moves_count - moves.len(),
     };
-    Ok((summary, rows))
+    Ok(StrokeRun { summary, rows, estimates })
 }
 
 /// The summary as a table.
@@ -345,11 +458,13 @@ pub fn table(s: &StrokeSummary) -> String {
     let mut row = |name: &str, v: String, f: String, met: bool| {
         out += &format!("{name:<34} {v:>14} {f:>14}  {}\n", ok(met));
     };
+    // Every move after the first reverses; the last may end in its dwell.
+    let reversals_floor = s.moves_sent.saturating_sub(2);
     row(
         "moves / reversals",
         format!("{} / {}", s.moves_done, s.reversals),
-        ">= 10 rev".into(),
-        s.reversals >= 10,
+        format!(">= {reversals_floor} rev"),
+        s.reversals >= reversals_floor,
     );
     row(
         "faults",
@@ -365,19 +480,28 @@ pub fn table(s: &StrokeSummary) -> String {
         "100 ms".into(),
         s.relock_time_max_s.is_some_and(|t| t <= 0.1),
     );
-    row(
-        "current step at mode transitions",
-        format!("{:.3} A", s.current_ref_step_transition_max_a),
-        format!("{:.3} A", s.current_step_limit_a),
-        s.current_ref_step_transition_max_a <= s.current_step_limit_a,
-    );
+    match (s.current_ref_step_transition_max_a, s.current_ref_step_max_a) {
+        (Some(transition), Some(anywhere)) => {
+            row(
+                "current step at mode transitions",
+                format!("{transition:.3} A"),
+                format!("{:.3} A", s.current_step_limit_a),
+                transition <= s.current_step_limit_a,
+            );
+            out += &format!(
+                "largest current reference step anywhere {anywhere:.3} A (the speed loop's steps included)\n"
+            );
+        }
+        _ => out += "current reference steps: not measured (the link does not carry the references)\n",
+    }
     out += &format!(
-        "largest current reference step anywhere {:.3} A (the speed loop's steps included)\n",
-        s.current_ref_step_max_a
-    );
-    out += &format!(
-        "low-speed mode below {:.3} m/s with {:.2} A; max angle error running sensorless {:.1} deg\n",
-        s.low_speed_m_per_s, s.low_speed_current_a, s.angle_err_running_max_deg
+        "low-speed mode below {:.3} m/s with {:.2} A; max angle error running sensorless {}\n",
+        s.low_speed_m_per_s,
+        s.low_speed_current_a,
+        s.angle_err_running_max_deg
+            .map_or("not measured (the link does not carry the control angle)".into(), |a| format!(
+                "{a:.1} deg"
+            ))
     );
     out
 }
@@ -430,6 +554,16 @@ pub fn figure(s: &StrokeSummary, rows: &[Row]) -> crate::plot::Figure {
 
 // ---- The command.
 
+/// The semihosting command line that makes the HIL image (`qemu_hil`) run the stroke
+/// axis: `stroke` and the motor image ([`dcfo::motor_image::MotorImage`] of `motor` on
+/// a `bus_v` bus) in hexadecimal. The image builds its drive from it with
+/// [`DriveConfig::stroke_axis`], as [`drive_for`] does here.
+pub fn qemu_cmdline(motor: &MotorParams, bus_v: f32) -> Result<String, String> {
+    let image = dcfo::motor_image::MotorImage::new(*motor, bus_v).map_err(|e| format!("motor image: {e}"))?;
+    let hex: String = image.encode().iter().map(|b| format!("{b:02x}")).collect();
+    Ok(format!("stroke {hex}"))
+}
+
 /// What `dcfo stroke` is asked to do.
 #[derive(Debug, Clone)]
 pub struct Params {
@@ -440,10 +574,90 @@ pub struct Params {
     /// Directory for `stroke.json`, `stroke.csv` (every 10th period) and the figure
     /// `stroke.png` / `stroke.svg`.
     pub out: std::path::PathBuf,
+    /// Number of moves (at least 1; [`MOVES`] by default).
+    pub moves: usize,
+    /// Run the drive on QEMU through the lock-step HIL link (the board, and the image,
+    /// built with cargo when `None`) instead of in this process.
+    pub qemu: Option<(crate::qemu::QemuCpu, Option<std::path::PathBuf>)>,
+    /// With `qemu`: also run the in-process drive of the firmware's numeric type and
+    /// require every period's θ̂ and x̂ to be identical bit for bit.
+    pub check: bool,
+}
+
+/// The JSON summary of `dcfo stroke`: the figures, and for a run on QEMU the link's
+/// rate, the wall time and the comparison with the in-process drive.
+#[derive(Debug, Serialize)]
+pub struct Report {
+    /// The figures.
+    #[serde(flatten)]
+    pub summary: StrokeSummary,
+    /// The QEMU board, `None` in process.
+    pub qemu_cpu: Option<crate::qemu::QemuCpu>,
+    /// Lock-step round trips per second over the link (QEMU only).
+    pub round_trips_per_s: Option<f64>,
+    /// Wall time of the run, s.
+    pub wall_s: f64,
+    /// With `--check`: the comparison with the in-process drive.
+    pub equivalence: Option<StrokeEquivalence>,
+}
+
+/// Runs the stroke as `params` asks: in process, or on QEMU (with the comparison when
+/// `check`). For the command and the tests.
+pub fn run_params(params: &Params, motor: &MotorParams) -> anyhow::Result<(Report, Vec<Row>)> {
+    anyhow::ensure!(params.moves >= 1, "--moves must be at least 1");
+    let setup = setup_for(motor);
+    let started = std::time::Instant::now();
+    let name = params.motor.as_str();
+    let Some((cpu, elf)) = &params.qemu else {
+        anyhow::ensure!(!params.check, "--check compares a QEMU run with the in-process drive: give --qemu");
+        let mut drive = LocalDrive::new(&setup)?;
+        let r = run_with(name, &setup, &mut drive, params.moves, 10, |_| {})
+            .map_err(|e| anyhow::anyhow!("{name}: {e}"))?;
+        let report = Report {
+            summary: r.summary,
+            qemu_cpu: None,
+            round_trips_per_s: None,
+            wall_s: started.elapsed().as_secs_f64(),
+            equivalence: None,
+        };
+        return Ok((report, r.rows));
+    };
+    let workspace =
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).parent().unwrap_or(std::path::Path::new("."));
+    let elf = match elf {
+        Some(e) => e.clone(),
+        None => crate::hil::build_qemu_firmware(workspace, *cpu)?,
+    };
+    let cmdline = qemu_cmdline(motor, bus_for(motor)).map_err(|e| anyhow::anyhow!("{name}: {e}"))?;
+    let started = std::time::Instant::now();
+    let (session, mut link) = crate::qemu::QemuSession::start_with_cmdline(&elf, *cpu, &cmdline)?;
+    let bar = indicatif::ProgressBar::new(1000);
+    let r = run_with(name, &setup, &mut link, params.moves, 10, |f| bar.set_position((f * 1000.0) as u64))
+        .map_err(|e| anyhow::anyhow!("{name} on QEMU {cpu:?}: {e}"))?;
+    bar.finish_and_clear();
+    let rate = link.round_trips_per_s();
+    let wall_s = started.elapsed().as_secs_f64();
+    drop(session);
+    let equivalence = if params.check {
+        let mut local = cpu.local_drive(&setup)?;
+        let l = run_with(name, &setup, local.as_mut(), params.moves, 10, |_| {})
+            .map_err(|e| anyhow::anyhow!("{name} in process: {e}"))?;
+        Some(compare(&r.estimates, &l.estimates))
+    } else {
+        None
+    };
+    let report = Report {
+        summary: r.summary,
+        qemu_cpu: Some(*cpu),
+        round_trips_per_s: Some(rate),
+        wall_s,
+        equivalence,
+    };
+    Ok((report, r.rows))
 }
 
 /// `dcfo stroke`: the positioning drive over the stroke, its results in `params.out`
-/// and the table (or JSON) on stdout.
+/// and the table (or JSON) on stdout; an error when `check` finds a difference.
 pub fn run_command(params: &Params) -> anyhow::Result<()> {
     use anyhow::Context;
     let motor = crate::motor_file::load_motor(&params.motor)?;
@@ -456,12 +670,11 @@ pub fn run_command(params: &Params) -> anyhow::Result<()> {
             params.motor
         );
     }
-    let started = std::time::Instant::now();
-    let (summary, rows) =
-        run(&params.motor, &motor.params, 10).map_err(|e| anyhow::anyhow!("{}: {e}", params.motor))?;
+    let (report, rows) = run_params(params, &motor.params)?;
+    let summary = &report.summary;
     let out = &params.out;
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
-    std::fs::write(out.join("stroke.json"), serde_json::to_string_pretty(&summary)?)
+    std::fs::write(out.join("stroke.json"), serde_json::to_string_pretty(&report)?)
         .with_context(|| format!("writing {}", out.join("stroke.json").display()))?;
     let mut csv =
         String::from("t_s,x_m,x_hat_m,x_ref_m,v_m_per_s,v_ref_m_per_s,state,angle_err_deg,i_d_a,i_q_a\n");
@@ -482,12 +695,25 @@ pub fn run_command(params: &Params) -> anyhow::Result<()> {
     }
     std::fs::write(out.join("stroke.csv"), csv)
         .with_context(|| format!("writing {}", out.join("stroke.csv").display()))?;
-    crate::plot::write_figure(&figure(&summary, &rows), &out.join("stroke"))?;
-    eprintln!("stroke: {:.1} s; results in {}", started.elapsed().as_secs_f64(), out.display());
+    crate::plot::write_figure(&figure(summary, &rows), &out.join("stroke"))?;
+    let place = match (report.qemu_cpu, report.round_trips_per_s) {
+        (Some(cpu), Some(rate)) => format!(" on QEMU {cpu:?} ({rate:.0} round trips/s)"),
+        _ => String::new(),
+    };
+    eprintln!("stroke{place}: {:.1} s; results in {}", report.wall_s, out.display());
     if params.json {
-        println!("{}", serde_json::to_string(&summary)?);
+        println!("{}", serde_json::to_string(&report)?);
     } else {
-        print!("{}", table(&summary));
+        print!("{}", table(summary));
+        if let Some(e) = &report.equivalence {
+            println!(
+                "equivalence with the in-process drive: {} of {} periods differ in θ̂ or x̂ (max |Δx̂| {:.2e} m)",
+                e.differing, e.periods, e.max_x_diff_m
+            );
+        }
+    }
+    if let Some(e) = &report.equivalence {
+        anyhow::ensure!(e.differing == 0, "the QEMU run's estimates differ from the in-process run's");
     }
     Ok(())
 }

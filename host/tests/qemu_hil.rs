@@ -94,6 +94,7 @@ fn a_silent_link_switches_the_bridge_off() {
         speed_ref: 0.0,
         enable: false,
         clear_faults: false,
+        move_to: None,
     };
     let send = |link: &mut dyn Controller, frame: &mut SensorFrame| {
         let reply = link.step(frame).expect("answer").frame;
@@ -150,6 +151,7 @@ fn corrupted_replayed_and_duplicated_frames_are_counted_and_never_acted_on() {
         speed_ref: 0.0,
         enable: false,
         clear_faults: false,
+        move_to: None,
     };
     let wire = |f: &SensorFrame| {
         let mut buf = [0u8; SensorFrame::WIRE_LEN];

@@ -297,6 +297,37 @@ impl DriveConfig {
     }
 }
 
+/// The stroke `dcfo stroke` runs, m: moves between 0 and this position.
+pub const STROKE_AXIS_STROKE_M: f32 = 0.3;
+
+/// The profile limits of the stroke axis ([`DriveConfig::stroke_axis`]): 0.5 m/s,
+/// 3 m/s^2, and the profile's stroke 1 cm beyond either end of
+/// [`STROKE_AXIS_STROKE_M`].
+pub const STROKE_AXIS_LIMITS: ProfileLimits = ProfileLimits {
+    max_speed_m_per_s: 0.5,
+    max_accel_m_per_s2: 3.0,
+    stroke_min_m: -0.01,
+    stroke_max_m: STROKE_AXIS_STROKE_M + 0.01,
+};
+
+impl DriveConfig {
+    /// The positioning drive of `dcfo stroke` for `motor` on a bus of nominal `bus_v`
+    /// volts, tuned from the motor alone: [`DriveConfig::for_motor`] (DCFO) moving the
+    /// motor's mass plus the [`PAPER_AXIS_PAYLOAD_KG`] carriage, the paper axis's
+    /// inverter compensation (2 us dead time, 0.95 V mean device drop, 0.01 A band), and
+    /// [`MotionConfig::for_drive`] with [`STROKE_AXIS_LIMITS`]. The host's in-process
+    /// stroke and the HIL firmware build it with this one function, so both run the same
+    /// drive.
+    pub fn stroke_axis(motor: &MotorParams, bus_v: f32) -> Self {
+        let mut d = DriveConfig::for_motor(motor, bus_v, ObserverKind::Dcfo);
+        d.moving_mass_kg = motor.mass_kg + PAPER_AXIS_PAYLOAD_KG;
+        d.dead_time_compensation =
+            Some(DeadTimeCompensation { dead_time_s: 2e-6, device_drop_v: 0.95, current_band_a: 0.01 });
+        d.motion = Some(MotionConfig::for_drive(motor, &d, STROKE_AXIS_LIMITS));
+        d
+    }
+}
+
 /// DC bus of the simulated paper axis, V: `sqrt(2) * 220`.
 pub const PAPER_AXIS_BUS_V: f32 = 311.127;
 

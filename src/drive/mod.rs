@@ -53,7 +53,7 @@ pub use commissioning::{
 };
 pub use config::{
     DeadTimeCompensation, DriveConfig, DriveConfigError, FaultConfig, MotionConfig, PAPER_AXIS_BUS_V,
-    PAPER_AXIS_PAYLOAD_KG, StartupConfig,
+    PAPER_AXIS_PAYLOAD_KG, STROKE_AXIS_LIMITS, STROKE_AXIS_STROKE_M, StartupConfig,
 };
 pub use faults::Faults;
 pub use positioning::MOVE_QUEUE;

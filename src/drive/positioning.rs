@@ -180,6 +180,17 @@ impl<T: Scalar> Drive<T> {
         self.positioning.as_ref().map(|p| p.profile.setpoint())
     }
 
+    /// Moves waiting in the queue, not counting the active one (`None` on a speed drive).
+    pub fn moves_queued(&self) -> Option<usize> {
+        self.positioning.as_ref().map(|p| p.profile.queued())
+    }
+
+    /// `true` when a positioning drive has no move active or queued (its reference is at
+    /// rest); `false` while it moves and on a speed drive.
+    pub fn motion_idle(&self) -> bool {
+        self.positioning.as_ref().is_some_and(|p| p.profile.is_idle())
+    }
+
     /// Estimated mover position, m: the unwrapped control angle times `tau / pi`, from
     /// the pole position the mover aligned to on enable (see the module docs).
     pub fn position_m(&self) -> f32 {

@@ -42,7 +42,8 @@ pub enum LinkError {
     /// Unknown flag bits set.
     Flags,
     /// A value out of its range: a non-finite `f32`, a duty outside `[0, 1]`, an
-    /// unknown drive-state code, or estimate bytes sent without an estimate.
+    /// unknown drive-state code, or move, estimate or position bytes (or the idle flag)
+    /// sent without their flag.
     Value,
 }
 

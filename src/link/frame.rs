@@ -4,10 +4,12 @@
 
 use super::codec::{EncodeError, LinkError, Reader, Writer};
 use super::session::LinkStats;
+use crate::motion::Move;
 
 /// The protocol version carried in byte 0 of every frame; any other value is rejected.
-/// 2: the board link's [`CaptureChunk`](super::board::CaptureChunk) carries the drive's
-/// own words and their format (1: SI `f32` converted on the target).
+/// Version 2 (from 1) added the move command to [`SensorFrame`], the position report to
+/// [`ActuationFrame`], and the format of the drive's own words to the board link's
+/// [`CaptureChunk`](super::board::CaptureChunk) (1: SI `f32` converted on the target).
 pub const PROTOCOL_VERSION: u8 = 2;
 
 /// Bytes of the CRC after the payload (CRC-16, little-endian).
@@ -17,13 +19,25 @@ pub const CRC_LEN: usize = 2;
 pub const SENSOR_FLAG_ENABLE: u8 = 1 << 0;
 /// [`SensorFrame`] command flag: clear latched faults (hold it for one frame).
 pub const SENSOR_FLAG_CLEAR_FAULTS: u8 = 1 << 1;
-const SENSOR_FLAGS_KNOWN: u8 = SENSOR_FLAG_ENABLE | SENSOR_FLAG_CLEAR_FAULTS;
+/// [`SensorFrame`] command flag: the move fields hold a move to queue
+/// ([`SensorFrame::move_to`]); clear: they are zero bytes.
+pub const SENSOR_FLAG_MOVE: u8 = 1 << 2;
+const SENSOR_FLAGS_KNOWN: u8 = SENSOR_FLAG_ENABLE | SENSOR_FLAG_CLEAR_FAULTS | SENSOR_FLAG_MOVE;
 
 /// [`ActuationFrame`] flag: the bridge is enabled.
 pub const ACTUATION_FLAG_BRIDGE_ENABLED: u8 = 1 << 0;
 /// [`ActuationFrame`] flag: the estimate fields hold an estimate.
 pub const ACTUATION_FLAG_ESTIMATE_VALID: u8 = 1 << 1;
-const ACTUATION_FLAGS_KNOWN: u8 = ACTUATION_FLAG_BRIDGE_ENABLED | ACTUATION_FLAG_ESTIMATE_VALID;
+/// [`ActuationFrame`] flag: the position fields hold a [`PositionReport`] (a
+/// positioning drive); clear: they are zero bytes.
+pub const ACTUATION_FLAG_POSITION_VALID: u8 = 1 << 2;
+/// [`ActuationFrame`] flag: the positioning drive's move queue is empty and no move is
+/// active ([`PositionReport::idle`]); only with [`ACTUATION_FLAG_POSITION_VALID`].
+pub const ACTUATION_FLAG_MOTION_IDLE: u8 = 1 << 3;
+const ACTUATION_FLAGS_KNOWN: u8 = ACTUATION_FLAG_BRIDGE_ENABLED
+    | ACTUATION_FLAG_ESTIMATE_VALID
+    | ACTUATION_FLAG_POSITION_VALID
+    | ACTUATION_FLAG_MOTION_IDLE;
 
 /// Drive-state codes the frames carry are `0..STATE_CODES` (8: disabled, calibrating,
 /// starting, running, fault, reacquiring, low speed, commissioning; the drive's
@@ -82,11 +96,15 @@ pub struct SensorFrame {
     pub enable: bool,
     /// Command: clear latched faults; send it for one frame.
     pub clear_faults: bool,
+    /// Command: queue this move (target m, dwell s; both finite) on a positioning drive
+    /// before the step ([`Drive::push_move`](crate::drive::Drive::push_move)); send it
+    /// with one frame. `None`: no move.
+    pub move_to: Option<Move>,
 }
 
 impl SensorFrame {
     /// Payload length (bytes).
-    pub const PAYLOAD_LEN: usize = 24;
+    pub const PAYLOAD_LEN: usize = 32;
     /// Raw length (bytes): payload and CRC.
     pub const RAW_LEN: usize = Self::PAYLOAD_LEN + CRC_LEN;
     /// Length on the wire (bytes).
@@ -100,6 +118,9 @@ impl SensorFrame {
         if self.clear_faults {
             flags |= SENSOR_FLAG_CLEAR_FAULTS;
         }
+        if self.move_to.is_some() {
+            flags |= SENSOR_FLAG_MOVE;
+        }
         flags
     }
 }
@@ -109,7 +130,8 @@ impl Frame for SensorFrame {
 
     fn write_payload(&self, payload: &mut [u8]) -> Result<(), EncodeError> {
         let floats = [self.i_a, self.i_b, self.i_c, self.vdc, self.speed_ref];
-        if !floats.iter().all(|x| x.is_finite()) {
+        let m = self.move_to.unwrap_or(Move { target_m: 0.0, dwell_s: 0.0 });
+        if !floats.iter().chain(&[m.target_m, m.dwell_s]).all(|x| x.is_finite()) {
             return Err(EncodeError::InvalidValue);
         }
         let mut w = Writer::new(payload);
@@ -119,6 +141,8 @@ impl Frame for SensorFrame {
             w.f32(x);
         }
         w.u8(self.flags());
+        w.f32(m.target_m);
+        w.f32(m.dwell_s);
         w.finish(Self::PAYLOAD_LEN)
     }
 
@@ -135,6 +159,15 @@ impl Frame for SensorFrame {
         if flags & !SENSOR_FLAGS_KNOWN != 0 {
             return Err(LinkError::Flags);
         }
+        let move_bytes = r.bytes::<8>();
+        let move_to = if flags & SENSOR_FLAG_MOVE != 0 {
+            let mut m = Reader::new(&move_bytes, 8)?;
+            Some(Move { target_m: m.finite_f32()?, dwell_s: m.finite_f32()? })
+        } else if move_bytes.iter().any(|&b| b != 0) {
+            return Err(LinkError::Value);
+        } else {
+            None
+        };
         Ok(SensorFrame {
             sequence,
             i_a,
@@ -144,6 +177,7 @@ impl Frame for SensorFrame {
             speed_ref,
             enable: flags & SENSOR_FLAG_ENABLE != 0,
             clear_faults: flags & SENSOR_FLAG_CLEAR_FAULTS != 0,
+            move_to,
         })
     }
 }
@@ -165,6 +199,31 @@ pub struct EstimateReport {
 impl EstimateReport {
     pub(super) fn is_finite(&self) -> bool {
         [self.theta_hat, self.speed, self.psi_alpha, self.psi_beta].iter().all(|x| x.is_finite())
+    }
+}
+
+/// A positioning drive's position and motion as sent in an [`ActuationFrame`] (SI).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct PositionReport {
+    /// Estimated mover position x̂ (m, the drive's `position_m`), finite.
+    pub x_hat_m: f32,
+    /// The motion profile's reference position (m), finite.
+    pub x_ref_m: f32,
+    /// The motion profile's reference speed (m/s), finite.
+    pub v_ref_m_per_s: f32,
+    /// Moves waiting in the drive's queue, not counting the active one.
+    pub moves_queued: u8,
+    /// No move is active or queued (the reference is at rest).
+    pub idle: bool,
+    /// Moves the controller refused since it started (full queue, target outside the
+    /// stroke, bad dwell), wrapping.
+    pub moves_rejected: u16,
+}
+
+impl PositionReport {
+    pub(super) fn is_finite(&self) -> bool {
+        [self.x_hat_m, self.x_ref_m, self.v_ref_m_per_s].iter().all(|x| x.is_finite())
     }
 }
 
@@ -192,11 +251,13 @@ pub struct ActuationFrame {
     pub estimate: Option<EstimateReport>,
     /// The controller's counts of dropped frames.
     pub stats: LinkStats,
+    /// A positioning drive's position and motion; `None` for a speed drive.
+    pub position: Option<PositionReport>,
 }
 
 impl ActuationFrame {
     /// Payload length (bytes).
-    pub const PAYLOAD_LEN: usize = 41;
+    pub const PAYLOAD_LEN: usize = 56;
     /// Raw length (bytes): payload and CRC.
     pub const RAW_LEN: usize = Self::PAYLOAD_LEN + CRC_LEN;
     /// Length on the wire (bytes).
@@ -209,6 +270,12 @@ impl ActuationFrame {
         }
         if self.estimate.is_some() {
             flags |= ACTUATION_FLAG_ESTIMATE_VALID;
+        }
+        if let Some(p) = self.position {
+            flags |= ACTUATION_FLAG_POSITION_VALID;
+            if p.idle {
+                flags |= ACTUATION_FLAG_MOTION_IDLE;
+            }
         }
         flags
     }
@@ -230,6 +297,7 @@ impl Frame for ActuationFrame {
         let duties = [self.duty_a, self.duty_b, self.duty_c];
         if !duties.iter().all(|&d| duty_ok(d))
             || !self.estimate.is_none_or(|e| e.is_finite())
+            || !self.position.is_none_or(|p| p.is_finite())
             || !state_code_ok(self.state_code)
         {
             return Err(EncodeError::InvalidValue);
@@ -250,6 +318,12 @@ impl Frame for ActuationFrame {
         w.u16(self.stats.malformed);
         w.u16(self.stats.bad_crc);
         w.u16(self.stats.out_of_order);
+        let p = self.position.unwrap_or_default();
+        for x in [p.x_hat_m, p.x_ref_m, p.v_ref_m_per_s] {
+            w.f32(x);
+        }
+        w.u8(p.moves_queued);
+        w.u16(p.moves_rejected);
         w.finish(Self::PAYLOAD_LEN)
     }
 
@@ -284,6 +358,22 @@ impl Frame for ActuationFrame {
             None
         };
         let stats = LinkStats { malformed: r.u16(), bad_crc: r.u16(), out_of_order: r.u16() };
+        let position_bytes = r.bytes::<15>();
+        let position = if flags & ACTUATION_FLAG_POSITION_VALID != 0 {
+            let mut p = Reader::new(&position_bytes, 15)?;
+            Some(PositionReport {
+                x_hat_m: p.finite_f32()?,
+                x_ref_m: p.finite_f32()?,
+                v_ref_m_per_s: p.finite_f32()?,
+                moves_queued: p.u8(),
+                idle: flags & ACTUATION_FLAG_MOTION_IDLE != 0,
+                moves_rejected: p.u16(),
+            })
+        } else if flags & ACTUATION_FLAG_MOTION_IDLE != 0 || position_bytes.iter().any(|&b| b != 0) {
+            return Err(LinkError::Value);
+        } else {
+            None
+        };
         Ok(ActuationFrame {
             sequence,
             duty_a,
@@ -294,6 +384,7 @@ impl Frame for ActuationFrame {
             fault_bits,
             estimate,
             stats,
+            position,
         })
     }
 }

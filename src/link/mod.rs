@@ -15,7 +15,7 @@
 //!
 //! **CRC-16/IBM-3740** (often called CRC-16/CCITT-FALSE: polynomial `0x1021`, initial
 //! value `0xFFFF`, no reflection, no final XOR; check value `0x29B1`), over the payload,
-//! sent little-endian. For frames this short (at most 43 bytes, 344 bits) the polynomial
+//! sent little-endian. For frames this short (at most 58 bytes, 464 bits) the polynomial
 //! has Hamming distance 4: every error of 1, 2 or 3 bits, every odd number of flipped
 //! bits and every burst up to 16 bits is caught, and a random corruption that survives
 //! COBS and the exact length check passes with probability 2⁻¹⁶. CRC-32 would catch more
@@ -32,8 +32,8 @@
 //! ## Sizes
 //! | frame | payload | raw (payload + CRC) | on the wire (COBS + delimiter) |
 //! |---|---|---|---|
-//! | [`SensorFrame`] | 24 B | 26 B | 28 B |
-//! | [`ActuationFrame`] | 41 B | 43 B | 45 B |
+//! | [`SensorFrame`] | 32 B | 34 B | 36 B |
+//! | [`ActuationFrame`] | 56 B | 58 B | 60 B |
 //! | [`board::BoardCommand`] | 12 B | 14 B | 16 B |
 //! | [`board::BoardTelemetry`] | 44 B | 46 B | 48 B |
 //! | [`board::CaptureChunk`] | 225 B | 227 B | 229 B |
@@ -43,7 +43,7 @@
 //!
 //! COBS adds exactly one byte to a raw frame shorter than 254 bytes, whatever its
 //! content, so the wire sizes are constant. With 8N1 framing (10 bits a byte) and a
-//! 100 µs period the link needs 2.8 Mbit/s host → controller and 4.5 Mbit/s back.
+//! 100 µs period the link needs 3.6 Mbit/s host → controller and 6.0 Mbit/s back.
 //!
 //! ## Layouts (byte offsets, little-endian)
 //! [`SensorFrame`] payload:
@@ -55,7 +55,15 @@
 //! | 3, 7, 11 | f32 | phase currents i_a, i_b, i_c (A) |
 //! | 15 | f32 | DC-bus voltage (V) |
 //! | 19 | f32 | speed reference (m/s) |
-//! | 23 | u8 | command flags ([`SENSOR_FLAG_ENABLE`], [`SENSOR_FLAG_CLEAR_FAULTS`]) |
+//! | 23 | u8 | command flags ([`SENSOR_FLAG_ENABLE`], [`SENSOR_FLAG_CLEAR_FAULTS`], [`SENSOR_FLAG_MOVE`]) |
+//! | 24 | f32 | move: target position (m) |
+//! | 28 | f32 | move: dwell at the target (s) |
+//!
+//! Without [`SENSOR_FLAG_MOVE`] the two move fields are sent as zero bytes. A move is
+//! queued on a positioning drive ([`Drive::push_move`](crate::drive::Drive::push_move))
+//! before the frame's step; the host sends one move per frame, and only while the last
+//! answer's [`PositionReport::moves_queued`] shows room (the queue is fixed capacity: a
+//! refused move is counted in [`PositionReport::moves_rejected`], never acted on).
 //!
 //! [`ActuationFrame`] payload:
 //!
@@ -64,19 +72,28 @@
 //! | 0 | u8 | protocol version |
 //! | 1 | u16 | sequence number (echo) |
 //! | 3, 7, 11 | f32 | duties a, b, c (`[0, 1]`) |
-//! | 15 | u8 | flags ([`ACTUATION_FLAG_BRIDGE_ENABLED`], [`ACTUATION_FLAG_ESTIMATE_VALID`]) |
+//! | 15 | u8 | flags ([`ACTUATION_FLAG_BRIDGE_ENABLED`], [`ACTUATION_FLAG_ESTIMATE_VALID`], [`ACTUATION_FLAG_POSITION_VALID`], [`ACTUATION_FLAG_MOTION_IDLE`]) |
 //! | 16 | u8 | drive state code, `0..`[`STATE_CODES`] (the drive's [`DriveState::code`](crate::drive::DriveState::code)) |
 //! | 17 | u16 | fault bits (the drive's [`Faults::bits`](crate::drive::Faults::bits)) |
 //! | 19 | f32 | θ̂ (electrical rad) |
 //! | 23 | f32 | speed estimate (m/s) |
 //! | 27, 31 | f32 | ψ_α, ψ_β (Wb) |
 //! | 35, 37, 39 | u16 | frames dropped: malformed, bad CRC, out of order |
+//! | 41 | f32 | x̂, the position estimate (m) |
+//! | 45 | f32 | reference position of the motion profile (m) |
+//! | 49 | f32 | reference speed of the motion profile (m/s) |
+//! | 53 | u8 | moves queued (not counting the active one) |
+//! | 54 | u16 | moves refused since start |
 //!
-//! Without an estimate the four estimate fields are sent as zero bytes.
+//! Without an estimate the four estimate fields are sent as zero bytes; without a
+//! [`PositionReport`] (a speed drive) the five position fields are, and the idle flag is
+//! clear.
 //!
 //! ## Rejected frames
 //! A frame is checked in this order: COBS, length, CRC, version, flags (unknown bits are
-//! an error), values (every `f32` finite, duties in `[0, 1]`, a known state code). A
+//! an error), values (every `f32` finite, duties in `[0, 1]`, a known state code, zero
+//! bytes in the move, estimate and position fields whose flag is clear, no idle flag
+//! without the position flag). A
 //! failure at the CRC is counted as *bad CRC*, every other failure (including a frame
 //! longer than the receive buffer) as *malformed*; see [`LinkStats`]. Encoding refuses
 //! the same values, so a frame that was sent is never rejected for its content.
@@ -107,7 +124,7 @@
 //! let mut sequence = SequenceTracker::new();
 //! let mut watchdog = LinkWatchdog::default();
 //! # let sent = SensorFrame { sequence: 7, i_a: 0.1, i_b: -0.05, i_c: -0.05, vdc: 48.0,
-//! #     speed_ref: 0.3, enable: true, clear_faults: false };
+//! #     speed_ref: 0.3, enable: true, clear_faults: false, move_to: None };
 //! # let mut uart = [0u8; SensorFrame::WIRE_LEN];
 //! # let n = dcfo::link::encode(&sent, &mut uart).unwrap();
 //! let mut accepted = None;
@@ -123,7 +140,7 @@
 //!     // drive.trip(Faults::EXTERNAL); sequence.reset();
 //! }
 //! if let Some(frame) = accepted {
-//!     // drive.apply(&frame.commands());
+//!     // frame.apply_commands(&mut drive) (a refused move: count it);
 //!     // let out = drive.step(&frame.measurements(&Base::SI));
 //!     // let reply = ActuationFrame::from_step(frame.sequence, &out, &Base::SI, rx.stats());
 //!     // let n = dcfo::link::encode(&reply, &mut tx_buffer)?;
@@ -141,8 +158,9 @@ pub mod session;
 pub use codec::{EncodeError, LinkError, RX_CAPACITY, Receiver, decode_in_place, decode_raw, encode};
 pub use drive_adapter::LinkServer;
 pub use frame::{
-    ACTUATION_FLAG_BRIDGE_ENABLED, ACTUATION_FLAG_ESTIMATE_VALID, ActuationFrame, CRC_LEN, EstimateReport,
-    Frame, PROTOCOL_VERSION, SENSOR_FLAG_CLEAR_FAULTS, SENSOR_FLAG_ENABLE, STATE_CODES, SensorFrame,
+    ACTUATION_FLAG_BRIDGE_ENABLED, ACTUATION_FLAG_ESTIMATE_VALID, ACTUATION_FLAG_MOTION_IDLE,
+    ACTUATION_FLAG_POSITION_VALID, ActuationFrame, CRC_LEN, EstimateReport, Frame, PROTOCOL_VERSION,
+    PositionReport, SENSOR_FLAG_CLEAR_FAULTS, SENSOR_FLAG_ENABLE, SENSOR_FLAG_MOVE, STATE_CODES, SensorFrame,
 };
 pub use session::{
     LinkStats, LinkWatchdog, SILENT_LINK_PERIODS, SequenceOrder, SequenceTracker, classify_sequence,
@@ -155,11 +173,11 @@ mod tests {
 
     #[test]
     fn sizes_match_the_documented_layouts() {
-        assert_eq!((SensorFrame::RAW_LEN, SensorFrame::WIRE_LEN), (26, 28));
-        assert_eq!((ActuationFrame::RAW_LEN, ActuationFrame::WIRE_LEN), (43, 45));
+        assert_eq!((SensorFrame::RAW_LEN, SensorFrame::WIRE_LEN), (34, 36));
+        assert_eq!((ActuationFrame::RAW_LEN, ActuationFrame::WIRE_LEN), (58, 60));
         assert_eq!(<SensorFrame as Frame>::WIRE_LEN, SensorFrame::WIRE_LEN);
         assert_eq!(<ActuationFrame as Frame>::WIRE_LEN, ActuationFrame::WIRE_LEN);
-        assert_eq!(RX_CAPACITY, 44);
+        assert_eq!(RX_CAPACITY, 59);
     }
 
     #[test]

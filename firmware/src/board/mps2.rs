@@ -351,6 +351,36 @@ pub fn stop(what: core::fmt::Arguments<'_>) -> ! {
     }
 }
 
+/// The command line QEMU gives the image through ARM semihosting `SYS_GET_CMDLINE`
+/// (QEMU runs with `-semihosting-config enable=on`; with `-kernel ELF -append LINE` it
+/// is `ELF LINE`), copied into `buf`; `None` when the call fails, e.g. when the line
+/// does not fit. Call it at start-up only: QEMU stops the core for the call. Only for
+/// QEMU (a core without a debugger takes the breakpoint as a HardFault).
+pub fn semihosting_cmdline(buf: &mut [u8]) -> Option<&[u8]> {
+    const SYS_GET_CMDLINE: usize = 0x15;
+    // The parameter block: the buffer's address and its length (in), the length of the
+    // line without its terminating NUL (out).
+    let mut block: [usize; 2] = [buf.as_mut_ptr() as usize, buf.len()];
+    let status: isize;
+    // SAFETY: a semihosting call (`bkpt 0xab`, operation in r0, the parameter block's
+    // address in r1, the result in r0). QEMU writes at most `block[1]` bytes into `buf`,
+    // which is exclusively borrowed and that long, and the new length into `block`, a
+    // live local; nothing else in memory is touched.
+    unsafe {
+        core::arch::asm!(
+            "bkpt #0xab",
+            inout("r0") SYS_GET_CMDLINE => status,
+            in("r1") block.as_mut_ptr(),
+            options(nostack)
+        );
+    }
+    if status != 0 {
+        return None;
+    }
+    let len = block.get(1).copied().unwrap_or(0);
+    buf.get(..len)
+}
+
 /// Ends the QEMU run through ARM semihosting `SYS_EXIT` (QEMU runs with
 /// `-semihosting-config enable=on`): QEMU exits with status 0 when `ok`, 1 otherwise. For
 /// the test images (`stack_guard`, `bench`); should no debugger or QEMU take the call, the

@@ -291,6 +291,7 @@ impl Axis {
             speed_ref: self.speed_ref as f32,
             enable: true,
             clear_faults: false,
+            move_to: None,
         };
         let answer = self.control(&sensor);
         let bridge_on = self.pending_on;
@@ -375,7 +376,8 @@ impl Axis {
         match &mut self.controller {
             Controller::Local(drive) => {
                 // The calls the firmware makes on a received frame.
-                sensor.apply_commands(drive);
+                // (The axis sends no moves: a speed drive, nothing to refuse.)
+                let _ = sensor.apply_commands(drive);
                 let out = drive.step(&sensor.measurements(&Base::SI));
                 Answer { out: Some(out), frame: None }
             }

@@ -16,7 +16,7 @@ pub mod scenarios;
 use crate::plant::{Plant, PlantError, SimParams, TrueState};
 use crate::trace::{TraceRow, wrap_angle};
 use dcfo::drive::{Drive, DriveConfig, DriveState, Faults, PAPER_AXIS_PAYLOAD_KG, StepOutput};
-use dcfo::link::{ActuationFrame, LinkStats, SensorFrame};
+use dcfo::link::{ActuationFrame, LinkStats, PositionReport, SensorFrame};
 use dcfo::motor::MotorParams;
 use dcfo::num::{Q24, Scalar};
 use dcfo::observer::ObserverKind;
@@ -184,6 +184,8 @@ pub struct StepDetail {
     pub i_dq_a: [f64; 2],
     /// Current references in the control frame (d, q), A.
     pub i_dq_ref_a: [f64; 2],
+    /// The control frame's angle, electrical rad in `[-pi, pi)`.
+    pub theta_control_rad: f64,
     /// The commanded electrical acceleration the estimator used, rad/s^2.
     pub alpha_e_ref_rad_per_s2: f64,
     /// The estimator's output, `None` while it is not running.
@@ -212,6 +214,7 @@ impl StepDetail {
             i_observer_a: [amperes(out.i_observer.alpha), amperes(out.i_observer.beta)],
             i_dq_a: [amperes(out.i_dq.d), amperes(out.i_dq.q)],
             i_dq_ref_a: [amperes(out.i_dq_ref.d), amperes(out.i_dq_ref.q)],
+            theta_control_rad: out.theta_control.to_radians::<f64>(),
             alpha_e_ref_rad_per_s2: f64::from(base.to_rad_per_s(out.alpha_e_ref) / base.time_s()),
             estimate: out.estimate.map(|est| EstimateDetail {
                 theta_e_rad: est.theta_e.to_radians::<f64>(),
@@ -245,6 +248,8 @@ pub trait Controller {
 pub struct LocalDrive<T = f32> {
     drive: Drive<T>,
     base: Base,
+    /// Moves the drive refused, counted as the firmware's link server counts them.
+    moves_rejected: u16,
 }
 
 impl LocalDrive<f32> {
@@ -253,6 +258,7 @@ impl LocalDrive<f32> {
         Ok(LocalDrive {
             drive: Drive::new(&setup.motor, &setup.drive, &Base::SI).map_err(SimError::Drive)?,
             base: Base::SI,
+            moves_rejected: 0,
         })
     }
 }
@@ -264,6 +270,7 @@ impl LocalDrive<Q24> {
         Ok(LocalDrive {
             drive: Drive::new(&setup.motor, &setup.drive, &base).map_err(SimError::Drive)?,
             base,
+            moves_rejected: 0,
         })
     }
 }
@@ -284,13 +291,17 @@ impl<T: Scalar> Controller for LocalDrive<T> {
     }
 
     fn step(&mut self, sensor: &SensorFrame) -> Result<ControlStep, SimError> {
-        // The same three calls the firmware makes on a received frame: the drive gets
-        // exactly the inputs (f32 conversions, per-unit scaling) the firmware's gets, and
-        // the frame carries exactly what the firmware would send, which keeps an
-        // in-process run bit-identical with a HIL run of the same numeric type.
-        sensor.apply_commands(&mut self.drive);
+        // The same calls the firmware's link server makes on a received frame: the drive
+        // gets exactly the inputs (f32 conversions, per-unit scaling, moves) the
+        // firmware's gets, and the frame carries exactly what the firmware would send,
+        // which keeps an in-process run bit-identical with a HIL run of the same numeric
+        // type.
+        if sensor.apply_commands(&mut self.drive).is_err() {
+            self.moves_rejected = self.moves_rejected.wrapping_add(1);
+        }
         let out = self.drive.step(&sensor.measurements(&self.base));
-        let frame = ActuationFrame::from_step(sensor.sequence, &out, &self.base, LinkStats::default());
+        let mut frame = ActuationFrame::from_step(sensor.sequence, &out, &self.base, LinkStats::default());
+        frame.position = PositionReport::of(&self.drive, self.moves_rejected);
         Ok(ControlStep { frame, detail: Some(StepDetail::from_step(&out, &self.base)) })
     }
 }
@@ -351,6 +362,7 @@ pub fn run_with(
             speed_ref: v_ref_target as f32,
             enable: true,
             clear_faults: false,
+            move_to: None,
         };
         let step = controller.step(&sensor)?;
         let f = step.frame;
