@@ -395,7 +395,8 @@ fn every_two_and_three_bit_error_is_caught() {
 fn wrong_version_is_rejected() {
     let good = sensor();
     let mut rx = Receiver::<SensorFrame>::new();
-    for v in [0u8, 2, 0xFF] {
+    // Version 1 (before the commissioning frames), and versions never defined.
+    for v in [0u8, 1, 3, 0xFF] {
         let mut payload = raw_of(&wire(&good))[..24].to_vec();
         payload[0] = v;
         assert_eq!(assert_recovers(&mut rx, &frame_payload(&payload), &good), [LinkError::Version]);
@@ -403,7 +404,7 @@ fn wrong_version_is_rejected() {
     let good = actuation();
     let mut rx = Receiver::<ActuationFrame>::new();
     let mut payload = raw_of(&wire(&good))[..41].to_vec();
-    payload[0] = 2;
+    payload[0] = dcfo::link::PROTOCOL_VERSION + 1;
     assert_eq!(assert_recovers(&mut rx, &frame_payload(&payload), &good), [LinkError::Version]);
     assert_eq!(rx.stats().malformed, 1);
 }
@@ -833,7 +834,7 @@ fn link_server_answers_in_order_frames_and_trips_a_silent_link() {
     let mut drive: Drive<f32> =
         Drive::new(&m, &DriveConfig::for_motor(&m, 311.0, ObserverKind::Dcfo), &Base::SI).unwrap();
     let mut server = LinkServer::new();
-    let mut out = [0u8; ActuationFrame::WIRE_LEN];
+    let mut out = [0u8; LinkServer::REPLY_LEN];
     let frame = SensorFrame {
         sequence: 41,
         i_a: 0.0,

@@ -119,12 +119,13 @@ mod firmware {
         // The inverter compensation from the image (identified by commissioning: `dcfo
         // identify --image`); without one (a version-1 image, or none written) the
         // programmed dead time alone.
-        drive_config.dead_time_compensation = Some(image.compensation.unwrap_or(dcfo::drive::DeadTimeCompensation {
-            dead_time_s: DEFAULT_DEAD_TIME_NS as f32 * 1e-9,
-            // Low-voltage MOSFETs: the drop is small against the bus; not measured.
-            device_drop_v: 0.0,
-            current_band_a: 0.02 * image.motor.rated_current_a,
-        }));
+        drive_config.dead_time_compensation =
+            Some(image.compensation.unwrap_or(dcfo::drive::DeadTimeCompensation {
+                dead_time_s: DEFAULT_DEAD_TIME_NS as f32 * 1e-9,
+                // Low-voltage MOSFETs: the drop is small against the bus; not measured.
+                device_drop_v: 0.0,
+                current_band_a: 0.02 * image.motor.rated_current_a,
+            }));
         let drive = match Drive::<f32>::new(&image.motor, &drive_config, &Base::SI) {
             Ok(d) => d,
             Err(e) => halt(&mut led, e.field),

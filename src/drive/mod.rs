@@ -552,6 +552,32 @@ impl<T: Scalar> Drive<T> {
         Ok(())
     }
 
+    /// A drive for commissioning a motor it is told only `config` about, commissioning
+    /// requested ([`Drive::start_commissioning`]): built for
+    /// [`CommissioningConfig::placeholder_motor`] with
+    /// [`DriveConfig::for_motor`]`(placeholder, config.bus_v, Dcfo)` (protections from
+    /// the told ratings and bus), working in SI if `like` is [`Base::SI`], else in the
+    /// per-unit base of the placeholder ([`Base::for_motor`]: the told ratings). This is
+    /// the drive `dcfo identify` runs in process and the HIL link builds on a start
+    /// request, so the two agree bit for bit.
+    ///
+    /// # Errors
+    /// `BadSetting` naming the setting the drive refused, or the commissioning's own.
+    pub fn for_commissioning(config: CommissioningConfig, like: &Base) -> Result<Self, CommissioningError> {
+        let motor = config.placeholder_motor();
+        let drive_config = DriveConfig::for_motor(&motor, config.bus_v, crate::observer::ObserverKind::Dcfo);
+        let base = if *like == Base::SI { Base::SI } else { Base::for_motor(&motor) };
+        let mut drive =
+            Drive::new(&motor, &drive_config, &base).map_err(|e| CommissioningError::BadSetting(e.field))?;
+        drive.start_commissioning(config)?;
+        Ok(drive)
+    }
+
+    /// `true` while commissioning is requested or under way (it has not ended).
+    pub fn commissioning_pending(&self) -> bool {
+        self.commissioning.is_some()
+    }
+
     /// The last commissioning's outcome: `None` before one has ended, else the result
     /// (SI) or why it stopped.
     pub fn commissioning_result(&self) -> Option<Result<CommissioningResult, CommissioningError>> {
