@@ -209,7 +209,7 @@ mod tests {
         assert_eq!(LinkServer::REPLY_LEN, 140);
         // The controller receives requests in the sensor frames' buffer, told apart by
         // length.
-        assert!(CommissioningRequest::WIRE_LEN - 1 <= RX_CAPACITY);
+        const { assert!(CommissioningRequest::WIRE_LEN - 1 <= RX_CAPACITY) };
         assert_ne!(CommissioningRequest::RAW_LEN, SensorFrame::RAW_LEN);
     }
 
