@@ -278,6 +278,9 @@ impl LinkServer {
     }
 
     /// A commissioning request: start (from a disabled drive) or query, then the report.
+    /// Never inlined: building a drive takes about 10 KB of stack, which inlined into
+    /// [`on_byte`](Self::on_byte) would sit above every control step's frames too.
+    #[inline(never)]
     fn on_request<T: Scalar>(
         &mut self,
         request: &CommissioningRequest,
