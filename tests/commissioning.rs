@@ -110,14 +110,22 @@ fn a_result_goes_into_the_motor_image_and_back() {
         direction: 1,
         duration_s: 3.8,
     };
-    let image = r.motor_image(&config(), 0.66, 0.5).unwrap();
+    let image = r.motor_image(&config(), 0.66, 0.5, 1e-4).unwrap();
     let back = MotorImage::decode(&image.encode()).unwrap();
     assert_eq!(back, image);
+    // The compensation: the error as a dead time at the commissioning's bus and period
+    // (7.25 V of 314.7 V over 100 us: 2.30 us), the identified band, no separate drop.
+    let c = back.compensation.expect("a compensation");
+    assert_eq!(c.dead_time_s, 7.25 * 1e-4 / 314.7);
+    assert!((c.dead_time_s - 2.3038e-6).abs() < 1e-9);
+    assert_eq!((c.device_drop_v, c.current_band_a), (0.0, 0.0097));
     let m = back.motor;
     assert_eq!((m.rs_ohm, m.ld_h, m.lq_h, m.psi_f_wb), (5.15, 0.00854, 0.00867, 0.1612));
     assert_eq!((m.pole_pitch_m, m.rated_current_a, m.rated_voltage_v), (0.015, 2.1, 220.0));
     assert_eq!(back.bus_v, 311.0);
     // A result that is not physical never becomes an image.
     let bad = CommissioningResult { psi_f_wb: -0.1, ..r };
-    assert!(matches!(bad.motor_image(&config(), 0.66, 0.5), Err(MotorImageError::Param(_))));
+    assert!(matches!(bad.motor_image(&config(), 0.66, 0.5, 1e-4), Err(MotorImageError::Param(_))));
+    let bad = CommissioningResult { current_band_a: f32::NAN, ..r };
+    assert_eq!(bad.motor_image(&config(), 0.66, 0.5, 1e-4), Err(MotorImageError::Compensation));
 }

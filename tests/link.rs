@@ -939,7 +939,7 @@ fn link_server_answers_in_order_frames_and_trips_a_silent_link() {
     let mut drive: Drive<f32> =
         Drive::new(&m, &DriveConfig::for_motor(&m, 311.0, ObserverKind::Dcfo), &Base::SI).unwrap();
     let mut server = LinkServer::new();
-    let mut out = [0u8; ActuationFrame::WIRE_LEN];
+    let mut out = [0u8; LinkServer::REPLY_LEN];
     let frame = SensorFrame {
         sequence: 41,
         i_a: 0.0,

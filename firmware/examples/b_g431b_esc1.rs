@@ -2,7 +2,9 @@
 //! board's power stage. **Not tried on hardware** (none here); it builds in CI.
 //!
 //! - The motor comes from the motor image in the last flash page (`dcfo motor-image`,
-//!   see the README); without a valid one the bridge stays off and the LED blinks fast.
+//!   or `dcfo identify --image` with the identified inverter compensation, which the
+//!   drive then uses; see the README); without a valid one the bridge stays off and the
+//!   LED blinks fast.
 //! - TIM1 runs centre-aligned complementary PWM at 10 kHz with 800 ns dead time; it
 //!   triggers the injected ADC conversions of the three shunt currents and the bus
 //!   voltage at the carrier valley; the end of conversion raises `ADC1_2`, the control
@@ -114,17 +116,27 @@ mod firmware {
         };
         let mut drive_config = DriveConfig::for_motor(&image.motor, image.bus_v, ObserverKind::Dcfo);
         drive_config.control_period_s = 1.0 / DEFAULT_PWM_HZ as f32;
-        drive_config.dead_time_compensation = Some(dcfo::drive::DeadTimeCompensation {
-            dead_time_s: DEFAULT_DEAD_TIME_NS as f32 * 1e-9,
-            // Low-voltage MOSFETs: the drop is small against the bus; not measured.
-            device_drop_v: 0.0,
-            current_band_a: 0.02 * image.motor.rated_current_a,
-        });
+        // The inverter compensation from the image (identified by commissioning: `dcfo
+        // identify --image`); without one (a version-1 image, or none written) the
+        // programmed dead time alone.
+        drive_config.dead_time_compensation =
+            Some(image.compensation.unwrap_or(dcfo::drive::DeadTimeCompensation {
+                dead_time_s: DEFAULT_DEAD_TIME_NS as f32 * 1e-9,
+                // Low-voltage MOSFETs: the drop is small against the bus; not measured.
+                device_drop_v: 0.0,
+                current_band_a: 0.02 * image.motor.rated_current_a,
+            }));
         let drive = match Drive::<f32>::new(&image.motor, &drive_config, &Base::SI) {
             Ok(d) => d,
             Err(e) => halt(&mut led, e.field),
         };
-        defmt::info!("motor: {}, bus {} V", image.motor, image.bus_v);
+        defmt::info!(
+            "motor: {}, bus {} V, compensation {} (from the image: {})",
+            image.motor,
+            image.bus_v,
+            drive_config.dead_time_compensation,
+            image.compensation.is_some()
+        );
 
         // The hardware trip a quarter above the drive's own over-current fault (which acts
         // first, in software), within the board's limits.

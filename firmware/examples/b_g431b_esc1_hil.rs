@@ -29,7 +29,6 @@ mod firmware {
     use cortex_m::peripheral::syst::SystClkSource;
     use cortex_m_rt::{entry, exception};
     use dcfo::drive::{Drive, DriveConfig};
-    use dcfo::link::ActuationFrame;
     use dcfo::motor::MotorParams;
     use dcfo::observer::ObserverKind;
     use dcfo::units::Base;
@@ -44,7 +43,8 @@ mod firmware {
     const BAUD: u32 = 921_600;
     /// Watchdog ticks per second (50 ms); SysTick's reload (24 bits) fits at 170 MHz / 8.
     const WATCHDOG_TICK_HZ: u32 = 20;
-    const TX_QUEUE_BYTES: usize = 2 * ActuationFrame::WIRE_LEN;
+    /// Two answers, or a commissioning report.
+    const TX_QUEUE_BYTES: usize = dcfo_firmware::hil::tx_queue_bytes(2);
     /// SysTick (the link watchdog) priority.
     const PRIORITY_WATCHDOG: u8 = 0x80;
 

@@ -19,6 +19,10 @@
 //! | SysTick, every 50 ms | 0x80 | link watchdog: `HilServer::watchdog_period` | a counter and a compare (not measured) |
 //! | thread | — | moves the TX queue into UART0, sleeps when it is empty | — |
 //!
+//! Between periods the host may send a `dcfo::link::CommissioningRequest`; it is answered
+//! with a `CommissioningReport` in the same interrupt, and a start replaces the drive by
+//! the one commissioning is told about (`LinkServer::on_byte`; `dcfo identify --qemu`).
+//!
 //! A silent link (no in-order frame for 10 watchdog periods, 0.5 s of wall-clock time)
 //! switches the bridge off (fault `EXTERNAL`) if the drive was active. The watchdog
 //! period is long because QEMU runs in wall-clock time on a shared host: the lock-step
@@ -55,7 +59,6 @@ mod firmware {
     use cortex_m::peripheral::syst::SystClkSource;
     use cortex_m_rt::{entry, exception};
     use dcfo::drive::{Drive, DriveConfig};
-    use dcfo::link::ActuationFrame;
     use dcfo::motor::MotorParams;
     use dcfo::motor_image::MotorImage;
     use dcfo::observer::ObserverKind;
@@ -86,8 +89,8 @@ mod firmware {
     const PRIORITY_WATCHDOG: u8 = 0x80;
     /// Watchdog ticks per second (a 50 ms period).
     const WATCHDOG_TICK_HZ: u32 = 20;
-    /// Bytes of transmit queue: four answers.
-    const TX_QUEUE_BYTES: usize = 4 * ActuationFrame::WIRE_LEN;
+    /// Bytes of transmit queue: four answers (or a commissioning report).
+    const TX_QUEUE_BYTES: usize = dcfo_firmware::hil::tx_queue_bytes(4);
 
     /// What the control interrupt owns; the watchdog borrows it between steps.
     struct Control {

@@ -11,34 +11,36 @@ use crate::queue::Producer;
 use dcfo::drive::Drive;
 use dcfo::link::{ActuationFrame, LinkServer, LinkStats};
 use dcfo::num::Scalar;
-use dcfo::units::Base;
 
 /// The drive behind the HIL link, owned by the receive interrupt.
 #[derive(Clone, Debug)]
 pub struct HilServer<T> {
     drive: Drive<T>,
-    base: Base,
     link: LinkServer,
-    reply: [u8; ActuationFrame::WIRE_LEN],
+    reply: [u8; LinkServer::REPLY_LEN],
     answers_dropped: u32,
+}
+
+/// Bytes a transmit queue needs for `answers` lock-step answers, or one commissioning
+/// report if that is longer.
+pub const fn tx_queue_bytes(answers: usize) -> usize {
+    let a = answers * ActuationFrame::WIRE_LEN;
+    if a > LinkServer::REPLY_LEN { a } else { LinkServer::REPLY_LEN }
 }
 
 impl<T: Scalar> HilServer<T> {
     /// Serves `drive` (its working-unit base is taken from it).
     pub fn new(drive: Drive<T>) -> Self {
-        HilServer {
-            base: *drive.base(),
-            drive,
-            link: LinkServer::new(),
-            reply: [0; ActuationFrame::WIRE_LEN],
-            answers_dropped: 0,
-        }
+        HilServer { drive, link: LinkServer::new(), reply: [0; LinkServer::REPLY_LEN], answers_dropped: 0 }
     }
 
     /// One received byte. When it completes an in-order sensor frame, the drive steps
-    /// once and its answer is queued for transmission.
+    /// once and its answer is queued for transmission; a commissioning request is
+    /// answered with its report (a start replaces the drive: `LinkServer::on_byte`).
     pub fn on_byte<const N: usize>(&mut self, byte: u8, tx: &mut Producer<'_, u8, N>) {
-        let Some(n) = self.link.on_byte(byte, &mut self.drive, &self.base, &mut self.reply) else {
+        // The drive's own base: a start request may replace the drive and its base.
+        let base = *self.drive.base();
+        let Some(n) = self.link.on_byte(byte, &mut self.drive, &base, &mut self.reply) else {
             return;
         };
         let Some(answer) = self.reply.get(..n) else { return };
@@ -83,6 +85,7 @@ mod tests {
     use dcfo::link::{Receiver, SensorFrame, encode};
     use dcfo::motor::MotorParams;
     use dcfo::observer::ObserverKind;
+    use dcfo::units::Base;
 
     fn server() -> HilServer<f32> {
         let m = MotorParams::paper();

@@ -78,10 +78,17 @@ fuzz_target!(|data: &[u8]| {
         Drive::<f32>::new(&MotorParams::paper(), &DriveConfig::paper_axis(ObserverKind::Dcfo), &Base::SI)
             .expect("paper drive");
     let mut server = LinkServer::new();
-    let mut out = [0u8; ActuationFrame::WIRE_LEN];
+    let mut out = [0u8; LinkServer::REPLY_LEN];
     for (i, &b) in data.iter().enumerate() {
-        if let Some(n) = server.on_byte(b, &mut drive, &Base::SI, &mut out) {
-            assert!(n == ActuationFrame::WIRE_LEN && out[n - 1] == 0);
+        // A commissioning request may replace the drive and its base.
+        let base = *drive.base();
+        if let Some(n) = server.on_byte(b, &mut drive, &base, &mut out) {
+            assert!(out[n - 1] == 0);
+            if n == link::CommissioningReport::WIRE_LEN {
+                link::decode_in_place::<link::CommissioningReport>(&mut out[..n - 1]).expect("a valid report");
+                continue;
+            }
+            assert!(n == ActuationFrame::WIRE_LEN);
             let reply = link::decode_in_place::<ActuationFrame>(&mut out[..n - 1]).expect("a valid answer");
             for d in [reply.duty_a, reply.duty_b, reply.duty_c] {
                 assert!((0.0..=1.0).contains(&d), "duty {d}");

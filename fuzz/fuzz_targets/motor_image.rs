@@ -1,20 +1,19 @@
 //! The motor-image decoder (the flash record the ESC1 boots from) fed arbitrary bytes.
 //! Contract: no panic; an accepted image holds a motor that validates and re-encodes to
-//! the same magic, version and values (bit for bit), which decode to the same image.
-//! The reserved bytes 6..8 and 50..56 are documented as 0 and not read (the CRC covers
-//! 6..8, so a record with other reserved bytes re-encodes with another CRC).
+//! the same magic and values (bit for bit), which decode to the same image: a version-2
+//! record also to the same version, flags and compensation; a version-1 record (migrated)
+//! to version 2 without a compensation. The reserved bytes (version 2: 62..64; version
+//! 1: 6..8 and 50..56) are documented as 0 and not read.
 //!
 //! Random bytes almost never carry the record's CRC-16, so with the first byte odd the
-//! rest is taken as a record whose CRC (bytes 48..50, over bytes 0..48, as
-//! `MotorImage::encode` writes it) is set right: the fuzzer then explores the magic, the
-//! version and every value check.
+//! rest is taken as a record whose CRC (version 1: bytes 48..50 over bytes 0..48;
+//! otherwise bytes 60..62 over 0..60, as `MotorImage::encode` writes it) is set right:
+//! the fuzzer then explores the magic, the version and every value check.
 #![no_main]
 
 use dcfo::motor::MotorParams;
 use dcfo::motor_image::MotorImage;
 use libfuzzer_sys::fuzz_target;
-
-const CRC_AT: usize = 48;
 
 fuzz_target!(|data: &[u8]| {
     let mut bytes = data.to_vec();
@@ -24,15 +23,22 @@ fuzz_target!(|data: &[u8]| {
     {
         const CRC16: crc::Crc<u16> = crc::Crc::<u16>::new(&crc::CRC_16_IBM_3740);
         bytes = rest.to_vec();
-        let crc = CRC16.checksum(&bytes[..CRC_AT]).to_le_bytes();
-        bytes[CRC_AT..CRC_AT + 2].copy_from_slice(&crc);
+        let crc_at = if bytes[4..6] == [1, 0] { 48 } else { 60 };
+        let crc = CRC16.checksum(&bytes[..crc_at]).to_le_bytes();
+        bytes[crc_at..crc_at + 2].copy_from_slice(&crc);
     }
     if let Ok(image) = MotorImage::decode(&bytes) {
         assert!(MotorParams::new(image.motor).is_ok());
         assert!(image.bus_v.is_finite() && image.bus_v > 0.0);
         let encoded = image.encode();
-        assert_eq!(encoded[..6], bytes[..6]);
-        assert_eq!(encoded[8..CRC_AT], bytes[8..CRC_AT]);
+        assert_eq!(encoded[..4], bytes[..4]);
+        assert_eq!(encoded[8..48], bytes[8..48]);
+        if bytes[4..6] == [1, 0] {
+            assert_eq!(image.compensation, None);
+            assert_eq!(encoded[4..8], [2, 0, 0, 0]);
+        } else {
+            assert_eq!(encoded[4..60], bytes[4..60]);
+        }
         assert_eq!(MotorImage::decode(&encoded), Ok(image));
     }
 });

@@ -122,13 +122,30 @@ pub struct IdentifyArgs {
     /// Run the drive's commissioning in-process against the simulated plant of `--motor`.
     #[arg(long)]
     pub sim: bool,
-    /// Run the firmware's commissioning under QEMU (not implemented: exits with status 2).
-    #[arg(long)]
+    /// Run the firmware's commissioning under QEMU (board: --cpu) through the lock-step
+    /// HIL link against the simulated plant of `--motor`; the image is built with cargo
+    /// unless --elf is given. Needs qemu-system-arm.
+    #[arg(long, conflicts_with = "port")]
     pub qemu: bool,
-    /// Run the commissioning of a board on this serial port (not implemented: exits with
-    /// status 2).
+    /// Run the commissioning of a board running the HIL image on this serial port,
+    /// against the simulated plant of `--motor`.
     #[arg(long, value_name = "DEVICE")]
-    pub port: Option<String>,
+    pub port: Option<PathBuf>,
+    /// Baud rate of --port, bit/s (8N1).
+    #[arg(long, value_name = "N", default_value_t = 921_600)]
+    pub baud: u32,
+    /// QEMU board for --qemu: m4f (mps2-an386, f32 firmware) or m3 (mps2-an385, Q8.24
+    /// fixed-point firmware).
+    #[arg(long, value_enum, default_value = "m4f")]
+    pub cpu: crate::qemu::QemuCpu,
+    /// Firmware ELF for --qemu (default: build and use
+    /// `target/<target>/release/examples/qemu_hil`).
+    #[arg(long, value_name = "FILE")]
+    pub elf: Option<PathBuf>,
+    /// With --qemu or --port: also run the commissioning in this process with the
+    /// firmware's numeric type and require identical results, bit for bit.
+    #[arg(long)]
+    pub check: bool,
     /// Motor the plant is built from: a preset name (`paper`) or a motor TOML file. The
     /// drive is told only its rated current and voltage, the bus and the pole pitch.
     #[arg(long, default_value = "paper")]
@@ -139,6 +156,11 @@ pub struct IdentifyArgs {
     /// Write the identified motor (shared motor-file format) to this file.
     #[arg(short = 'o', long = "output", value_name = "FILE")]
     pub output: Option<PathBuf>,
+    /// Write the identified motor, the nominal bus and the identified inverter
+    /// compensation as a motor image (the board's flash record, `dcfo motor-image`'s
+    /// format) to this file.
+    #[arg(long, value_name = "FILE")]
+    pub image: Option<PathBuf>,
     /// Print one JSON object on the last line of stdout.
     #[arg(long)]
     pub json: bool,
@@ -539,8 +561,8 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         Command::Identify(a) => {
             use crate::identify::Where;
             let place = match (a.qemu, a.port, a.sim) {
-                (true, _, _) => Where::Qemu,
-                (false, Some(device), _) => Where::Port(device),
+                (true, _, _) => Where::Link(crate::target::Target::Qemu { cpu: a.cpu, elf: a.elf }),
+                (false, Some(device), _) => Where::Link(crate::target::Target::Port { device, baud: a.baud }),
                 (false, None, true) => Where::Sim,
                 (false, None, false) => Where::Unsaid,
             };
@@ -549,6 +571,8 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                 motor: a.motor,
                 seed: a.seed,
                 output: a.output,
+                image: a.image,
+                check: a.check,
                 json: a.json,
                 steady_seeds: a.steady,
             })

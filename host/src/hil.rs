@@ -12,7 +12,7 @@
 //! arithmetic (the f32 conversions at its edges are IEEE too, in software on the M3).
 
 use crate::sim::{ControlStep, Controller, SimError};
-use dcfo::link::{ActuationFrame, Receiver, SensorFrame, encode};
+use dcfo::link::{ActuationFrame, CommissioningReport, CommissioningRequest, Receiver, SensorFrame, encode};
 use std::collections::VecDeque;
 use std::io::{Read, Write};
 use std::path::{Path, PathBuf};
@@ -42,6 +42,8 @@ pub struct SerialController<W: Write> {
     started: Instant,
     /// The last frame written, as sent (for the start-up resend).
     last_sent: Vec<u8>,
+    /// Sequence number of the next commissioning request.
+    request_sequence: u16,
 }
 
 /// Reads `reader` on a thread of its own and hands what arrives to the returned
@@ -90,6 +92,70 @@ impl<W: Write> SerialController<W> {
             round_trips: 0,
             started: Instant::now(),
             last_sent: Vec::new(),
+            request_sequence: 0,
+        }
+    }
+
+    /// Sends a commissioning request (`start`: the settings to start with; `None`: a
+    /// query) and waits for its report. The request is numbered here. Until the first
+    /// lock-step answer has arrived (the target may be booting) the request is sent again
+    /// every [`START_RESEND`]: a start that arrives twice before any sensor frame builds
+    /// the same drive twice, and a query changes nothing.
+    ///
+    /// # Errors
+    /// The link fails or no report arrives within [`ANSWER_TIMEOUT`].
+    pub fn commissioning(
+        &mut self,
+        start: Option<dcfo::drive::CommissioningConfig>,
+    ) -> Result<CommissioningReport, SimError> {
+        let sequence = self.request_sequence;
+        self.request_sequence = self.request_sequence.wrapping_add(1);
+        let request = CommissioningRequest { sequence, start };
+        let mut buf = [0u8; CommissioningRequest::WIRE_LEN];
+        let n = encode(&request, &mut buf).map_err(|e| SimError::Controller(format!("encoding: {e}")))?;
+        let write = |w: &mut W, bytes: &[u8]| {
+            w.write_all(bytes)
+                .and_then(|_| w.flush())
+                .map_err(|e| SimError::Controller(format!("link write failed: {e}")))
+        };
+        write(&mut self.writer, &buf[..n])?;
+        // The report is longer than the lock-step receiver's buffer: frames are split
+        // at their delimiters here and decoded as reports; anything else is dropped.
+        let mut frame = Vec::with_capacity(CommissioningReport::WIRE_LEN);
+        let deadline = Instant::now() + ANSWER_TIMEOUT;
+        let mut resend_at = Instant::now() + START_RESEND;
+        loop {
+            while let Some(byte) = self.pending.pop_front() {
+                if byte != 0 {
+                    frame.push(byte);
+                    continue;
+                }
+                let got = dcfo::link::decode_in_place::<CommissioningReport>(&mut frame);
+                frame.clear();
+                match got {
+                    Ok(report) if report.sequence == sequence => return Ok(report),
+                    Ok(_) => self.stale_frames += 1,
+                    Err(_) => {}
+                }
+            }
+            let starting = self.round_trips == 0;
+            let now = Instant::now();
+            let left = deadline.saturating_duration_since(now);
+            let wait = if starting { left.min(resend_at.saturating_duration_since(now)) } else { left };
+            match self.incoming.recv_timeout(wait) {
+                Ok(Ok(bytes)) => self.pending.extend(bytes),
+                Ok(Err(e)) => return Err(SimError::Controller(format!("link read failed: {e}"))),
+                Err(_) if starting && Instant::now() < deadline => {
+                    write(&mut self.writer, &buf[..n])?;
+                    resend_at = Instant::now() + START_RESEND;
+                }
+                Err(_) => {
+                    return Err(SimError::Controller(format!(
+                        "no answer to commissioning request {sequence} within {} s",
+                        ANSWER_TIMEOUT.as_secs()
+                    )));
+                }
+            }
         }
     }
 

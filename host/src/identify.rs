@@ -16,10 +16,11 @@
 use std::f64::consts::PI;
 use std::fmt::Write as _;
 
-use dcfo::drive::{
-    CommissioningConfig, CommissioningError, CommissioningResult, Drive, DriveConfig, DriveState,
-};
+use dcfo::drive::{CommissioningConfig, CommissioningError, CommissioningResult, Drive, DriveState};
+use dcfo::link::{ActuationFrame, CommissioningStatus, LinkStats, SensorFrame};
 use dcfo::motor::MotorParams;
+use dcfo::motor_image::MotorImage;
+use dcfo::num::{Q24, Scalar};
 use dcfo::observer::ObserverKind;
 use dcfo::units::Base;
 use serde::Serialize;
@@ -108,6 +109,9 @@ pub enum IdentifyError {
     /// The commissioning did not end in time.
     #[error("commissioning did not end within {0} s")]
     Timeout(f64),
+    /// The link to the drive failed (QEMU or a serial port).
+    #[error("link: {0}")]
+    Link(String),
 }
 
 /// What commissioning is told about `motor`: ratings, its nominal bus `sqrt(2) V_rated`
@@ -139,19 +143,122 @@ pub fn plant_for(motor: &MotorParams, seed: u64, fault: PlantFault) -> SimParams
     p
 }
 
-/// Runs the commissioning of a `Drive<f32>` on the plant for `motor`.
+/// A drive that runs commissioning: in this process ([`InProcess`]) or behind the HIL
+/// link (the firmware on QEMU or a board: [`crate::hil::SerialController`]).
+pub trait Commissioner {
+    /// Requests commissioning of a drive told only `config`.
+    ///
+    /// # Errors
+    /// [`IdentifyError::Commissioning`] when the drive refuses; a link failure.
+    fn start(&mut self, config: CommissioningConfig) -> Result<(), IdentifyError>;
+    /// One control period on `sensor` (measurements and commands): the drive's answer.
+    ///
+    /// # Errors
+    /// A link failure.
+    fn step(&mut self, sensor: &SensorFrame) -> Result<ActuationFrame, IdentifyError>;
+    /// The last commissioning's outcome, `None` while none has ended.
+    ///
+    /// # Errors
+    /// A link failure.
+    fn outcome(&mut self) -> Result<Option<Result<CommissioningResult, CommissioningError>>, IdentifyError>;
+}
+
+/// The library's drive in this process, built as the HIL link builds it on a start
+/// request ([`Drive::for_commissioning`]): `Drive<f32>` in SI ([`InProcess::f32`], as
+/// the Cortex-M4F firmware) or `Drive<Q24>` in the told ratings' per-unit base
+/// ([`InProcess::q24`], as the Cortex-M3 firmware).
+#[derive(Debug, Clone)]
+pub struct InProcess<T> {
+    drive: Option<Drive<T>>,
+    like: Base,
+}
+
+impl InProcess<f32> {
+    /// An f32 drive in SI units (built at [`Commissioner::start`]).
+    pub fn f32() -> Self {
+        InProcess { drive: None, like: Base::SI }
+    }
+}
+
+impl InProcess<Q24> {
+    /// A Q8.24 drive in the per-unit base of the told ratings (built at
+    /// [`Commissioner::start`]).
+    pub fn q24() -> Self {
+        InProcess { drive: None, like: Base::for_motor(&MotorParams::paper()) }
+    }
+}
+
+impl<T: Scalar> Commissioner for InProcess<T> {
+    fn start(&mut self, config: CommissioningConfig) -> Result<(), IdentifyError> {
+        self.drive =
+            Some(Drive::for_commissioning(config, &self.like).map_err(IdentifyError::Commissioning)?);
+        Ok(())
+    }
+
+    fn step(&mut self, sensor: &SensorFrame) -> Result<ActuationFrame, IdentifyError> {
+        let drive = self.drive.as_mut().ok_or_else(|| IdentifyError::Setup("not started".into()))?;
+        // The calls `LinkServer::on_byte` makes on a received frame.
+        let base = *drive.base();
+        sensor
+            .apply_commands(drive)
+            .map_err(|e| IdentifyError::Setup(format!("the drive refused the frame's move: {e:?}")))?;
+        let out = drive.step(&sensor.measurements(&base));
+        Ok(ActuationFrame::from_step(sensor.sequence, &out, &base, LinkStats::default()))
+    }
+
+    fn outcome(&mut self) -> Result<Option<Result<CommissioningResult, CommissioningError>>, IdentifyError> {
+        Ok(self.drive.as_ref().and_then(Drive::commissioning_result))
+    }
+}
+
+impl<W: std::io::Write> Commissioner for crate::hil::SerialController<W> {
+    fn start(&mut self, config: CommissioningConfig) -> Result<(), IdentifyError> {
+        let report = self.commissioning(Some(config)).map_err(|e| IdentifyError::Link(e.to_string()))?;
+        match (report.status, report.error()) {
+            (CommissioningStatus::Running, _) => Ok(()),
+            (_, Some(e)) => Err(IdentifyError::Commissioning(e)),
+            (status, None) => Err(IdentifyError::Link(format!("start answered with status {status:?}"))),
+        }
+    }
+
+    fn step(&mut self, sensor: &SensorFrame) -> Result<ActuationFrame, IdentifyError> {
+        use crate::sim::Controller;
+        Controller::step(self, sensor).map(|s| s.frame).map_err(|e| IdentifyError::Link(e.to_string()))
+    }
+
+    fn outcome(&mut self) -> Result<Option<Result<CommissioningResult, CommissioningError>>, IdentifyError> {
+        let report = self.commissioning(None).map_err(|e| IdentifyError::Link(e.to_string()))?;
+        Ok(match report.status {
+            CommissioningStatus::Done => report.result.map(Ok),
+            CommissioningStatus::Failed | CommissioningStatus::Refused => report.error().map(Err),
+            CommissioningStatus::Idle | CommissioningStatus::Running => None,
+        })
+    }
+}
+
+/// Runs the commissioning of a `Drive<f32>` in this process on the plant for `motor`.
 pub fn identify(
     name: &str,
     motor: &MotorParams,
     seed: u64,
     fault: PlantFault,
 ) -> Result<IdentifyReport, IdentifyError> {
+    identify_with(name, motor, seed, fault, &mut InProcess::f32())
+}
+
+/// Runs the commissioning of `drive` on the plant for `motor` in lock-step: per PWM
+/// period one sensor frame (the plant's readings, enable, speed reference 0) and the
+/// drive's answer, whose duties the plant applies over the next period, until the drive
+/// leaves commissioning; then asks for the outcome.
+pub fn identify_with(
+    name: &str,
+    motor: &MotorParams,
+    seed: u64,
+    fault: PlantFault,
+    drive: &mut dyn Commissioner,
+) -> Result<IdentifyReport, IdentifyError> {
     let sim = plant_for(motor, seed, fault);
     let config = told(motor);
-    let placeholder = config.placeholder_motor();
-    let drive_config = DriveConfig::for_motor(&placeholder, config.bus_v, ObserverKind::Dcfo);
-    let mut drive = Drive::<f32>::new(&placeholder, &drive_config, &Base::SI)
-        .map_err(|e| IdentifyError::Setup(format!("drive: {e}")))?;
     let mut plant = Plant::new(&sim).map_err(|e| IdentifyError::Setup(e.to_string()))?;
     // Start off alignment: the commissioning's alignment has to pull the mover.
     let x0 = 1.0 * sim.plant.pole_pitch_m / PI;
@@ -159,7 +266,7 @@ pub fn identify(
     if let PlantFault::OpenPhase(k) = fault {
         plant.set_open_phase(Some(k));
     }
-    drive.start_commissioning(config).map_err(IdentifyError::Commissioning)?;
+    drive.start(config)?;
     let ts = plant.pwm_period_s();
     let limit_s = 10.0;
     let n = (limit_s / ts) as usize;
@@ -167,26 +274,37 @@ pub fn identify(
     let mut pending_on = false;
     let mut travel_max = 0.0f64;
     let mut started = false;
-    for _ in 0..n {
+    for k in 0..n {
         let reading = plant.sample();
-        let m = reading.measurements();
-        let out = drive.step(&m);
+        let sensor = SensorFrame {
+            sequence: k as u16,
+            i_a: reading.i_abc_a[0] as f32,
+            i_b: reading.i_abc_a[1] as f32,
+            i_c: reading.i_abc_a[2] as f32,
+            vdc: reading.vdc_v as f32,
+            speed_ref: 0.0,
+            enable: true,
+            clear_faults: false,
+            move_to: None,
+        };
+        let out = drive.step(&sensor)?;
         if pending_on {
             plant.step(pending, 0.0);
         } else {
             plant.step_open(0.0);
         }
         pending_on = out.bridge_enabled;
-        pending = [f64::from(out.duties.a), f64::from(out.duties.b), f64::from(out.duties.c)];
+        pending = [f64::from(out.duty_a), f64::from(out.duty_b), f64::from(out.duty_c)];
         travel_max = travel_max.max((plant.state().x_m - x0).abs());
-        if out.state == DriveState::Commissioning {
+        let state = out.state();
+        if state == DriveState::Commissioning {
             started = true;
         }
-        if started && out.state != DriveState::Commissioning {
+        if (started && state != DriveState::Commissioning) || state == DriveState::Fault {
             break;
         }
     }
-    let result = match drive.commissioning_result() {
+    let result = match drive.outcome()? {
         Some(Ok(r)) => r,
         Some(Err(e)) => return Err(IdentifyError::Commissioning(e)),
         None => return Err(IdentifyError::Timeout(limit_s)),
@@ -253,7 +371,7 @@ pub fn motor_toml(r: &IdentifyReport, motor: &MotorParams) -> Result<String, Ide
     let m = result
         .motor(&told(motor), motor.mass_kg, motor.viscous_n_s_per_m)
         .map_err(|e| IdentifyError::Setup(format!("identified motor refused: {e:?}")))?;
-    let comp = result.dead_time_compensation(1e-4);
+    let comp = result.dead_time_compensation(COMMISSIONING_PERIOD_S);
     let mut s = String::new();
     let _ = writeln!(
         s,
@@ -276,6 +394,27 @@ pub fn motor_toml(r: &IdentifyReport, motor: &MotorParams) -> Result<String, Ide
     let _ = writeln!(s, "rated_voltage_v = {:?}", m.rated_voltage_v);
     Ok(s)
 }
+
+/// The identified motor as the board's flash record (`dcfo::motor_image`, version 2):
+/// the motor of [`motor_toml`] (mass and friction of `motor`, not identified), the
+/// nominal bus the drive was told, and the identified inverter compensation as a dead
+/// time at the commissioning's 100 us period; checked by decoding it as the firmware
+/// does.
+///
+/// # Errors
+/// No result, or a result the image refuses (named).
+pub fn motor_image(r: &IdentifyReport, motor: &MotorParams) -> Result<[u8; MotorImage::LEN], IdentifyError> {
+    let result = r.result.ok_or_else(|| IdentifyError::Setup("no result".into()))?;
+    let image = result
+        .motor_image(&told(motor), motor.mass_kg, motor.viscous_n_s_per_m, COMMISSIONING_PERIOD_S)
+        .map_err(|e| IdentifyError::Setup(format!("identified motor refused for the image: {e}")))?;
+    let bytes = image.encode();
+    MotorImage::decode(&bytes).map_err(|e| IdentifyError::Setup(format!("encoded image: {e}")))?;
+    Ok(bytes)
+}
+
+/// The PWM period the commissioning runs at (`DriveConfig::for_motor`'s), s.
+pub const COMMISSIONING_PERIOD_S: f32 = 1e-4;
 
 /// The one-line JSON object of `--json`.
 pub fn json_line(r: &IdentifyReport) -> String {
@@ -352,14 +491,14 @@ pub fn steady_row(seed: u64) -> Result<SteadyRow, IdentifyError> {
 // ---- The command.
 
 /// Where `dcfo identify` runs the commissioning.
-#[derive(Debug, Clone, PartialEq, Eq)]
+#[derive(Debug, Clone)]
 pub enum Where {
-    /// In this process, against the simulated plant of the motor.
+    /// In this process (`Drive<f32>`), against the simulated plant of the motor.
     Sim,
-    /// The firmware under QEMU (not implemented: exit status 2).
-    Qemu,
-    /// A board on this serial port (not implemented: exit status 2).
-    Port(String),
+    /// On the firmware behind the lock-step HIL link, against the same simulated plant:
+    /// the HIL image on QEMU ([`crate::target::Target::Qemu`]: f32 on the M4F, Q8.24 on
+    /// the M3) or a board running it on a serial port.
+    Link(crate::target::Target),
     /// Not said (an error).
     Unsaid,
 }
@@ -375,6 +514,12 @@ pub struct Params {
     pub seed: u64,
     /// Write the identified motor (shared motor-file format) to this file.
     pub output: Option<std::path::PathBuf>,
+    /// Write the identified motor, the nominal bus and the identified inverter
+    /// compensation as a motor image (the board's flash record) to this file.
+    pub image: Option<std::path::PathBuf>,
+    /// Over the link: also run the commissioning in this process with the firmware's
+    /// numeric type and require the results to be identical bit for bit.
+    pub check: bool,
     /// Print one JSON object on the last line of stdout.
     pub json: bool,
     /// Instead: the light-load steady angle error (electrical degrees) over this many
@@ -382,23 +527,88 @@ pub struct Params {
     pub steady_seeds: Option<u64>,
 }
 
+/// A commissioning on the firmware behind the link ([`identify_over_link`]).
+#[derive(Debug)]
+pub struct OverLink {
+    /// What it identified, against the plant's truth.
+    pub report: IdentifyReport,
+    /// Wall time from the link's start (QEMU's boot included) to the result, s.
+    pub wall_s: f64,
+    /// On QEMU: the firmware's deepest stack since boot, bytes (the drive it builds on
+    /// the start request is built in the receive interrupt).
+    pub stack_high_water_bytes: Option<u32>,
+}
+
+/// The commissioning on the firmware behind the link at `target`.
+///
+/// # Errors
+/// QEMU or the port cannot be started or opened, the link fails, or the commissioning
+/// stops with a named error.
+pub fn identify_over_link(
+    name: &str,
+    motor: &MotorParams,
+    seed: u64,
+    target: &crate::target::Target,
+) -> anyhow::Result<OverLink> {
+    use crate::target::Target;
+    let started = std::time::Instant::now();
+    let report = match target {
+        Target::Qemu { cpu, elf } => {
+            let workspace = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+                .parent()
+                .unwrap_or(std::path::Path::new("."));
+            let elf = match elf {
+                Some(e) => e.clone(),
+                None => crate::hil::build_qemu_firmware(workspace, *cpu)?,
+            };
+            let started_qemu = std::time::Instant::now();
+            let (session, mut link) = crate::hil::QemuSession::start(&elf, *cpu)?;
+            let report = identify_with(name, motor, seed, PlantFault::None, &mut link)?;
+            let wall_s = started_qemu.elapsed().as_secs_f64();
+            let stack_high_water_bytes = session.stack_high_water().ok();
+            return Ok(OverLink { report, wall_s, stack_high_water_bytes });
+        }
+        Target::Port { device, baud } => {
+            let (serial, reader) = crate::target::open_serial(device, *baud)?;
+            let mut link = crate::hil::SerialController::new(serial, reader);
+            identify_with(name, motor, seed, PlantFault::None, &mut link)?
+        }
+    };
+    Ok(OverLink { report, wall_s: started.elapsed().as_secs_f64(), stack_high_water_bytes: None })
+}
+
+/// `true` when two results are the same bit for bit (every `f32`, the curve, the
+/// direction).
+pub fn identical(a: &CommissioningResult, b: &CommissioningResult) -> bool {
+    let bits = |r: &CommissioningResult| {
+        let mut v = vec![
+            r.rs_ohm,
+            r.ld_h,
+            r.lq_h,
+            r.psi_f_wb,
+            r.voltage_error_v,
+            r.current_band_a,
+            r.bus_v,
+            r.duration_s,
+        ];
+        v.extend(r.curve.iter().flat_map(|p| [p.current_a, p.error_v]));
+        (v.into_iter().map(f32::to_bits).collect::<Vec<_>>(), r.direction)
+    };
+    bits(a) == bits(b)
+}
+
 /// `dcfo identify`: runs the commissioning (or the steady-error comparison) and prints
-/// the table; exit status 2 for a place that is not implemented.
+/// the table; writes the motor file and the motor image only from a finished
+/// commissioning.
 pub fn run_command(params: &Params) -> anyhow::Result<std::process::ExitCode> {
     use anyhow::Context;
     use std::process::ExitCode;
-    match params.place {
-        Where::Qemu | Where::Port(_) => {
-            eprintln!(
-                "dcfo identify: --qemu and --port are not implemented yet (the firmware images do \
-                 not run commissioning over the link); use --sim"
-            );
-            return Ok(ExitCode::from(2));
+    match (&params.place, params.steady_seeds) {
+        (Where::Unsaid, _) => {
+            anyhow::bail!("identify: say where to run the commissioning: --sim, --qemu or --port DEVICE")
         }
-        Where::Unsaid => {
-            anyhow::bail!("identify: say where to run the commissioning: --sim (or --qemu, --port)")
-        }
-        Where::Sim => {}
+        (Where::Link(_), Some(_)) => anyhow::bail!("identify: --steady runs in process only (--sim)"),
+        _ => {}
     }
     if let Some(seeds) = params.steady_seeds {
         let median = |mut v: Vec<f64>| -> String {
@@ -446,11 +656,54 @@ pub fn run_command(params: &Params) -> anyhow::Result<std::process::ExitCode> {
         return Ok(ExitCode::SUCCESS);
     }
     let motor = crate::motor_file::load_motor(&params.motor)?;
-    let report = identify(&params.motor, &motor.params, params.seed, Default::default())
-        .map_err(|e| anyhow::anyhow!("identify {}: {e}", params.motor))?;
+    let report = match &params.place {
+        Where::Link(target) => {
+            let OverLink { report, wall_s, stack_high_water_bytes } =
+                identify_over_link(&params.motor, &motor.params, params.seed, target)
+                    .map_err(|e| anyhow::anyhow!("identify {}: {e}", params.motor))?;
+            println!("commissioning over the HIL link took {wall_s:.1} s of wall time");
+            if let Some(bytes) = stack_high_water_bytes {
+                println!("deepest stack of the firmware since boot: {bytes} bytes");
+            }
+            if params.check {
+                let local = match target.qemu_cpu() {
+                    Some(crate::qemu::QemuCpu::M3) => identify_with(
+                        &params.motor,
+                        &motor.params,
+                        params.seed,
+                        PlantFault::None,
+                        &mut InProcess::q24(),
+                    ),
+                    // A board on a serial port runs the f32 firmware.
+                    _ => identify(&params.motor, &motor.params, params.seed, PlantFault::None),
+                }
+                .map_err(|e| anyhow::anyhow!("identify {} in process: {e}", params.motor))?;
+                let same = match (&report.result, &local.result) {
+                    (Some(a), Some(b)) => identical(a, b),
+                    _ => false,
+                };
+                anyhow::ensure!(same, "the firmware's results differ from the in-process run's");
+                println!("identical bit for bit to the in-process run of the same numeric type");
+            }
+            report
+        }
+        _ => identify(&params.motor, &motor.params, params.seed, Default::default())
+            .map_err(|e| anyhow::anyhow!("identify {}: {e}", params.motor))?,
+    };
+    // Both files come from a finished commissioning only (an error returned above).
     if let Some(path) = &params.output {
         let text = motor_toml(&report, &motor.params)?;
         std::fs::write(path, text).with_context(|| format!("writing {}", path.display()))?;
+    }
+    if let Some(path) = &params.image {
+        let bytes = motor_image(&report, &motor.params)?;
+        std::fs::write(path, bytes).with_context(|| format!("writing {}", path.display()))?;
+        println!(
+            "motor image (version {}): {} bytes in {}",
+            MotorImage::VERSION,
+            bytes.len(),
+            path.display()
+        );
     }
     print!("{}", table(&report));
     if params.json {

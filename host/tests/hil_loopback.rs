@@ -4,7 +4,7 @@
 //! run's angle estimates bit for bit, and survive a noisy line.
 
 use dcfo::drive::Drive;
-use dcfo::link::{ActuationFrame, LinkServer};
+use dcfo::link::LinkServer;
 use dcfo::observer::ObserverKind;
 use dcfo::units::Base;
 use dcfo_host::hil::{SerialController, compare_runs};
@@ -18,7 +18,7 @@ use std::os::unix::net::UnixStream;
 fn fake_firmware(mut stream: UnixStream, setup: Setup, noise: &'static [u8], mut booting: usize) {
     let mut drive: Drive<f32> = Drive::new(&setup.motor, &setup.drive, &Base::SI).expect("drive");
     let mut server = LinkServer::new();
-    let mut out = [0u8; ActuationFrame::WIRE_LEN];
+    let mut out = [0u8; LinkServer::REPLY_LEN];
     let mut buf = [0u8; 256];
     loop {
         let n = match stream.read(&mut buf) {

@@ -1,5 +1,10 @@
 //! `dcfo identify`: the drive's commissioning on the simulated plant, against the plant's
-//! truth (the issue's floors), the refusals of motors that are not motors, and the CLI.
+//! truth (the issue's floors), the refusals of motors that are not motors, the CLI, and
+//! the firmware's commissioning through the HIL link on QEMU (`identify --qemu`): equal
+//! to the in-process run of the same numeric type bit for bit, within the floors.
+//!
+//! The QEMU tests skip with a message when `qemu-system-arm` or a thumb target is
+//! missing, unless `DCFO_REQUIRE_QEMU=1` (CI sets it), which turns a skip into a failure.
 
 use dcfo::drive::CommissioningError;
 use dcfo::motor::MotorParams;
@@ -96,9 +101,12 @@ fn cli_writes_the_motor_file_and_one_json_object_last() {
     let dir = std::env::temp_dir().join(format!("dcfo-identify-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let out_file = dir.join("paper-identified.toml");
+    let image_file = dir.join("paper-identified.bin");
     let out = std::process::Command::new(env!("CARGO_BIN_EXE_dcfo"))
         .args(["identify", "--sim", "--motor", "paper", "--json", "-o"])
         .arg(&out_file)
+        .arg("--image")
+        .arg(&image_file)
         .output()
         .unwrap();
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
@@ -112,10 +120,129 @@ fn cli_writes_the_motor_file_and_one_json_object_last() {
     }
     let back = parse_motor_toml(&std::fs::read_to_string(&out_file).unwrap(), "f").unwrap();
     assert_eq!(f64::from(back.params.psi_f_wb), v["psi_f_wb"]["identified"].as_f64().unwrap());
-    // A run on hardware is not there yet: a clear refusal, status 2.
-    let out =
-        std::process::Command::new(env!("CARGO_BIN_EXE_dcfo")).args(["identify", "--qemu"]).output().unwrap();
-    assert_eq!(out.status.code(), Some(2));
-    assert!(String::from_utf8_lossy(&out.stderr).contains("not implemented"));
+    let image = dcfo::motor_image::MotorImage::decode(&std::fs::read(&image_file).unwrap()).unwrap();
+    assert_eq!(image.motor.psi_f_wb, back.params.psi_f_wb);
+    assert!(image.compensation.is_some());
+    // Where to run it must be said; --steady runs in process only.
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_dcfo")).args(["identify"]).output().unwrap();
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("--sim, --qemu or --port"));
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_dcfo"))
+        .args(["identify", "--qemu", "--steady", "1"])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("in process only"));
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+/// The HIL firmware for `cpu`, or `None` (after saying why) when the test must skip.
+fn firmware(cpu: dcfo_host::qemu::QemuCpu) -> Option<std::path::PathBuf> {
+    if let Some(why) = dcfo_host::qemu::missing_tools(cpu) {
+        assert!(std::env::var("DCFO_REQUIRE_QEMU").as_deref() != Ok("1"), "QEMU HIL required: {why}");
+        println!("skipped: {why}");
+        return None;
+    }
+    let workspace =
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).parent().expect("workspace root").to_path_buf();
+    Some(dcfo_host::hil::build_qemu_firmware(&workspace, cpu).expect("firmware builds"))
+}
+
+/// The firmware's commissioning on QEMU through the HIL link, against the in-process run
+/// of the same numeric type (bit for bit) and the plant's truth (the floors).
+fn commissioning_through_qemu(cpu: dcfo_host::qemu::QemuCpu) {
+    use dcfo_host::identify::{InProcess, identical, identify_over_link, identify_with};
+    use dcfo_host::qemu::QemuCpu;
+    let Some(elf) = firmware(cpu) else { return };
+    let m = motor("paper");
+    let target = dcfo_host::target::Target::Qemu { cpu, elf: Some(elf) };
+    let run = identify_over_link("paper", &m, 1, &target).expect("commissioning over the link");
+    let over_link = run.report;
+    let stack = run.stack_high_water_bytes.expect("stack high-water mark");
+    println!(
+        "QEMU {cpu:?}: commissioning took {:.1} s of wall time; deepest stack {stack} bytes",
+        run.wall_s
+    );
+    // The start request builds the told drive in the receive interrupt (README, stack
+    // figures): measured 11,704 B (M3) and 11,804 B (M4F), against 992 and 2,496 B for
+    // the steady scenario (host/tests/qemu_hil.rs, budget 4,096 B). A budget that
+    // catches growth beyond that.
+    assert!(
+        stack <= COMMISSIONING_STACK_BUDGET_BYTES,
+        "{stack} bytes of stack, budget {COMMISSIONING_STACK_BUDGET_BYTES}"
+    );
+    let local = match cpu {
+        QemuCpu::M4f => identify_with("paper", &m, 1, PlantFault::None, &mut InProcess::f32()),
+        QemuCpu::M3 => identify_with("paper", &m, 1, PlantFault::None, &mut InProcess::q24()),
+    }
+    .expect("in-process commissioning");
+    let (a, b) = (over_link.result.expect("a result"), local.result.expect("a result"));
+    assert!(identical(&a, &b), "firmware {a:?}\nin process {b:?}");
+    check_floors(&over_link);
+}
+
+/// The deepest stack the HIL image may use with a commissioning (bytes): see
+/// `commissioning_through_qemu`.
+const COMMISSIONING_STACK_BUDGET_BYTES: u32 = 12_288;
+
+#[test]
+fn m4f_f32_commissioning_through_qemu_equals_the_host_bit_for_bit() {
+    commissioning_through_qemu(dcfo_host::qemu::QemuCpu::M4f);
+}
+
+#[test]
+fn m3_fixed_point_commissioning_through_qemu_equals_the_host_bit_for_bit() {
+    commissioning_through_qemu(dcfo_host::qemu::QemuCpu::M3);
+}
+
+#[test]
+fn the_motor_image_carries_the_identified_motor_and_compensation() {
+    use dcfo::motor_image::MotorImage;
+    let m = motor("paper");
+    let r = identify("paper", &m, 1, PlantFault::None).unwrap();
+    let bytes = dcfo_host::identify::motor_image(&r, &m).unwrap();
+    let image = MotorImage::decode(&bytes).unwrap();
+    let result = r.result.unwrap();
+    assert_eq!(
+        (image.motor.rs_ohm, image.motor.ld_h, image.motor.lq_h, image.motor.psi_f_wb),
+        (result.rs_ohm, result.ld_h, result.lq_h, result.psi_f_wb)
+    );
+    assert_eq!(image.bus_v, dcfo_host::identify::told(&m).bus_v);
+    let c = image.compensation.expect("the identified compensation");
+    assert_eq!(c, result.dead_time_compensation(1e-4));
+    // As a voltage at the commissioning's bus and 100 us period it is the identified
+    // error, which is within 10 % of the plant's (checked by the floors above).
+    let volts = f64::from(c.dead_time_s) / 1e-4 * f64::from(result.bus_v);
+    assert!((volts - r.voltage_error_v.identified).abs() < 1e-5 * volts, "{volts}");
+    assert!(r.voltage_error_v.err_pct.abs() <= 10.0);
+}
+
+#[test]
+fn a_failed_commissioning_writes_no_files() {
+    let dir = std::env::temp_dir().join(format!("dcfo-identify-fail-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    // A winding of 100 ohm on a motor rated 1 A at 48 V: half the rated peak current
+    // needs more voltage than the bus gives, so the alignment stops (open phase).
+    let bad = dir.join("bad.toml");
+    std::fs::write(
+        &bad,
+        "name = \"bad\"\nrs_ohm = 100.0\nld_h = 0.01\nlq_h = 0.01\npsi_f_wb = 0.1\npole_pitch_m = 0.02\n\
+         rated_current_a = 1.0\nrated_voltage_v = 48.0\n",
+    )
+    .unwrap();
+    let (toml, image) = (dir.join("m.toml"), dir.join("m.bin"));
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_dcfo"))
+        .args(["identify", "--sim", "--motor"])
+        .arg(&bad)
+        .arg("-o")
+        .arg(&toml)
+        .arg("--image")
+        .arg(&image)
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(stderr.contains("commissioning stopped"), "{stderr}");
+    assert!(!toml.exists() && !image.exists());
     std::fs::remove_dir_all(&dir).ok();
 }

@@ -275,18 +275,22 @@ impl CommissioningResult {
 
 impl CommissioningResult {
     /// The identified motor as the board's flash record ([`crate::motor_image`]): the
-    /// motor of [`Self::motor`] and the nominal bus commissioning was told. The inverter
-    /// compensation has no field in image version 1 and is not stored.
+    /// motor of [`Self::motor`], the nominal bus commissioning was told, and the
+    /// identified inverter compensation ([`Self::dead_time_compensation`] at
+    /// `control_period_s`, the PWM period commissioning ran at: the error as a dead time,
+    /// which a drive at another period scales with its own).
     pub fn motor_image(
         &self,
         config: &CommissioningConfig,
         mass_kg: f32,
         viscous_n_s_per_m: f32,
+        control_period_s: f32,
     ) -> Result<crate::motor_image::MotorImage, crate::motor_image::MotorImageError> {
         let motor = self
             .motor(config, mass_kg, viscous_n_s_per_m)
             .map_err(crate::motor_image::MotorImageError::Param)?;
-        crate::motor_image::MotorImage::new(motor, config.bus_v)
+        crate::motor_image::MotorImage::new(motor, config.bus_v)?
+            .with_compensation(self.dead_time_compensation(control_period_s))
     }
 }
 

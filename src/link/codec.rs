@@ -14,6 +14,8 @@ use super::session::LinkStats;
 /// Capacity of a [`Receiver`]'s buffer (bytes): the largest COBS-encoded frame, the
 /// [`ActuationFrame`], without its delimiter. A longer frame is reported as
 /// [`LinkError::Overflow`].
+/// (The [`CommissioningReport`](super::CommissioningReport) is longer: the host, which
+/// receives it, decodes it with [`decode_in_place`] from a buffer of its own.)
 pub const RX_CAPACITY: usize = ActuationFrame::WIRE_LEN - 1;
 
 /// The largest raw frame (payload + CRC, bytes): the board link's capture chunk.
@@ -267,13 +269,42 @@ impl<F: Frame> Receiver<F> {
     /// [`stats`](Self::stats). An overflow is reported at the byte that overflows; the
     /// rest of that frame is skipped silently up to the next `0x00`.
     pub fn push(&mut self, byte: u8) -> Option<Result<F, LinkError>> {
+        let n = match self.take(byte)? {
+            Ok(n) => n,
+            Err(e) => return Some(Err(e)),
+        };
+        let result = self.buf.get(..n).ok_or(LinkError::Cobs).and_then(decode_raw::<F>);
+        if let Err(e) = result {
+            self.stats.record(e);
+        }
+        Some(result)
+    }
+
+    /// Takes one byte from the line like [`push`](Self::push), but at a delimiter
+    /// returns the raw frame (COBS removed: payload and CRC, not yet checked) for the
+    /// caller to decode as the frame type its length names ([`decode_raw`]): the
+    /// controller receives [`SensorFrame`](super::SensorFrame)s and
+    /// [`CommissioningRequest`](super::CommissioningRequest)s on one line. Only COBS
+    /// and overflow errors are counted here; count the decoding's with
+    /// [`stats_mut`](Self::stats_mut) ([`LinkStats::record`]).
+    pub fn push_raw(&mut self, byte: u8) -> Option<Result<&[u8], LinkError>> {
+        match self.take(byte)? {
+            Ok(n) => Some(self.buf.get(..n).ok_or(LinkError::Cobs)),
+            Err(e) => Some(Err(e)),
+        }
+    }
+
+    /// The byte-level work of [`push`](Self::push): at a delimiter the COBS-decoded
+    /// frame's length (the raw frame is then in `buf[..n]`) or the COBS or overflow
+    /// error, counted here.
+    fn take(&mut self, byte: u8) -> Option<Result<usize, LinkError>> {
         if byte == 0 {
             let len = core::mem::take(&mut self.len);
             if core::mem::take(&mut self.skipping) || len == 0 {
                 return None;
             }
             let result = match self.buf.get_mut(..len) {
-                Some(encoded) => decode_in_place::<F>(encoded),
+                Some(encoded) => cobs::decode_in_place(encoded).ok_or(LinkError::Cobs),
                 None => Err(LinkError::Overflow),
             };
             if let Err(e) = result {

@@ -7,8 +7,10 @@ use super::session::LinkStats;
 use crate::motion::Move;
 
 /// The protocol version carried in byte 0 of every frame; any other value is rejected.
+///
 /// Version 2 (from 1) added the move command to [`SensorFrame`], the position report to
-/// [`ActuationFrame`], and the format of the drive's own words to the board link's
+/// [`ActuationFrame`], the commissioning frames ([`CommissioningRequest`],
+/// [`CommissioningReport`]), and the format of the drive's own words to the board link's
 /// [`CaptureChunk`](super::board::CaptureChunk) (1: SI `f32` converted on the target).
 pub const PROTOCOL_VERSION: u8 = 2;
 
@@ -54,6 +56,8 @@ mod private {
     pub trait Sealed {}
     impl Sealed for super::SensorFrame {}
     impl Sealed for super::ActuationFrame {}
+    impl Sealed for super::CommissioningRequest {}
+    impl Sealed for super::CommissioningReport {}
     impl Sealed for super::super::board::BoardCommand {}
     impl Sealed for super::super::board::BoardTelemetry {}
     impl Sealed for super::super::board::CaptureChunk {}
@@ -386,5 +390,251 @@ impl Frame for ActuationFrame {
             stats,
             position,
         })
+    }
+}
+
+/// [`CommissioningRequest`] action: only report the commissioning's status.
+pub const COMMISSIONING_QUERY: u8 = 0;
+/// [`CommissioningRequest`] action: start commissioning with the request's settings.
+pub const COMMISSIONING_START: u8 = 1;
+
+/// Host → controller, outside the control periods: start commissioning, or ask how it
+/// stands. Answered by one [`CommissioningReport`] with the same sequence number. Its
+/// sequence number is the requester's own (echoed, not checked against the sensor
+/// frames'); the drive does not step on it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct CommissioningRequest {
+    /// Sequence number, echoed in the report.
+    pub sequence: u16,
+    /// `Some(settings)`: start commissioning with what the drive is told (ratings, bus,
+    /// pole pitch; SI, each finite); `None`: a query.
+    pub start: Option<crate::drive::CommissioningConfig>,
+}
+
+impl CommissioningRequest {
+    /// Payload length (bytes).
+    pub const PAYLOAD_LEN: usize = 20;
+    /// Raw length (bytes): payload and CRC.
+    pub const RAW_LEN: usize = Self::PAYLOAD_LEN + CRC_LEN;
+    /// Length on the wire (bytes).
+    pub const WIRE_LEN: usize = wire_len(Self::RAW_LEN);
+}
+
+impl Frame for CommissioningRequest {
+    const PAYLOAD_LEN: usize = CommissioningRequest::PAYLOAD_LEN;
+
+    fn write_payload(&self, payload: &mut [u8]) -> Result<(), EncodeError> {
+        let (action, values) = match self.start {
+            Some(c) => (COMMISSIONING_START, [c.rated_current_a, c.rated_voltage_v, c.bus_v, c.pole_pitch_m]),
+            None => (COMMISSIONING_QUERY, [0.0; 4]),
+        };
+        if !values.iter().all(|x| x.is_finite()) {
+            return Err(EncodeError::InvalidValue);
+        }
+        let mut w = Writer::new(payload);
+        w.u8(PROTOCOL_VERSION);
+        w.u16(self.sequence);
+        w.u8(action);
+        for x in values {
+            w.f32(x);
+        }
+        w.finish(Self::PAYLOAD_LEN)
+    }
+
+    fn read_payload(payload: &[u8]) -> Result<Self, LinkError> {
+        let mut r = Reader::new(payload, Self::PAYLOAD_LEN)?;
+        r.version()?;
+        let sequence = r.u16();
+        let action = r.u8();
+        let values = [r.finite_f32()?, r.finite_f32()?, r.finite_f32()?, r.finite_f32()?];
+        let start = match action {
+            COMMISSIONING_START => Some(crate::drive::CommissioningConfig {
+                rated_current_a: values[0],
+                rated_voltage_v: values[1],
+                bus_v: values[2],
+                pole_pitch_m: values[3],
+            }),
+            COMMISSIONING_QUERY if values == [0.0; 4] => None,
+            COMMISSIONING_QUERY => return Err(LinkError::Value),
+            _ => return Err(LinkError::Flags),
+        };
+        Ok(CommissioningRequest { sequence, start })
+    }
+}
+
+/// Where commissioning stands, as a [`CommissioningReport`] tells it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum CommissioningStatus {
+    /// None has run since the drive was built (code 0).
+    Idle,
+    /// Requested or under way (code 1).
+    Running,
+    /// Finished: the report carries the result (code 2).
+    Done,
+    /// Stopped with an error, bridge off (code 3).
+    Failed,
+    /// This start request was refused (e.g. the drive was not disabled); an earlier
+    /// commissioning, if any, is untouched (code 4).
+    Refused,
+}
+
+impl CommissioningStatus {
+    /// The status's code on the wire.
+    pub const fn code(self) -> u8 {
+        match self {
+            CommissioningStatus::Idle => 0,
+            CommissioningStatus::Running => 1,
+            CommissioningStatus::Done => 2,
+            CommissioningStatus::Failed => 3,
+            CommissioningStatus::Refused => 4,
+        }
+    }
+
+    /// The status of `code`, `None` for an unknown code.
+    pub const fn from_code(code: u8) -> Option<Self> {
+        match code {
+            0 => Some(CommissioningStatus::Idle),
+            1 => Some(CommissioningStatus::Running),
+            2 => Some(CommissioningStatus::Done),
+            3 => Some(CommissioningStatus::Failed),
+            4 => Some(CommissioningStatus::Refused),
+            _ => None,
+        }
+    }
+
+    /// `true` for the statuses that carry an error code (failed, refused).
+    pub const fn has_error(self) -> bool {
+        matches!(self, CommissioningStatus::Failed | CommissioningStatus::Refused)
+    }
+}
+
+/// Error codes a [`CommissioningReport`] carries are `1..=COMMISSIONING_ERROR_CODES` (0:
+/// none); the drive adapter maps them to and from `CommissioningError`.
+pub const COMMISSIONING_ERROR_CODES: u8 = 9;
+
+/// Controller → host, the answer to one [`CommissioningRequest`]: the commissioning's
+/// status and, once done, its result (SI, exactly the drive's `f32` values).
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct CommissioningReport {
+    /// Sequence number of the request this answers.
+    pub sequence: u16,
+    /// Where commissioning stands.
+    pub status: CommissioningStatus,
+    /// With [`CommissioningStatus::Failed`] or [`CommissioningStatus::Refused`]: why,
+    /// `1..=`[`COMMISSIONING_ERROR_CODES`] (the drive adapter converts:
+    /// `CommissioningReport::error`); else 0.
+    pub error_code: u8,
+    /// With error code 9 (a fault of the drive's own): its fault bits; else 0.
+    pub error_detail: u16,
+    /// With [`CommissioningStatus::Done`]: the result; else `None`.
+    pub result: Option<crate::drive::CommissioningResult>,
+}
+
+/// Points of the voltage-error curve a [`CommissioningReport`] carries.
+const CURVE_POINTS: usize = crate::drive::SWEEP_LEVELS;
+
+impl CommissioningReport {
+    /// Payload length (bytes).
+    pub const PAYLOAD_LEN: usize = 8 + 4 * 8 + 8 * CURVE_POINTS;
+    /// Raw length (bytes): payload and CRC.
+    pub const RAW_LEN: usize = Self::PAYLOAD_LEN + CRC_LEN;
+    /// Length on the wire (bytes).
+    pub const WIRE_LEN: usize = wire_len(Self::RAW_LEN);
+
+    fn valid(&self) -> bool {
+        let error_ok = if self.status.has_error() {
+            (1..=COMMISSIONING_ERROR_CODES).contains(&self.error_code)
+        } else {
+            self.error_code == 0
+        };
+        let detail_ok = self.error_code == COMMISSIONING_ERROR_CODES || self.error_detail == 0;
+        let result_ok = match (self.status, &self.result) {
+            (CommissioningStatus::Done, Some(r)) => {
+                result_values(r).iter().all(|x| x.is_finite())
+                    && r.curve.iter().all(|p| p.current_a.is_finite() && p.error_v.is_finite())
+            }
+            (CommissioningStatus::Done, None) => false,
+            (_, r) => r.is_none(),
+        };
+        error_ok && detail_ok && result_ok
+    }
+}
+
+fn result_values(r: &crate::drive::CommissioningResult) -> [f32; 8] {
+    [r.rs_ohm, r.ld_h, r.lq_h, r.psi_f_wb, r.voltage_error_v, r.current_band_a, r.bus_v, r.duration_s]
+}
+
+impl Frame for CommissioningReport {
+    const PAYLOAD_LEN: usize = CommissioningReport::PAYLOAD_LEN;
+
+    fn write_payload(&self, payload: &mut [u8]) -> Result<(), EncodeError> {
+        if !self.valid() {
+            return Err(EncodeError::InvalidValue);
+        }
+        let mut w = Writer::new(payload);
+        w.u8(PROTOCOL_VERSION);
+        w.u16(self.sequence);
+        w.u8(self.status.code());
+        w.u8(self.error_code);
+        w.u16(self.error_detail);
+        match &self.result {
+            Some(r) => {
+                w.u8(r.direction.to_le_bytes()[0]);
+                for x in result_values(r) {
+                    w.f32(x);
+                }
+                for p in &r.curve {
+                    w.f32(p.current_a);
+                    w.f32(p.error_v);
+                }
+            }
+            None => w.bytes(&[0; Self::PAYLOAD_LEN - 7]),
+        }
+        w.finish(Self::PAYLOAD_LEN)
+    }
+
+    fn read_payload(payload: &[u8]) -> Result<Self, LinkError> {
+        let mut r = Reader::new(payload, Self::PAYLOAD_LEN)?;
+        r.version()?;
+        let sequence = r.u16();
+        let status = CommissioningStatus::from_code(r.u8()).ok_or(LinkError::Value)?;
+        let error_code = r.u8();
+        let error_detail = r.u16();
+        let result_bytes = r.bytes::<{ CommissioningReport::PAYLOAD_LEN - 7 }>();
+        let result = if status == CommissioningStatus::Done {
+            let mut v = Reader::new(&result_bytes, Self::PAYLOAD_LEN - 7)?;
+            let direction = i8::from_le_bytes([v.u8()]);
+            let mut values = [0.0f32; 8];
+            for x in &mut values {
+                *x = v.finite_f32()?;
+            }
+            let mut curve = [crate::drive::VoltageErrorPoint::default(); CURVE_POINTS];
+            for p in &mut curve {
+                p.current_a = v.finite_f32()?;
+                p.error_v = v.finite_f32()?;
+            }
+            let [rs_ohm, ld_h, lq_h, psi_f_wb, voltage_error_v, current_band_a, bus_v, duration_s] = values;
+            Some(crate::drive::CommissioningResult {
+                rs_ohm,
+                ld_h,
+                lq_h,
+                psi_f_wb,
+                voltage_error_v,
+                current_band_a,
+                bus_v,
+                curve,
+                direction,
+                duration_s,
+            })
+        } else if result_bytes.iter().any(|&b| b != 0) {
+            return Err(LinkError::Value);
+        } else {
+            None
+        };
+        let report = CommissioningReport { sequence, status, error_code, error_detail, result };
+        if report.valid() { Ok(report) } else { Err(LinkError::Value) }
     }
 }

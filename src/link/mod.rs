@@ -3,7 +3,12 @@
 //!
 //! The link runs in lock-step. Each PWM period the host (the simulated plant) sends a
 //! [`SensorFrame`]; the controller runs one [`Drive::step`](crate::drive::Drive::step) and answers with an
-//! [`ActuationFrame`] that echoes the sensor frame's sequence number.
+//! [`ActuationFrame`] that echoes the sensor frame's sequence number. Between periods
+//! the host may send a [`CommissioningRequest`] (start the drive's commissioning with
+//! the ratings, bus and pole pitch it is told, or ask how it stands); the controller
+//! answers with a [`CommissioningReport`] (status, error, and once done the identified
+//! values) and does not step. The controller tells the two frames it receives apart by
+//! their length.
 //!
 //! ## Framing
 //! `frame = COBS(payload ‖ CRC) ‖ 0x00`. COBS removes every `0x00` from the frame, so
@@ -15,10 +20,11 @@
 //!
 //! **CRC-16/IBM-3740** (often called CRC-16/CCITT-FALSE: polynomial `0x1021`, initial
 //! value `0xFFFF`, no reflection, no final XOR; check value `0x29B1`), over the payload,
-//! sent little-endian. For frames this short (at most 58 bytes, 464 bits) the polynomial
+//! sent little-endian. For the lock-step frames (at most 138 raw bytes, 1,104 bits) the polynomial
 //! has Hamming distance 4: every error of 1, 2 or 3 bits, every odd number of flipped
 //! bits and every burst up to 16 bits is caught, and a random corruption that survives
-//! COBS and the exact length check passes with probability 2⁻¹⁶. CRC-32 would catch more
+//! COBS and the exact length check passes with probability 2⁻¹⁶ (0x1021 keeps distance
+//! 4 up to 32,751 bits, far beyond any frame here). CRC-32 would catch more
 //! but costs two more bytes on every frame of a link whose budget is bandwidth (see
 //! below); the non-zero initial value makes leading zero bytes count.
 //!
@@ -34,6 +40,8 @@
 //! |---|---|---|---|
 //! | [`SensorFrame`] | 32 B | 34 B | 36 B |
 //! | [`ActuationFrame`] | 56 B | 58 B | 60 B |
+//! | [`CommissioningRequest`] | 20 B | 22 B | 24 B |
+//! | [`CommissioningReport`] | 136 B | 138 B | 140 B |
 //! | [`board::BoardCommand`] | 12 B | 14 B | 16 B |
 //! | [`board::BoardTelemetry`] | 44 B | 46 B | 48 B |
 //! | [`board::CaptureChunk`] | 225 B | 227 B | 229 B |
@@ -89,11 +97,43 @@
 //! [`PositionReport`] (a speed drive) the five position fields are, and the idle flag is
 //! clear.
 //!
+//! [`CommissioningRequest`] payload (since version 2):
+//!
+//! | offset | type | field |
+//! |---|---|---|
+//! | 0 | u8 | protocol version |
+//! | 1 | u16 | sequence number (the requester's, echoed; not a control period's) |
+//! | 3 | u8 | action: [`COMMISSIONING_QUERY`] (0) or [`COMMISSIONING_START`] (1) |
+//! | 4, 8 | f32 | rated current (A RMS), rated line voltage (V RMS) |
+//! | 12, 16 | f32 | nominal DC bus (V), pole pitch (m) |
+//!
+//! A query sends the four values as zero bytes.
+//!
+//! [`CommissioningReport`] payload (since version 2):
+//!
+//! | offset | type | field |
+//! |---|---|---|
+//! | 0 | u8 | protocol version |
+//! | 1 | u16 | sequence number (echo of the request's) |
+//! | 3 | u8 | status code ([`CommissioningStatus::code`]: idle, running, done, failed, refused) |
+//! | 4 | u8 | error code, `1..=`[`COMMISSIONING_ERROR_CODES`] when failed or refused, else 0 |
+//! | 5 | u16 | error detail: the drive's fault bits for error 9 (a fault of its own), else 0 |
+//! | 7 | i8 | direction (+1) |
+//! | 8, 12, 16, 20 | f32 | R (ohm, terminal), Ld (H), Lq (H), ψ_f (Wb) |
+//! | 24, 28 | f32 | inverter voltage error (V per phase), its current band (A) |
+//! | 32, 36 | f32 | mean bus during the sweep (V), commissioning time (s) |
+//! | 40 + 8k, 44 + 8k | f32 | voltage-error curve point k = 0..12: current (A), error (V) |
+//!
+//! Unless done, bytes 7.. are zero. Error codes: 1 a bad setting (its name stays on the
+//! controller), 2 bus out of range, 3 non-finite measurement, 4 open phase, 5 shorted
+//! phase, 6 runaway current, 7 no back-EMF, 8 not a motor, 9 a fault of the drive.
+//!
 //! ## Rejected frames
-//! A frame is checked in this order: COBS, length, CRC, version, flags (unknown bits are
-//! an error), values (every `f32` finite, duties in `[0, 1]`, a known state code, zero
-//! bytes in the move, estimate and position fields whose flag is clear, no idle flag
-//! without the position flag). A
+//! A frame is checked in this order: COBS, length, CRC, version, flags (unknown bits or
+//! an unknown commissioning action are an error), values (every `f32` finite, duties in
+//! `[0, 1]`, a known state or status code, an error code that fits the status, zero
+//! bytes in the move, estimate and position fields whose flag is clear and wherever a
+//! field is absent, no idle flag without the position flag). A
 //! failure at the CRC is counted as *bad CRC*, every other failure (including a frame
 //! longer than the receive buffer) as *malformed*; see [`LinkStats`]. Encoding refuses
 //! the same values, so a frame that was sent is never rejected for its content.
@@ -156,11 +196,14 @@ pub mod frame;
 pub mod session;
 
 pub use codec::{EncodeError, LinkError, RX_CAPACITY, Receiver, decode_in_place, decode_raw, encode};
+pub use drive_adapter::BAD_SETTING_OVER_THE_LINK;
 pub use drive_adapter::LinkServer;
 pub use frame::{
     ACTUATION_FLAG_BRIDGE_ENABLED, ACTUATION_FLAG_ESTIMATE_VALID, ACTUATION_FLAG_MOTION_IDLE,
-    ACTUATION_FLAG_POSITION_VALID, ActuationFrame, CRC_LEN, EstimateReport, Frame, PROTOCOL_VERSION,
-    PositionReport, SENSOR_FLAG_CLEAR_FAULTS, SENSOR_FLAG_ENABLE, SENSOR_FLAG_MOVE, STATE_CODES, SensorFrame,
+    ACTUATION_FLAG_POSITION_VALID, ActuationFrame, COMMISSIONING_ERROR_CODES, COMMISSIONING_QUERY,
+    COMMISSIONING_START, CRC_LEN, CommissioningReport, CommissioningRequest, CommissioningStatus,
+    EstimateReport, Frame, PROTOCOL_VERSION, PositionReport, SENSOR_FLAG_CLEAR_FAULTS, SENSOR_FLAG_ENABLE,
+    SENSOR_FLAG_MOVE, STATE_CODES, SensorFrame,
 };
 pub use session::{
     LinkStats, LinkWatchdog, SILENT_LINK_PERIODS, SequenceOrder, SequenceTracker, classify_sequence,
@@ -178,6 +221,13 @@ mod tests {
         assert_eq!(<SensorFrame as Frame>::WIRE_LEN, SensorFrame::WIRE_LEN);
         assert_eq!(<ActuationFrame as Frame>::WIRE_LEN, ActuationFrame::WIRE_LEN);
         assert_eq!(RX_CAPACITY, 59);
+        assert_eq!((CommissioningRequest::RAW_LEN, CommissioningRequest::WIRE_LEN), (22, 24));
+        assert_eq!((CommissioningReport::RAW_LEN, CommissioningReport::WIRE_LEN), (138, 140));
+        assert_eq!(LinkServer::REPLY_LEN, 140);
+        // The controller receives requests in the sensor frames' buffer, told apart by
+        // length.
+        const { assert!(CommissioningRequest::WIRE_LEN - 1 <= RX_CAPACITY) };
+        assert_ne!(CommissioningRequest::RAW_LEN, SensorFrame::RAW_LEN);
     }
 
     #[test]

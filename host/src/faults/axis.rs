@@ -391,7 +391,7 @@ impl Axis {
                 };
                 sent.push(wire);
                 let deliver = |bytes: &[u8], drive: &mut Drive<f32>, server: &mut LinkServer| {
-                    let mut out = [0u8; ActuationFrame::WIRE_LEN];
+                    let mut out = [0u8; LinkServer::REPLY_LEN];
                     let mut reply = None;
                     for &byte in bytes {
                         if let Some(len) = server.on_byte(byte, drive, &Base::SI, &mut out) {
