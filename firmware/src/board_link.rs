@@ -136,6 +136,7 @@ pub fn answer<const N: usize>(
         capture_len: capture.len() as u32,
         capture_capacity: capture.capacity() as u32,
         periods: status.periods,
+        position: None,
     })
 }
 
@@ -204,6 +205,7 @@ mod tests {
             clear_faults: false,
             arm_capture: arm,
             capture_read: read,
+            move_to: None,
         }
     }
 

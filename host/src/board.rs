@@ -240,6 +240,7 @@ impl<W: Write> Board<W> {
             clear_faults,
             arm_capture,
             capture_read,
+            move_to: None,
         }
     }
 
@@ -951,6 +952,7 @@ mod tests {
             capture_len: 5,
             capture_capacity: 10,
             periods: 9,
+            position: None,
         };
         let mut wire = [0u8; 300];
         let n = dcfo::link::encode(&t, &mut wire).unwrap();
@@ -978,6 +980,7 @@ mod tests {
             capture_len: 0,
             capture_capacity: 128,
             periods: 0,
+            position: None,
         };
         let mut wire = [0u8; 64];
         let n = dcfo::link::encode(&t, &mut wire).unwrap();

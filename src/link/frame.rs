@@ -8,8 +8,11 @@ use crate::motion::Move;
 
 /// The protocol version carried in byte 0 of every frame; any other value is rejected.
 /// Version 2 (from 1) added the move command to [`SensorFrame`], the position report to
-/// [`ActuationFrame`], and the format of the drive's own words to the board link's
-/// [`CaptureChunk`](super::board::CaptureChunk) (1: SI `f32` converted on the target).
+/// [`ActuationFrame`], and, on the board link, the format of the drive's own words to
+/// [`CaptureChunk`](super::board::CaptureChunk) (1: SI `f32` converted on the target),
+/// the move command to [`BoardCommand`](super::board::BoardCommand) (flag
+/// [`BOARD_FLAG_MOVE`](super::board::BOARD_FLAG_MOVE), 12 to 20 bytes) and the position
+/// report to [`BoardTelemetry`](super::board::BoardTelemetry) (44 to 59 bytes).
 pub const PROTOCOL_VERSION: u8 = 2;
 
 /// Bytes of the CRC after the payload (CRC-16, little-endian).

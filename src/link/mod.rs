@@ -34,8 +34,8 @@
 //! |---|---|---|---|
 //! | [`SensorFrame`] | 32 B | 34 B | 36 B |
 //! | [`ActuationFrame`] | 56 B | 58 B | 60 B |
-//! | [`board::BoardCommand`] | 12 B | 14 B | 16 B |
-//! | [`board::BoardTelemetry`] | 44 B | 46 B | 48 B |
+//! | [`board::BoardCommand`] | 20 B | 22 B | 24 B |
+//! | [`board::BoardTelemetry`] | 59 B | 61 B | 63 B |
 //! | [`board::CaptureChunk`] | 225 B | 227 B | 229 B |
 //!
 //! The board link's frames ([`board`]: a drive image operated from the host) share the
@@ -178,6 +178,9 @@ mod tests {
         assert_eq!(<SensorFrame as Frame>::WIRE_LEN, SensorFrame::WIRE_LEN);
         assert_eq!(<ActuationFrame as Frame>::WIRE_LEN, ActuationFrame::WIRE_LEN);
         assert_eq!(RX_CAPACITY, 59);
+        assert_eq!((board::BoardCommand::RAW_LEN, board::BoardCommand::WIRE_LEN), (22, 24));
+        assert_eq!((board::BoardTelemetry::RAW_LEN, board::BoardTelemetry::WIRE_LEN), (61, 63));
+        assert_eq!((board::CaptureChunk::RAW_LEN, board::CaptureChunk::WIRE_LEN), (227, 229));
     }
 
     #[test]
