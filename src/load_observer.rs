@@ -120,8 +120,8 @@ impl LoadObserver {
     pub fn preset(&mut self, x_m: f32, v_m_per_s: f32, load_n: f32) {
         let finite = |x: f32| if x.is_finite() { x } else { 0.0 };
         self.x_hat_m = finite(x_m);
-        self.v_hat_m_per_s = finite(v_m_per_s).clamp(-self.speed_limit, self.speed_limit);
-        self.load_hat_n = finite(load_n).clamp(-self.load_limit, self.load_limit);
+        self.v_hat_m_per_s = clamp_symmetric(finite(v_m_per_s), self.speed_limit);
+        self.load_hat_n = clamp_symmetric(finite(load_n), self.load_limit);
     }
 
     /// One control period: the measured position `x_meas_m` (m) and the thrust the drive
@@ -135,8 +135,8 @@ impl LoadObserver {
         let dt = self.dt;
         let accel = (thrust_n - self.load_hat_n) * self.inv_mass + self.l2 * e;
         self.x_hat_m += dt * (self.v_hat_m_per_s + self.l1 * e);
-        self.v_hat_m_per_s = (self.v_hat_m_per_s + dt * accel).clamp(-self.speed_limit, self.speed_limit);
-        self.load_hat_n = (self.load_hat_n - dt * self.l3_mass * e).clamp(-self.load_limit, self.load_limit);
+        self.v_hat_m_per_s = clamp_symmetric(self.v_hat_m_per_s + dt * accel, self.speed_limit);
+        self.load_hat_n = clamp_symmetric(self.load_hat_n - dt * self.l3_mass * e, self.load_limit);
         true
     }
 
@@ -153,6 +153,18 @@ impl LoadObserver {
     /// Estimated load (friction and outside forces, opposing positive thrust), N.
     pub fn load_n(&self) -> f32 {
         self.load_hat_n
+    }
+}
+
+/// `x` limited to `[-limit, limit]` (`limit >= 0`). Not `f32::clamp`, whose check of its
+/// bounds' order links a panic into the control path.
+fn clamp_symmetric(x: f32, limit: f32) -> f32 {
+    if x > limit {
+        limit
+    } else if x < -limit {
+        -limit
+    } else {
+        x
     }
 }
 

@@ -10,7 +10,11 @@
 //!
 //! The motor is the paper's, on the paper axis's carriage (`PAPER_AXIS_PAYLOAD_KG`),
 //! the drive `DriveConfig::for_motor` without inverter compensation (the virtual
-//! inverter is ideal). The virtual motor (`dcfo::virtual_motor`) derives everything from
+//! inverter is ideal). Started with the command line `position` (QEMU's `-append`, read
+//! through semihosting; `dcfo board --qemu --move-to X` passes it) it runs the
+//! positioning drive of `dcfo stroke` instead (`DriveConfig::stroke_axis`, again without
+//! inverter compensation): it takes moves from the commands and its telemetry carries
+//! the position report. The virtual motor (`dcfo::virtual_motor`) derives everything from
 //! the same `MotorParams`.
 //!
 //! | context | priority | work | budget |
@@ -98,8 +102,14 @@ mod firmware {
         }
 
         let motor = MotorParams::paper();
-        let mut config = DriveConfig::for_motor(&motor, PAPER_AXIS_BUS_V, ObserverKind::Dcfo);
-        config.moving_mass_kg = motor.mass_kg + PAPER_AXIS_PAYLOAD_KG;
+        let positioning = positioning_requested();
+        let mut config = if positioning {
+            DriveConfig::stroke_axis(&motor, PAPER_AXIS_BUS_V)
+        } else {
+            let mut c = DriveConfig::for_motor(&motor, PAPER_AXIS_BUS_V, ObserverKind::Dcfo);
+            c.moving_mass_kg = motor.mass_kg + PAPER_AXIS_PAYLOAD_KG;
+            c
+        };
         config.control_period_s = 1.0 / CONTROL_HZ as f32;
         config.dead_time_compensation = None;
         let base = working_base(&motor);
@@ -119,8 +129,11 @@ mod firmware {
         };
         // The 0x00 after the banner is a frame delimiter: the host drops the banner as one
         // bad frame.
-        let _ =
-            write!(uart, "dcfo-firmware qemu_drive: virtual motor, capture {CAPTURE_SAMPLES} samples\r\n\0");
+        let kind = if positioning { "positioning drive" } else { "speed drive" };
+        let _ = write!(
+            uart,
+            "dcfo-firmware qemu_drive: virtual motor, {kind}, capture {CAPTURE_SAMPLES} samples\r\n\0"
+        );
 
         let control = DriveOnBoard {
             control: ControlLoop::new(drive, u16::MAX),
@@ -153,6 +166,14 @@ mod firmware {
             // the UART (the host sends one command and waits for its answer).
             cortex_m::asm::wfi();
         }
+    }
+
+    /// `true` when the command line (QEMU's `-append`, through semihosting) holds the
+    /// word `position`: run the positioning drive. Without a command line, a speed drive.
+    fn positioning_requested() -> bool {
+        let mut line = [0u8; 128];
+        dcfo_firmware::board::mps2::semihosting_cmdline(&mut line)
+            .is_some_and(|l| l.split(|&b| b == b' ').any(|w| w == b"position"))
     }
 
     /// The control period: the virtual board, one drive step, the capture and the status.

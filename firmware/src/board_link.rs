@@ -21,7 +21,7 @@
 use dcfo::capture::{Capture, CaptureSample, CaptureState};
 use dcfo::drive::{DriveState, Faults, StepOutput};
 use dcfo::link::board::{BoardCommand, BoardTelemetry, CAPTURE_CHUNK_SAMPLES, CaptureChunk, NO_CAPTURE_READ};
-use dcfo::link::{LinkStats, Receiver};
+use dcfo::link::{LinkStats, PositionReport, Receiver};
 use dcfo::num::Scalar;
 use dcfo::units::Base;
 
@@ -45,6 +45,9 @@ pub struct DriveStatus {
     pub vdc_v: f32,
     /// Control periods run (wrapping).
     pub periods: u32,
+    /// A positioning drive's position report (x̂ and the reference in m, the queue, the
+    /// refused moves); `None` for a speed drive.
+    pub position: Option<PositionReport>,
 }
 
 impl DriveStatus {
@@ -58,11 +61,20 @@ impl DriveStatus {
             i_ab_a: [0.0; 2],
             vdc_v: 0.0,
             periods: 0,
+            position: None,
         }
     }
 
-    /// Takes one step's output (call from the control interrupt, every period).
-    pub fn update<T: Scalar>(&mut self, out: &StepOutput<T>, sample: &PhaseSample, base: &Base) {
+    /// Takes one step's output and the drive's position report
+    /// ([`ControlLoop::position_report`](crate::control::ControlLoop::position_report))
+    /// (call from the control interrupt, every period).
+    pub fn update<T: Scalar>(
+        &mut self,
+        out: &StepOutput<T>,
+        sample: &PhaseSample,
+        base: &Base,
+        position: Option<PositionReport>,
+    ) {
         let finite = |x: f32| if x.is_finite() { x } else { 0.0 };
         self.state = out.state;
         self.faults = out.faults;
@@ -72,6 +84,7 @@ impl DriveStatus {
         self.i_ab_a = [finite(base.to_amperes(out.i_ab.alpha)), finite(base.to_amperes(out.i_ab.beta))];
         self.vdc_v = finite(sample.vdc_v);
         self.periods = self.periods.wrapping_add(1);
+        self.position = position;
     }
 }
 
@@ -136,6 +149,7 @@ pub fn answer<const N: usize>(
         capture_len: capture.len() as u32,
         capture_capacity: capture.capacity() as u32,
         periods: status.periods,
+        position: status.position,
     })
 }
 
@@ -147,21 +161,38 @@ pub struct BoardLinkServer {
     /// Control periods at the last command.
     last_command_periods: u32,
     timeout_periods: u32,
+    /// Sequence number of the last command whose move was posted: the host resends a
+    /// command it got no answer to with the same number, and its move must not be
+    /// queued twice.
+    last_move_sequence: Option<u16>,
 }
 
 impl BoardLinkServer {
     /// A server whose watchdog disables the drive after `timeout_periods` control
     /// periods without a command.
     pub const fn new(timeout_periods: u32) -> Self {
-        BoardLinkServer { rx: Receiver::new(), last_command_periods: 0, timeout_periods }
+        BoardLinkServer {
+            rx: Receiver::new(),
+            last_command_periods: 0,
+            timeout_periods,
+            last_move_sequence: None,
+        }
     }
 
     /// One received byte; a complete valid command is applied to `setpoints` (clear
-    /// faults, enable, speed) and returned, for the caller to [`answer`]. `periods` is
-    /// the control periods run so far (the watchdog's clock).
+    /// faults, enable, speed; its move posted with [`Setpoints::post_move`] unless the
+    /// same sequence number's move was posted already: a resent command) and returned,
+    /// for the caller to [`answer`]. `periods` is the control periods run so far (the
+    /// watchdog's clock).
     pub fn on_byte(&mut self, byte: u8, setpoints: &Setpoints, periods: u32) -> Option<BoardCommand> {
         let command = self.rx.push(byte)?.ok()?;
         setpoints.set_commands(&command.commands());
+        if let Some(m) = command.move_to
+            && self.last_move_sequence != Some(command.sequence)
+        {
+            self.last_move_sequence = Some(command.sequence);
+            setpoints.post_move(m);
+        }
         self.last_command_periods = periods;
         Some(command)
     }
@@ -204,6 +235,7 @@ mod tests {
             clear_faults: false,
             arm_capture: arm,
             capture_read: read,
+            move_to: None,
         }
     }
 
@@ -248,7 +280,7 @@ mod tests {
         for k in 0..40_000u32 {
             let (out, sample) = control.period(&mut board, &sp);
             capture.record(&out);
-            status.update(&out, &sample, control.base());
+            status.update(&out, &sample, control.base(), control.position_report(&sp));
             if k % 1000 == 0 {
                 assert!(
                     feed(
@@ -297,8 +329,83 @@ mod tests {
         assert!(server.watchdog(&sp, now.wrapping_add(5001)));
         for _ in 0..2 {
             let (out, sample) = control.period(&mut board, &sp);
-            status.update(&out, &sample, control.base());
+            status.update(&out, &sample, control.base(), control.position_report(&sp));
         }
         assert_eq!(status.state, DriveState::Disabled);
+    }
+
+    /// A positioning drive (`DriveConfig::stroke_axis`) on the virtual motor, operated
+    /// as `dcfo board --move-to` does: a move in one command reaches the control
+    /// interrupt through the mailbox, the position report follows it to the target
+    /// (within tau / 20 = 0.75 mm), a resent command (same sequence) does not queue it
+    /// twice, and a target outside the stroke is refused and counted.
+    #[test]
+    fn a_move_in_a_command_reaches_its_target_and_a_refused_one_is_counted() {
+        let motor = MotorParams::paper();
+        let mut config = DriveConfig::stroke_axis(&motor, BUS_V);
+        config.dead_time_compensation = None;
+        let drive = Drive::<f32>::new(&motor, &config, &Base::SI).unwrap();
+        let axis = VirtualAxis {
+            payload_kg: PAPER_AXIS_PAYLOAD_KG,
+            load_n: 0.0,
+            bus_v: BUS_V,
+            period_s: config.control_period_s,
+        };
+        let mut board = VirtualBoard::new(VirtualMotor::new(&motor, &axis).unwrap());
+        let mut control = ControlLoop::new(drive, 1);
+        let mut capture = Capture::<16>::new();
+        let mut status = DriveStatus::new();
+        let sp = Setpoints::new();
+        let mut server = BoardLinkServer::new(u32::MAX);
+        let target = 0.03;
+        let go = BoardCommand {
+            speed_ref: 0.0,
+            move_to: Some(dcfo::motion::Move { target_m: target, dwell_s: 0.0 }),
+            ..command(1, true, false, NO_CAPTURE_READ)
+        };
+        // Sent twice with one sequence number (a resend): one move.
+        assert!(feed(&mut server, &go, &sp, 0).is_some());
+        assert!(feed(&mut server, &go, &sp, 0).is_some());
+        let (out, sample) = control.period(&mut board, &sp);
+        status.update(&out, &sample, control.base(), control.position_report(&sp));
+        let p = status.position.expect("a positioning drive reports its position");
+        // Queued once (the profile holds it while the drive aligns).
+        assert_eq!((p.moves_queued, p.moves_rejected), (1, 0), "{p:?}");
+        let mut idle_at = None;
+        for k in 0..30_000u32 {
+            let (out, sample) = control.period(&mut board, &sp);
+            status.update(&out, &sample, control.base(), control.position_report(&sp));
+            if status.position.is_some_and(|p| p.idle) && idle_at.is_none() && k > 10 {
+                idle_at = Some(k);
+            }
+        }
+        assert_eq!(status.faults, Faults::NONE);
+        let p = status.position.unwrap();
+        let tol = motor.pole_pitch_m / 20.0;
+        assert!(p.idle && p.x_ref_m == target, "{p:?}");
+        assert!((p.x_hat_m - target).abs() < tol, "x_hat {} m, target {target} m", p.x_hat_m);
+        let x = board.motor().state().x_m;
+        assert!((x - target).abs() < tol, "the mover at {x} m, target {target} m (idle from {idle_at:?})");
+        // Outside the stroke: refused by the drive, counted, reported.
+        let far = BoardCommand {
+            move_to: Some(dcfo::motion::Move { target_m: 10.0, dwell_s: 0.0 }),
+            ..command(2, true, false, NO_CAPTURE_READ)
+        };
+        let c = feed(&mut server, &far, &sp, status.periods).unwrap();
+        let (out, sample) = control.period(&mut board, &sp);
+        status.update(&out, &sample, control.base(), control.position_report(&sp));
+        match answer(&c, &mut capture, &status, &sp) {
+            BoardAnswer::Telemetry(t) => assert_eq!(t.position.map(|p| p.moves_rejected), Some(1)),
+            a => panic!("{a:?}"),
+        }
+        // A full mailbox (two moves before a control period) is a counted refusal too.
+        for seq in [3, 4] {
+            let m = BoardCommand {
+                move_to: Some(dcfo::motion::Move { target_m: 0.0, dwell_s: 0.0 }),
+                ..command(seq, true, false, NO_CAPTURE_READ)
+            };
+            feed(&mut server, &m, &sp, status.periods).unwrap();
+        }
+        assert_eq!(sp.moves_rejected(), 2);
     }
 }

@@ -10,14 +10,16 @@
 //! ```
 //!
 //! Nothing here blocks or waits: setpoints are atomics the interrupt reads once per
-//! step, telemetry goes through a fixed-capacity [`crate::queue::Queue`] whose full
+//! step (a move to queue waits in a one-slot mailbox the interrupt empties into
+//! [`Drive::push_move`]), telemetry goes through a fixed-capacity [`crate::queue::Queue`] whose full
 //! state the interrupt counts and moves on from. The step's time is bounded by the
 //! drive's (no loops over data, no allocation, no panics).
 
 use core::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 
 use dcfo::drive::{Commands, Drive, DriveState, Faults, Measurements, StepOutput};
-use dcfo::link::{ActuationFrame, LinkStats};
+use dcfo::link::{ActuationFrame, LinkStats, PositionReport};
+use dcfo::motion::Move;
 use dcfo::num::Scalar;
 use dcfo::units::Base;
 
@@ -25,12 +27,23 @@ use crate::board::{PhaseSample, PhaseSensors, PowerStage};
 use crate::queue::Producer;
 
 /// Commands from a lower-priority context to the control interrupt, lock-free.
-/// Power-on state: disabled, speed reference 0 m/s.
+/// Power-on state: disabled, speed reference 0 m/s, no move.
+///
+/// Moves go through a one-slot mailbox: one context ([`Setpoints::post_move`], the
+/// thread) fills it when empty, the control interrupt empties it
+/// ([`Setpoints::take_move`]) into the drive's queue. A move that finds the mailbox full,
+/// or that the drive refuses, is counted ([`Setpoints::moves_rejected`]), never waited
+/// for.
 #[derive(Debug)]
 pub struct Setpoints {
     speed_m_per_s_bits: AtomicU32,
     enable: AtomicBool,
     clear_faults: AtomicBool,
+    move_target_m_bits: AtomicU32,
+    move_dwell_s_bits: AtomicU32,
+    /// The mailbox holds a move (set last by the writer, cleared by the interrupt).
+    move_posted: AtomicBool,
+    moves_rejected: AtomicU32,
 }
 
 impl Default for Setpoints {
@@ -46,7 +59,51 @@ impl Setpoints {
             speed_m_per_s_bits: AtomicU32::new(0),
             enable: AtomicBool::new(false),
             clear_faults: AtomicBool::new(false),
+            move_target_m_bits: AtomicU32::new(0),
+            move_dwell_s_bits: AtomicU32::new(0),
+            move_posted: AtomicBool::new(false),
+            moves_rejected: AtomicU32::new(0),
         }
+    }
+
+    /// Posts a move (target m, dwell s) for the control interrupt to queue at its next
+    /// period. Call from one context only (the thread). Refused (`false`) and counted in
+    /// [`moves_rejected`](Self::moves_rejected) when a value is not finite or the
+    /// mailbox still holds the previous move (at most one move per control period).
+    pub fn post_move(&self, m: Move) -> bool {
+        if !(m.target_m.is_finite() && m.dwell_s.is_finite()) || self.move_posted.load(Ordering::Acquire) {
+            self.count_rejected_move();
+            return false;
+        }
+        self.move_target_m_bits.store(m.target_m.to_bits(), Ordering::Relaxed);
+        self.move_dwell_s_bits.store(m.dwell_s.to_bits(), Ordering::Relaxed);
+        self.move_posted.store(true, Ordering::Release);
+        true
+    }
+
+    /// Takes the posted move, if any (from the control interrupt, once per period),
+    /// emptying the mailbox.
+    pub fn take_move(&self) -> Option<Move> {
+        if !self.move_posted.load(Ordering::Acquire) {
+            return None;
+        }
+        let m = Move {
+            target_m: f32::from_bits(self.move_target_m_bits.load(Ordering::Relaxed)),
+            dwell_s: f32::from_bits(self.move_dwell_s_bits.load(Ordering::Relaxed)),
+        };
+        self.move_posted.store(false, Ordering::Release);
+        Some(m)
+    }
+
+    /// Counts one refused move (the mailbox was full, or the drive refused it).
+    pub fn count_rejected_move(&self) {
+        self.moves_rejected.fetch_add(1, Ordering::Relaxed);
+    }
+
+    /// Moves refused since power-on (mailbox full, not finite, or refused by the drive:
+    /// queue full, target outside the stroke, a speed drive), wrapping at 65 536.
+    pub fn moves_rejected(&self) -> u16 {
+        self.moves_rejected.load(Ordering::Relaxed) as u16
     }
 
     /// Sets the linear speed reference (m/s). A non-finite value is refused (`false`)
@@ -194,6 +251,19 @@ impl<T: Scalar> ControlLoop<T> {
         }
         // The drive converts the speed reference only when it changed.
         self.drive.apply(&commands);
+        // A posted move joins the drive's queue (bounded: one per period); a refusal
+        // (full queue, outside the stroke, a speed drive) is counted, not waited on.
+        if let Some(m) = setpoints.take_move()
+            && self.drive.push_move(m).is_err()
+        {
+            setpoints.count_rejected_move();
+        }
+    }
+
+    /// A positioning drive's position report (x̂, the reference, the queue, and the
+    /// moves refused so far as counted in `setpoints`); `None` for a speed drive.
+    pub fn position_report(&self, setpoints: &Setpoints) -> Option<PositionReport> {
+        PositionReport::of(&self.drive, setpoints.moves_rejected())
     }
 
     /// Telemetry records dropped because the queue was full.

@@ -127,7 +127,7 @@ impl<const N: usize> BoardLinkState<N> {
             (self.capture.borrow(cs).try_borrow_mut(), self.status.borrow(cs).try_borrow_mut())
         {
             capture.record(&out);
-            status.update(&out, &sample, c.control.base());
+            status.update(&out, &sample, c.control.base(), c.control.position_report(setpoints));
         }
     }
 

@@ -28,6 +28,7 @@ use dcfo::capture::{Capture, CaptureFormat, CaptureSample, CaptureState, Quantit
 use dcfo::drive::DriveState;
 use dcfo::link::board::{BoardCommand, BoardTelemetry, CaptureChunk, NO_CAPTURE_READ};
 use dcfo::link::{LinkError, decode_raw};
+use dcfo::motion::Move;
 use dcfo::motor::MotorParams;
 use dcfo::observer::ObserverKind;
 
@@ -224,12 +225,14 @@ pub struct Board<W: Write> {
     pub link: BoardLink<W>,
     /// Sent with every command.
     pub wish: Wish,
+    /// A move to send with the next telemetry poll (then cleared: a move is queued once).
+    pub pending_move: Option<Move>,
 }
 
 impl<W: Write> Board<W> {
     /// A board behind `link`, wished disabled at 0 m/s.
     pub fn new(link: BoardLink<W>) -> Self {
-        Board { link, wish: Wish { enable: false, speed_m_per_s: 0.0 } }
+        Board { link, wish: Wish { enable: false, speed_m_per_s: 0.0 }, pending_move: None }
     }
 
     fn command(&self, clear_faults: bool, arm_capture: bool, capture_read: u32) -> BoardCommand {
@@ -240,6 +243,7 @@ impl<W: Write> Board<W> {
             clear_faults,
             arm_capture,
             capture_read,
+            move_to: None,
         }
     }
 
@@ -248,7 +252,11 @@ impl<W: Write> Board<W> {
     /// # Errors
     /// The link failed, or the image answered with samples to a telemetry request.
     pub fn poll(&mut self, clear_faults: bool, arm_capture: bool) -> anyhow::Result<BoardTelemetry> {
-        match self.link.exchange(self.command(clear_faults, arm_capture, NO_CAPTURE_READ))? {
+        let command = BoardCommand {
+            move_to: self.pending_move.take(),
+            ..self.command(clear_faults, arm_capture, NO_CAPTURE_READ)
+        };
+        match self.link.exchange(command)? {
             Answer::Telemetry(t) => Ok(t),
             Answer::Chunk(c) => {
                 bail!("board link: capture samples (from {}) answered a telemetry request", c.first)
@@ -485,6 +493,153 @@ pub fn qemu_drive_motor() -> MotorParams {
 
 pub use crate::target::{ANSWER_TIMEOUT, Target};
 
+/// The QEMU image's command line that selects its positioning drive
+/// (`DriveConfig::stroke_axis` of the paper motor, `examples/qemu_drive.rs`).
+pub const QEMU_POSITIONING_CMDLINE: &str = "position";
+
+/// A move the host sends: a finite target (m) and a finite, non-negative dwell (s).
+/// The drive image checks the stroke itself (a target outside it is refused and
+/// counted in the telemetry).
+///
+/// # Errors
+/// What is wrong with the values, naming them.
+pub fn check_move(target_m: f32, dwell_s: f32) -> Result<(), String> {
+    if !target_m.is_finite() {
+        return Err(format!("the move's target must be a finite number of m, not {target_m}"));
+    }
+    if !(dwell_s.is_finite() && dwell_s >= 0.0) {
+        return Err(format!("the move's dwell must be a finite number of s, at least 0, not {dwell_s}"));
+    }
+    Ok(())
+}
+
+/// Tolerance on the final position of `dcfo board --demo --move-to`, m: a twentieth of
+/// the motor's pole pitch (0.75 mm on the paper motor, 9 electrical degrees).
+pub fn move_tolerance_m(motor: &MotorParams) -> f32 {
+    motor.pole_pitch_m / 20.0
+}
+
+/// What `dcfo board --demo --move-to` did (its JSON line).
+#[derive(Debug, serde::Serialize)]
+pub struct MoveDemoReport {
+    /// The most advanced state the drive reported.
+    pub state_reached: String,
+    /// Faults latched before the disable (`none`).
+    pub faults: String,
+    /// The move's target, m.
+    pub target_m: f32,
+    /// The drive's position estimate x̂ at the end, m.
+    pub x_hat_m: f32,
+    /// The profile's reference position at the end, m.
+    pub x_ref_m: f32,
+    /// `x_hat_m - target_m`, m.
+    pub x_err_m: f32,
+    /// The tolerance on `x_err_m` ([`move_tolerance_m`]), m.
+    pub tolerance_m: f32,
+    /// The reference came to rest at the target and x̂ is within the tolerance of it.
+    pub move_reached: bool,
+    /// Simulated time from the enable until the move was reached, s.
+    pub move_s: Option<f64>,
+    /// A move outside the stroke sent afterwards was refused and counted in the
+    /// telemetry's position report.
+    pub refused_move_reported: bool,
+    /// Moves the drive image refused in all (its report's count).
+    pub moves_rejected: u16,
+    /// Control periods the image ran, as simulated time, s.
+    pub simulated_s: f64,
+    /// Wall-clock time from connecting to the disable, s.
+    pub wall_s: f64,
+}
+
+/// `dcfo board --demo --move-to`: connect to a positioning drive image, enable at rest,
+/// queue the move, poll until the reference is at rest at the target and x̂ has settled
+/// within [`move_tolerance_m`] of it (or `timeout`), then send a move outside any
+/// stroke (1 km) and check the image reports it refused, and disable.
+///
+/// # Errors
+/// The link failed, the image reports no position (a speed drive), the drive tripped.
+pub fn run_move_demo(target: &Target, m: Move, timeout: Duration) -> anyhow::Result<MoveDemoReport> {
+    let started = Instant::now();
+    let motor = qemu_drive_motor();
+    let tolerance_m = move_tolerance_m(&motor);
+    with_board(target, true, |board| {
+        let first = board.poll(false, false)?;
+        let Some(p0) = first.position else {
+            let _ = board.disable();
+            bail!("the drive image reports no position: it runs a speed drive, which takes no moves");
+        };
+        *board.wish_mut() = Wish { enable: true, speed_m_per_s: 0.0 };
+        board.queue_move(m);
+        let mut t = board.poll(true, false)?;
+        let enabled_at = t.periods;
+        let mut best = t.state();
+        let deadline = Instant::now() + timeout;
+        let mut reached_at = None;
+        let mut settled = 0;
+        loop {
+            if t.state() == DriveState::Fault {
+                let _ = board.disable();
+                bail!("the drive tripped: {}", fault_names(t.faults()));
+            }
+            if interrupted() {
+                let _ = board.disable();
+                bail!("interrupted");
+            }
+            if let Some(p) = t.position
+                && p.idle
+                && p.x_ref_m == m.target_m
+                && (p.x_hat_m - m.target_m).abs() < tolerance_m
+            {
+                reached_at.get_or_insert(t.periods);
+                // Settled: within the tolerance for a few polls in a row.
+                settled += 1;
+                if settled >= 5 {
+                    break;
+                }
+            } else {
+                settled = 0;
+                reached_at = None;
+            }
+            if Instant::now() > deadline {
+                break;
+            }
+            std::thread::sleep(POLL_PERIOD);
+            t = board.poll(false, false)?;
+            if state_rank(t.state()) > state_rank(best) {
+                best = t.state();
+            }
+            eprint!("\r{}\x1b[K", status_line(&t));
+        }
+        eprintln!();
+        let p = t.position.unwrap_or(p0);
+        let rejected_before = p.moves_rejected;
+        board.queue_move(Move { target_m: 1000.0, dwell_s: 0.0 });
+        board.poll(false, false)?;
+        // The refusal is counted at the image's next control period.
+        std::thread::sleep(POLL_PERIOD);
+        let after = board.poll(false, false)?;
+        let rejected = after.position.map_or(rejected_before, |q| q.moves_rejected);
+        let faults = fault_names(after.faults());
+        let last = board.disable()?;
+        let x_err_m = p.x_hat_m - m.target_m;
+        Ok(MoveDemoReport {
+            state_reached: format!("{best:?}"),
+            faults,
+            target_m: m.target_m,
+            x_hat_m: p.x_hat_m,
+            x_ref_m: p.x_ref_m,
+            x_err_m,
+            tolerance_m,
+            move_reached: p.idle && p.x_ref_m == m.target_m && x_err_m.abs() < tolerance_m,
+            move_s: reached_at.map(|k: u32| f64::from(k.wrapping_sub(enabled_at)) * CONTROL_PERIOD_S),
+            refused_move_reported: rejected == rejected_before.wrapping_add(1),
+            moves_rejected: rejected,
+            simulated_s: f64::from(last.periods) * CONTROL_PERIOD_S,
+            wall_s: started.elapsed().as_secs_f64(),
+        })
+    })
+}
+
 /// What `dcfo board --demo` did (its JSON line).
 #[derive(Debug, serde::Serialize)]
 pub struct DemoReport {
@@ -534,6 +689,7 @@ fn state_rank(s: DriveState) -> u8 {
 /// Connects to `target`, then runs `f` with the board; QEMU is stopped afterwards.
 fn with_board<T>(
     target: &Target,
+    positioning: bool,
     f: impl FnOnce(&mut dyn BoardOps) -> anyhow::Result<T>,
 ) -> anyhow::Result<T> {
     match target {
@@ -543,7 +699,8 @@ fn with_board<T>(
                 Some(e) => e.clone(),
                 None => build_qemu_example(workspace, *cpu, "qemu_drive")?,
             };
-            let (_session, stdin, stdout) = QemuSession::spawn(&elf, *cpu)?;
+            let cmdline = if positioning { Some(QEMU_POSITIONING_CMDLINE) } else { None };
+            let (_session, stdin, stdout) = QemuSession::spawn_with_cmdline(&elf, *cpu, cmdline)?;
             let mut board = Board::new(BoardLink::new(stdin, stdout));
             f(&mut board)
         }
@@ -569,6 +726,8 @@ pub trait BoardOps {
     fn wish_mut(&mut self) -> &mut Wish;
     /// Commands answered so far.
     fn round_trips(&self) -> u64;
+    /// Sends `m` with the next [`poll`](BoardOps::poll) (once).
+    fn queue_move(&mut self, m: Move);
 }
 
 impl<W: Write> BoardOps for Board<W> {
@@ -590,6 +749,9 @@ impl<W: Write> BoardOps for Board<W> {
     fn round_trips(&self) -> u64 {
         self.link.round_trips
     }
+    fn queue_move(&mut self, m: Move) {
+        self.pending_move = Some(m);
+    }
 }
 
 /// `dcfo board --demo`: connect, arm the capture, enable at `speed` m/s, wait for the
@@ -605,7 +767,7 @@ pub fn run_demo(
     timeout: Duration,
 ) -> anyhow::Result<DemoReport> {
     let started = Instant::now();
-    with_board(target, |board| {
+    with_board(target, false, |board| {
         let first = board.poll(false, false)?;
         eprintln!(
             "connected: drive {:?}, capture capacity {} samples",
@@ -693,14 +855,27 @@ pub fn run_demo(
     })
 }
 
-/// One line of live state: drive state, faults, speed, currents, bus, angle, capture.
+/// One line of live state: drive state, faults, speed, currents, bus, angle, capture;
+/// and for a positioning drive x̂ and the reference position (mm), the queue and the
+/// refused moves.
 pub fn status_line(t: &BoardTelemetry) -> String {
     let (theta, v) = match t.estimate {
         Some((theta, v)) => (format!("{:+7.1} deg", theta.to_degrees()), format!("{v:+.3} m/s")),
         None => ("    --".into(), "--".into()),
     };
+    let position = match t.position {
+        Some(p) => format!(
+            "  x {:+8.3} mm ref {:+8.3} mm{} queued {} refused {}",
+            p.x_hat_m * 1e3,
+            p.x_ref_m * 1e3,
+            if p.idle { " idle" } else { "" },
+            p.moves_queued,
+            p.moves_rejected
+        ),
+        None => String::new(),
+    };
     format!(
-        "{:<12} faults {:<10} v {v:<11} ref {:+.3} m/s  i_ab [{:+6.2} {:+6.2}] A  bus {:6.1} V  theta {theta}  bridge {}  capture {:?} {}/{}",
+        "{:<12} faults {:<10} v {v:<11} ref {:+.3} m/s  i_ab [{:+6.2} {:+6.2}] A  bus {:6.1} V  theta {theta}  bridge {}  capture {:?} {}/{}{position}",
         format!("{:?}", t.state()),
         fault_names(t.faults()),
         t.speed_ref,
@@ -727,6 +902,8 @@ pub enum Typed {
     Speed(f32),
     /// `r`: arm the capture (downloaded to `--record FILE` when it is over).
     Record,
+    /// `m <target m> [dwell s]`: queue a move on a positioning drive.
+    MoveTo(Move),
     /// `q`, or the end of the input: disable and quit.
     Quit,
 }
@@ -752,9 +929,20 @@ pub fn parse_typed(line: &str) -> Result<Typed, String> {
             }
             Typed::Speed(v)
         }
+        "m" | "move" => {
+            let arg = words.next().ok_or_else(|| format!("`{line}`: `m` needs a target position in m"))?;
+            let target_m: f32 =
+                arg.parse().map_err(|_| format!("`{line}`: `{arg}` is not a position in m"))?;
+            let dwell_s: f32 = match words.next() {
+                Some(d) => d.parse().map_err(|_| format!("`{line}`: `{d}` is not a dwell in s"))?,
+                None => 0.0,
+            };
+            check_move(target_m, dwell_s).map_err(|e| format!("`{line}`: {e}"))?;
+            Typed::MoveTo(Move { target_m, dwell_s })
+        }
         _ => {
             return Err(format!(
-                "`{line}`: commands are e(nable), d(isable), c(lear), s(peed) <m/s>, r(ecord), q(uit)"
+                "`{line}`: commands are e(nable), d(isable), c(lear), s(peed) <m/s>, m(ove) <m> [dwell s], r(ecord), q(uit)"
             ));
         }
     };
@@ -770,7 +958,12 @@ pub fn parse_typed(line: &str) -> Result<Typed, String> {
 ///
 /// # Errors
 /// The link failed (the image's watchdog then disables the drive within 0.5 s).
-pub fn run_interactive(target: &Target, record: Option<&Path>) -> anyhow::Result<()> {
+pub fn run_interactive(
+    target: &Target,
+    record: Option<&Path>,
+    positioning: bool,
+    first_move: Option<Move>,
+) -> anyhow::Result<()> {
     let (tx, typed) = mpsc::channel::<String>();
     std::thread::spawn(move || {
         let stdin = std::io::stdin();
@@ -783,9 +976,12 @@ pub fn run_interactive(target: &Target, record: Option<&Path>) -> anyhow::Result
         let _ = tx.send("q".into());
     });
     eprintln!(
-        "commands: e(nable), d(isable), c(lear faults), s(peed) <m/s>, r(ecord: arm the capture), q(uit)"
+        "commands: e(nable), d(isable), c(lear faults), s(peed) <m/s>, m(ove) <m> [dwell s], r(ecord: arm the capture), q(uit)"
     );
-    with_board(target, |board| {
+    with_board(target, positioning, |board| {
+        if let Some(m) = first_move {
+            board.queue_move(m);
+        }
         let mut clear = false;
         let mut arm = record.is_some();
         let mut downloaded = false;
@@ -829,6 +1025,7 @@ pub fn run_interactive(target: &Target, record: Option<&Path>) -> anyhow::Result
                     Ok(Typed::Disable) => board.wish_mut().enable = false,
                     Ok(Typed::Clear) => clear = true,
                     Ok(Typed::Speed(v)) => board.wish_mut().speed_m_per_s = v,
+                    Ok(Typed::MoveTo(m)) => board.queue_move(m),
                     Ok(Typed::Record) => {
                         arm = true;
                         downloaded = false;
@@ -884,6 +1081,10 @@ pub struct Params {
     pub speed_m_per_s: f32,
     /// With `demo`: print one JSON object on the last line of stdout.
     pub json: bool,
+    /// Queue this move (target m, dwell s) with the first command; on QEMU the image
+    /// then runs its positioning drive. With `demo`: the move demo
+    /// ([`run_move_demo`]) instead of the capture demo.
+    pub move_to: Option<Move>,
 }
 
 /// `dcfo board`: the interactive session, or the demo (its report on stdout; an error
@@ -892,9 +1093,39 @@ pub fn run_command(params: &Params) -> anyhow::Result<()> {
     if !params.speed_m_per_s.is_finite() {
         bail!("--speed must be a finite number of m/s");
     }
+    if let Some(m) = params.move_to {
+        check_move(m.target_m, m.dwell_s).map_err(|e| anyhow::anyhow!("--move-to/--dwell: {e}"))?;
+    }
     catch_interrupt()?;
     if !params.demo {
-        return run_interactive(&params.target, params.record.as_deref());
+        return run_interactive(
+            &params.target,
+            params.record.as_deref(),
+            params.move_to.is_some(),
+            params.move_to,
+        );
+    }
+    if let Some(m) = params.move_to {
+        let report = run_move_demo(&params.target, m, Duration::from_secs(60))?;
+        if params.json {
+            println!("{}", serde_json::to_string(&report)?);
+        } else {
+            println!(
+                "move to {:.4} m: x_hat {:.4} m (error {:+.3} mm, tolerance {:.3} mm){}; refused move reported: {}",
+                report.target_m,
+                report.x_hat_m,
+                report.x_err_m * 1e3,
+                report.tolerance_m * 1e3,
+                match report.move_s {
+                    Some(s) => format!(", reached {s:.2} s after the enable"),
+                    None => String::new(),
+                },
+                report.refused_move_reported
+            );
+        }
+        anyhow::ensure!(report.move_reached, "the move did not reach its target within the tolerance");
+        anyhow::ensure!(report.refused_move_reported, "the refused move was not reported");
+        return Ok(());
     }
     let report =
         run_demo(&params.target, params.speed_m_per_s, params.record.as_deref(), Duration::from_secs(60))?;
@@ -931,6 +1162,10 @@ mod tests {
         assert_eq!(parse_typed(" s -0.25 "), Ok(Typed::Speed(-0.25)));
         assert!(parse_typed("s fast").unwrap_err().contains("`fast` is not a speed"));
         assert!(parse_typed("s").unwrap_err().contains("needs a speed"));
+        assert_eq!(parse_typed("m 0.02 0.5"), Ok(Typed::MoveTo(Move { target_m: 0.02, dwell_s: 0.5 })));
+        assert_eq!(parse_typed("move -0.01"), Ok(Typed::MoveTo(Move { target_m: -0.01, dwell_s: 0.0 })));
+        assert!(parse_typed("m").unwrap_err().contains("needs a target"));
+        assert!(parse_typed("m 0.1 -2").unwrap_err().contains("dwell must be"));
         assert!(parse_typed("x").unwrap_err().contains("commands are"));
         assert!(parse_typed("e now").unwrap_err().contains("unexpected `now`"));
         assert!(parse_typed("s inf").is_err());
@@ -951,6 +1186,7 @@ mod tests {
             capture_len: 5,
             capture_capacity: 10,
             periods: 9,
+            position: None,
         };
         let mut wire = [0u8; 300];
         let n = dcfo::link::encode(&t, &mut wire).unwrap();
@@ -978,6 +1214,7 @@ mod tests {
             capture_len: 0,
             capture_capacity: 128,
             periods: 0,
+            position: None,
         };
         let mut wire = [0u8; 64];
         let n = dcfo::link::encode(&t, &mut wire).unwrap();

@@ -114,6 +114,22 @@ pub struct BoardArgs {
     /// capture_samples, replay_identical, ...).
     #[arg(long, requires = "demo")]
     pub json: bool,
+    /// Queue a move to this position [m] with the first command (on QEMU the image then
+    /// runs its positioning drive, DriveConfig::stroke_axis of the paper motor; the
+    /// interactive `m <m> [s]` queues more). With --demo: enable, run the move, report
+    /// move_reached and x_err_m (tolerance: pole pitch / 20) and check that a move
+    /// outside the stroke is reported refused.
+    #[arg(long, value_name = "X_M", allow_negative_numbers = true)]
+    pub move_to: Option<f32>,
+    /// Dwell at the --move-to target [s].
+    #[arg(
+        long,
+        value_name = "S",
+        default_value_t = 0.0,
+        requires = "move_to",
+        allow_negative_numbers = true
+    )]
+    pub dwell: f32,
 }
 
 /// Arguments of `dcfo identify`.
@@ -489,6 +505,7 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                 demo: a.demo,
                 speed_m_per_s: a.speed,
                 json: a.json,
+                move_to: a.move_to.map(|target_m| dcfo::motion::Move { target_m, dwell_s: a.dwell }),
             })?;
             Ok(ExitCode::SUCCESS)
         }

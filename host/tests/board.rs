@@ -298,3 +298,54 @@ fn a_silent_host_disables_the_drive_image() {
     let t = board.disable().expect("disabled");
     assert_eq!(t.state(), DriveState::Disabled);
 }
+
+/// `dcfo board --qemu --demo --move-to 0.03 --json` on the M4F image's positioning
+/// drive (command line `position`): the move goes over the board link, the position
+/// report comes back with the reference at rest at the target and x̂ within a twentieth
+/// of the pole pitch of it (0.75 mm on the paper motor, 9 electrical degrees), and a
+/// move outside the stroke sent afterwards is reported refused. The true mover
+/// position on the virtual motor is checked against the same tolerance by the
+/// firmware's `board_link` unit test (the link carries only the drive's estimate).
+#[test]
+fn board_move_on_qemu_reaches_its_target_and_a_refused_move_is_reported() {
+    let Some(elf) = drive_image(QemuCpu::M4f) else { return };
+    let target = 0.03;
+    let out = Command::new(env!("CARGO_BIN_EXE_dcfo"))
+        .args(["board", "--qemu", "--demo", "--json", "--move-to", "0.03", "--dwell", "0.05", "--elf"])
+        .arg(&elf)
+        .output()
+        .expect("dcfo board runs");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    println!("{}\n{stdout}", String::from_utf8_lossy(&out.stderr));
+    assert!(out.status.success(), "exit status {}", out.status);
+    let last = stdout.lines().last().expect("a JSON line");
+    let report: serde_json::Value = serde_json::from_str(last).expect("the last line is JSON");
+    let tolerance = f64::from(MotorParams::paper().pole_pitch_m) / 20.0;
+    assert_eq!(report["faults"], "none");
+    assert_eq!(report["move_reached"], true);
+    assert!((report["tolerance_m"].as_f64().expect("tolerance") - tolerance).abs() < 1e-9);
+    let x_err = report["x_err_m"].as_f64().expect("x_err_m");
+    assert!(x_err.abs() < tolerance, "x_err {x_err} m");
+    let x_ref = report["x_ref_m"].as_f64().expect("x_ref_m");
+    assert!((x_ref - target).abs() < 1e-6, "reference {x_ref} m");
+    assert_eq!(report["refused_move_reported"], true);
+    assert_eq!(report["moves_rejected"], 1);
+}
+
+/// Bad move values are refused before anything starts, with an error naming them.
+#[test]
+fn a_bad_move_is_refused_with_a_named_error() {
+    for (args, why) in [
+        (["--move-to", "0.01", "--dwell", "-1"], "dwell must be a finite number of s, at least 0"),
+        (["--move-to", "inf", "--dwell", "0"], "target must be a finite number of m"),
+    ] {
+        let out = Command::new(env!("CARGO_BIN_EXE_dcfo"))
+            .args(["board", "--qemu", "--demo"])
+            .args(args)
+            .output()
+            .expect("dcfo board runs");
+        assert!(!out.status.success());
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(stderr.contains(why), "{stderr}");
+    }
+}

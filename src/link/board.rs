@@ -9,17 +9,19 @@
 //! with one [`BoardTelemetry`], or, when the command asks for capture samples and the
 //! capture is over, with one [`CaptureChunk`].
 //!
-//! [`BoardCommand`] payload (12 B):
+//! [`BoardCommand`] payload (20 B):
 //!
 //! | offset | type | field |
 //! |---|---|---|
 //! | 0 | u8 | protocol version |
 //! | 1 | u16 | sequence number |
 //! | 3 | f32 | speed reference (m/s) |
-//! | 7 | u8 | flags ([`BOARD_FLAG_ENABLE`], [`BOARD_FLAG_CLEAR_FAULTS`], [`BOARD_FLAG_ARM_CAPTURE`]) |
+//! | 7 | u8 | flags ([`BOARD_FLAG_ENABLE`], [`BOARD_FLAG_CLEAR_FAULTS`], [`BOARD_FLAG_ARM_CAPTURE`], [`BOARD_FLAG_MOVE`]) |
 //! | 8 | u32 | capture read: index of the first sample wanted, [`NO_CAPTURE_READ`] for telemetry |
+//! | 12 | f32 | move: target position (m); zero bytes without [`BOARD_FLAG_MOVE`] |
+//! | 16 | f32 | move: dwell at the target (s); zero bytes without [`BOARD_FLAG_MOVE`] |
 //!
-//! [`BoardTelemetry`] payload (44 B):
+//! [`BoardTelemetry`] payload (59 B):
 //!
 //! | offset | type | field |
 //! |---|---|---|
@@ -27,7 +29,7 @@
 //! | 1 | u16 | sequence number of the command answered |
 //! | 3 | u8 | drive state (code, `0..`[`STATE_CODES`](super::STATE_CODES)) |
 //! | 4 | u16 | fault bits (the drive's `Faults::bits`) |
-//! | 6 | u8 | flags ([`ACTUATION_FLAG_BRIDGE_ENABLED`], [`ACTUATION_FLAG_ESTIMATE_VALID`]) |
+//! | 6 | u8 | flags ([`ACTUATION_FLAG_BRIDGE_ENABLED`], [`ACTUATION_FLAG_ESTIMATE_VALID`], [`ACTUATION_FLAG_POSITION_VALID`], [`ACTUATION_FLAG_MOTION_IDLE`]) |
 //! | 7, 11 | f32 | θ̂ (electrical rad), speed estimate (m/s); zero without an estimate |
 //! | 15, 19 | f32 | measured i_α, i_β (A) |
 //! | 23 | f32 | DC-bus voltage (V) |
@@ -35,6 +37,12 @@
 //! | 31 | u8 | capture state ([`CaptureState::code`]) |
 //! | 32, 36 | u32 | capture: samples held, capacity |
 //! | 40 | u32 | control periods run since boot (wrapping) |
+//! | 44, 48, 52 | f32 | position report ([`PositionReport`]): x̂ (m), reference position (m), reference speed (m/s) |
+//! | 56 | u8 | position report: moves queued (not counting the active one) |
+//! | 57 | u16 | position report: moves refused since boot (wrapping) |
+//!
+//! The position fields (44 to 58) are zero bytes without [`ACTUATION_FLAG_POSITION_VALID`]
+//! (a speed drive), and [`ACTUATION_FLAG_MOTION_IDLE`] is only set with it.
 //!
 //! [`CaptureChunk`] payload (225 B):
 //!
@@ -49,10 +57,11 @@
 
 use super::codec::{EncodeError, LinkError, Reader, Writer};
 use super::frame::{
-    ACTUATION_FLAG_BRIDGE_ENABLED, ACTUATION_FLAG_ESTIMATE_VALID, CRC_LEN, Frame, PROTOCOL_VERSION,
-    state_code_ok, wire_len,
+    ACTUATION_FLAG_BRIDGE_ENABLED, ACTUATION_FLAG_ESTIMATE_VALID, ACTUATION_FLAG_MOTION_IDLE,
+    ACTUATION_FLAG_POSITION_VALID, CRC_LEN, Frame, PROTOCOL_VERSION, PositionReport, state_code_ok, wire_len,
 };
 use crate::capture::{CaptureFormat, CaptureSample, CaptureState};
+use crate::motion::Move;
 
 /// [`BoardCommand`] flag: the drive should run (clear: disable).
 pub const BOARD_FLAG_ENABLE: u8 = 1 << 0;
@@ -60,7 +69,15 @@ pub const BOARD_FLAG_ENABLE: u8 = 1 << 0;
 pub const BOARD_FLAG_CLEAR_FAULTS: u8 = 1 << 1;
 /// [`BoardCommand`] flag: arm the capture (it starts at the estimator's next start).
 pub const BOARD_FLAG_ARM_CAPTURE: u8 = 1 << 2;
-const BOARD_FLAGS_KNOWN: u8 = BOARD_FLAG_ENABLE | BOARD_FLAG_CLEAR_FAULTS | BOARD_FLAG_ARM_CAPTURE;
+/// [`BoardCommand`] flag: the move fields hold a move to queue ([`BoardCommand::move_to`]);
+/// clear: they are zero bytes.
+pub const BOARD_FLAG_MOVE: u8 = 1 << 3;
+const BOARD_FLAGS_KNOWN: u8 =
+    BOARD_FLAG_ENABLE | BOARD_FLAG_CLEAR_FAULTS | BOARD_FLAG_ARM_CAPTURE | BOARD_FLAG_MOVE;
+const TELEMETRY_FLAGS_KNOWN: u8 = ACTUATION_FLAG_BRIDGE_ENABLED
+    | ACTUATION_FLAG_ESTIMATE_VALID
+    | ACTUATION_FLAG_POSITION_VALID
+    | ACTUATION_FLAG_MOTION_IDLE;
 
 /// [`BoardCommand::capture_read`] for "no samples, answer with telemetry".
 pub const NO_CAPTURE_READ: u32 = u32::MAX;
@@ -85,11 +102,14 @@ pub struct BoardCommand {
     pub arm_capture: bool,
     /// Index of the first capture sample wanted, or [`NO_CAPTURE_READ`].
     pub capture_read: u32,
+    /// Queue this move (target m, dwell s; both finite) on a positioning drive; send it
+    /// in one command (a command sent again queues it again). `None`: no move.
+    pub move_to: Option<Move>,
 }
 
 impl BoardCommand {
     /// Payload length (bytes).
-    pub const PAYLOAD_LEN: usize = 12;
+    pub const PAYLOAD_LEN: usize = 20;
     /// Raw length (bytes): payload and CRC.
     pub const RAW_LEN: usize = Self::PAYLOAD_LEN + CRC_LEN;
     /// Length on the wire (bytes).
@@ -100,7 +120,8 @@ impl Frame for BoardCommand {
     const PAYLOAD_LEN: usize = BoardCommand::PAYLOAD_LEN;
 
     fn write_payload(&self, payload: &mut [u8]) -> Result<(), EncodeError> {
-        if !self.speed_ref.is_finite() {
+        let m = self.move_to.unwrap_or(Move { target_m: 0.0, dwell_s: 0.0 });
+        if ![self.speed_ref, m.target_m, m.dwell_s].iter().all(|x| x.is_finite()) {
             return Err(EncodeError::InvalidValue);
         }
         let mut flags = 0;
@@ -108,6 +129,7 @@ impl Frame for BoardCommand {
             (self.enable, BOARD_FLAG_ENABLE),
             (self.clear_faults, BOARD_FLAG_CLEAR_FAULTS),
             (self.arm_capture, BOARD_FLAG_ARM_CAPTURE),
+            (self.move_to.is_some(), BOARD_FLAG_MOVE),
         ] {
             if on {
                 flags |= bit;
@@ -119,6 +141,8 @@ impl Frame for BoardCommand {
         w.f32(self.speed_ref);
         w.u8(flags);
         w.u32(self.capture_read);
+        w.f32(m.target_m);
+        w.f32(m.dwell_s);
         w.finish(Self::PAYLOAD_LEN)
     }
 
@@ -131,13 +155,24 @@ impl Frame for BoardCommand {
         if flags & !BOARD_FLAGS_KNOWN != 0 {
             return Err(LinkError::Flags);
         }
+        let capture_read = r.u32();
+        let move_bytes = r.bytes::<8>();
+        let move_to = if flags & BOARD_FLAG_MOVE != 0 {
+            let mut m = Reader::new(&move_bytes, 8)?;
+            Some(Move { target_m: m.finite_f32()?, dwell_s: m.finite_f32()? })
+        } else if move_bytes.iter().any(|&b| b != 0) {
+            return Err(LinkError::Value);
+        } else {
+            None
+        };
         Ok(BoardCommand {
             sequence,
             speed_ref,
             enable: flags & BOARD_FLAG_ENABLE != 0,
             clear_faults: flags & BOARD_FLAG_CLEAR_FAULTS != 0,
             arm_capture: flags & BOARD_FLAG_ARM_CAPTURE != 0,
-            capture_read: r.u32(),
+            capture_read,
+            move_to,
         })
     }
 }
@@ -171,11 +206,14 @@ pub struct BoardTelemetry {
     pub capture_capacity: u32,
     /// Control periods run since boot (wrapping).
     pub periods: u32,
+    /// A positioning drive's position and motion (x̂ and the reference in m, the queue,
+    /// the moves refused since boot); `None` for a speed drive.
+    pub position: Option<PositionReport>,
 }
 
 impl BoardTelemetry {
     /// Payload length (bytes).
-    pub const PAYLOAD_LEN: usize = 44;
+    pub const PAYLOAD_LEN: usize = 59;
     /// Raw length (bytes): payload and CRC.
     pub const RAW_LEN: usize = Self::PAYLOAD_LEN + CRC_LEN;
     /// Length on the wire (bytes).
@@ -188,7 +226,10 @@ impl Frame for BoardTelemetry {
     fn write_payload(&self, payload: &mut [u8]) -> Result<(), EncodeError> {
         let (theta, speed) = self.estimate.unwrap_or((0.0, 0.0));
         let floats = [theta, speed, self.i_ab_a[0], self.i_ab_a[1], self.vdc_v, self.speed_ref];
-        if !floats.iter().all(|x| x.is_finite()) || !state_code_ok(self.state_code) {
+        if !floats.iter().all(|x| x.is_finite())
+            || !state_code_ok(self.state_code)
+            || !self.position.is_none_or(|p| p.is_finite())
+        {
             return Err(EncodeError::InvalidValue);
         }
         let mut flags = 0;
@@ -197,6 +238,12 @@ impl Frame for BoardTelemetry {
         }
         if self.estimate.is_some() {
             flags |= ACTUATION_FLAG_ESTIMATE_VALID;
+        }
+        if let Some(p) = self.position {
+            flags |= ACTUATION_FLAG_POSITION_VALID;
+            if p.idle {
+                flags |= ACTUATION_FLAG_MOTION_IDLE;
+            }
         }
         let mut w = Writer::new(payload);
         w.u8(PROTOCOL_VERSION);
@@ -211,6 +258,12 @@ impl Frame for BoardTelemetry {
         w.u32(self.capture_len);
         w.u32(self.capture_capacity);
         w.u32(self.periods);
+        let p = self.position.unwrap_or_default();
+        for x in [p.x_hat_m, p.x_ref_m, p.v_ref_m_per_s] {
+            w.f32(x);
+        }
+        w.u8(p.moves_queued);
+        w.u16(p.moves_rejected);
         w.finish(Self::PAYLOAD_LEN)
     }
 
@@ -224,7 +277,7 @@ impl Frame for BoardTelemetry {
         }
         let fault_bits = r.u16();
         let flags = r.u8();
-        if flags & !(ACTUATION_FLAG_BRIDGE_ENABLED | ACTUATION_FLAG_ESTIMATE_VALID) != 0 {
+        if flags & !TELEMETRY_FLAGS_KNOWN != 0 {
             return Err(LinkError::Flags);
         }
         let theta = r.finite_f32()?;
@@ -245,6 +298,23 @@ impl Frame for BoardTelemetry {
         if capture_len > capture_capacity {
             return Err(LinkError::Value);
         }
+        let periods = r.u32();
+        let position_bytes = r.bytes::<15>();
+        let position = if flags & ACTUATION_FLAG_POSITION_VALID != 0 {
+            let mut p = Reader::new(&position_bytes, 15)?;
+            Some(PositionReport {
+                x_hat_m: p.finite_f32()?,
+                x_ref_m: p.finite_f32()?,
+                v_ref_m_per_s: p.finite_f32()?,
+                moves_queued: p.u8(),
+                idle: flags & ACTUATION_FLAG_MOTION_IDLE != 0,
+                moves_rejected: p.u16(),
+            })
+        } else if flags & ACTUATION_FLAG_MOTION_IDLE != 0 || position_bytes.iter().any(|&b| b != 0) {
+            return Err(LinkError::Value);
+        } else {
+            None
+        };
         Ok(BoardTelemetry {
             sequence,
             state_code,
@@ -257,7 +327,8 @@ impl Frame for BoardTelemetry {
             capture,
             capture_len,
             capture_capacity,
-            periods: r.u32(),
+            periods,
+            position,
         })
     }
 }
@@ -371,8 +442,11 @@ mod tests {
             clear_faults: false,
             arm_capture: true,
             capture_read: 1234,
+            move_to: None,
         };
         assert_eq!(round_trip(c), c);
+        let with_move = BoardCommand { move_to: Some(Move { target_m: -0.012, dwell_s: 0.25 }), ..c };
+        assert_eq!(round_trip(with_move), with_move);
         let t = BoardTelemetry {
             sequence: 7,
             state_code: 3,
@@ -386,8 +460,21 @@ mod tests {
             capture_len: 10,
             capture_capacity: 20,
             periods: 123_456,
+            position: None,
         };
         assert_eq!(round_trip(t), t);
+        for idle in [false, true] {
+            let p = PositionReport {
+                x_hat_m: 0.0101,
+                x_ref_m: 0.01,
+                v_ref_m_per_s: if idle { 0.0 } else { 0.05 },
+                moves_queued: 3,
+                idle,
+                moves_rejected: 65_535,
+            };
+            let tp = BoardTelemetry { position: Some(p), ..t };
+            assert_eq!(round_trip(tp), tp);
+        }
         let s = CaptureSample {
             u_alpha: 3.0f32.to_bits(),
             theta_hat: Angle::from_bits(99),
@@ -446,10 +533,28 @@ mod tests {
             clear_faults: false,
             arm_capture: false,
             capture_read: NO_CAPTURE_READ,
+            move_to: None,
         };
         let mut payload = [0u8; BoardCommand::PAYLOAD_LEN];
         c.write_payload(&mut payload).unwrap();
+        let clean = payload;
         payload[7] |= 1 << 6;
         assert_eq!(BoardCommand::read_payload(&payload), Err(LinkError::Flags));
+        // Move bytes without the move flag (payload bytes 12 to 19) are refused.
+        for k in 12..20 {
+            let mut p = clean;
+            p[k] = 1;
+            assert_eq!(BoardCommand::read_payload(&p), Err(LinkError::Value), "byte {k}");
+        }
+        // A non-finite move is neither sent nor taken.
+        for bad in [Move { target_m: f32::NAN, dwell_s: 0.0 }, Move { target_m: 0.0, dwell_s: f32::INFINITY }]
+        {
+            let m = BoardCommand { move_to: Some(bad), ..c };
+            assert_eq!(encode(&m, &mut [0u8; 64]), Err(EncodeError::InvalidValue));
+        }
+        let mut p = clean;
+        p[7] |= BOARD_FLAG_MOVE;
+        p[12..16].copy_from_slice(&f32::NAN.to_le_bytes());
+        assert_eq!(BoardCommand::read_payload(&p), Err(LinkError::Value));
     }
 }

@@ -10,8 +10,11 @@ use crate::motion::Move;
 ///
 /// Version 2 (from 1) added the move command to [`SensorFrame`], the position report to
 /// [`ActuationFrame`], the commissioning frames ([`CommissioningRequest`],
-/// [`CommissioningReport`]), and the format of the drive's own words to the board link's
-/// [`CaptureChunk`](super::board::CaptureChunk) (1: SI `f32` converted on the target).
+/// [`CommissioningReport`]), and, on the board link, the format of the drive's own words
+/// to [`CaptureChunk`](super::board::CaptureChunk) (1: SI `f32` converted on the target),
+/// the move command to [`BoardCommand`](super::board::BoardCommand) (flag
+/// [`BOARD_FLAG_MOVE`](super::board::BOARD_FLAG_MOVE), 12 to 20 bytes) and the position
+/// report to [`BoardTelemetry`](super::board::BoardTelemetry) (44 to 59 bytes).
 pub const PROTOCOL_VERSION: u8 = 2;
 
 /// Bytes of the CRC after the payload (CRC-16, little-endian).
@@ -413,8 +416,11 @@ pub struct CommissioningRequest {
 }
 
 impl CommissioningRequest {
-    /// Payload length (bytes).
-    pub const PAYLOAD_LEN: usize = 20;
+    /// Payload length (bytes): 20 of fields and a reserved zero byte, which keeps the
+    /// length apart from the board link's [`BoardCommand`](super::board::BoardCommand) (20
+    /// bytes): a board-link host paired with a HIL image by mistake cannot start a
+    /// commissioning.
+    pub const PAYLOAD_LEN: usize = 21;
     /// Raw length (bytes): payload and CRC.
     pub const RAW_LEN: usize = Self::PAYLOAD_LEN + CRC_LEN;
     /// Length on the wire (bytes).
@@ -439,6 +445,7 @@ impl Frame for CommissioningRequest {
         for x in values {
             w.f32(x);
         }
+        w.u8(0);
         w.finish(Self::PAYLOAD_LEN)
     }
 
@@ -448,6 +455,9 @@ impl Frame for CommissioningRequest {
         let sequence = r.u16();
         let action = r.u8();
         let values = [r.finite_f32()?, r.finite_f32()?, r.finite_f32()?, r.finite_f32()?];
+        if r.u8() != 0 {
+            return Err(LinkError::Value);
+        }
         let start = match action {
             COMMISSIONING_START => Some(crate::drive::CommissioningConfig {
                 rated_current_a: values[0],

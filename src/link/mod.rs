@@ -40,10 +40,10 @@
 //! |---|---|---|---|
 //! | [`SensorFrame`] | 32 B | 34 B | 36 B |
 //! | [`ActuationFrame`] | 56 B | 58 B | 60 B |
-//! | [`CommissioningRequest`] | 20 B | 22 B | 24 B |
+//! | [`CommissioningRequest`] | 21 B | 23 B | 25 B |
 //! | [`CommissioningReport`] | 136 B | 138 B | 140 B |
-//! | [`board::BoardCommand`] | 12 B | 14 B | 16 B |
-//! | [`board::BoardTelemetry`] | 44 B | 46 B | 48 B |
+//! | [`board::BoardCommand`] | 20 B | 22 B | 24 B |
+//! | [`board::BoardTelemetry`] | 59 B | 61 B | 63 B |
 //! | [`board::CaptureChunk`] | 225 B | 227 B | 229 B |
 //!
 //! The board link's frames ([`board`]: a drive image operated from the host) share the
@@ -106,6 +106,7 @@
 //! | 3 | u8 | action: [`COMMISSIONING_QUERY`] (0) or [`COMMISSIONING_START`] (1) |
 //! | 4, 8 | f32 | rated current (A RMS), rated line voltage (V RMS) |
 //! | 12, 16 | f32 | nominal DC bus (V), pole pitch (m) |
+//! | 20 | u8 | reserved, 0 (keeps the length apart from the board link's command) |
 //!
 //! A query sends the four values as zero bytes.
 //!
@@ -221,13 +222,29 @@ mod tests {
         assert_eq!(<SensorFrame as Frame>::WIRE_LEN, SensorFrame::WIRE_LEN);
         assert_eq!(<ActuationFrame as Frame>::WIRE_LEN, ActuationFrame::WIRE_LEN);
         assert_eq!(RX_CAPACITY, 59);
-        assert_eq!((CommissioningRequest::RAW_LEN, CommissioningRequest::WIRE_LEN), (22, 24));
+        assert_eq!((CommissioningRequest::RAW_LEN, CommissioningRequest::WIRE_LEN), (23, 25));
         assert_eq!((CommissioningReport::RAW_LEN, CommissioningReport::WIRE_LEN), (138, 140));
         assert_eq!(LinkServer::REPLY_LEN, 140);
         // The controller receives requests in the sensor frames' buffer, told apart by
         // length.
         const { assert!(CommissioningRequest::WIRE_LEN - 1 <= RX_CAPACITY) };
         assert_ne!(CommissioningRequest::RAW_LEN, SensorFrame::RAW_LEN);
+        assert_eq!((board::BoardCommand::RAW_LEN, board::BoardCommand::WIRE_LEN), (22, 24));
+        assert_eq!((board::BoardTelemetry::RAW_LEN, board::BoardTelemetry::WIRE_LEN), (61, 63));
+        assert_eq!((board::CaptureChunk::RAW_LEN, board::CaptureChunk::WIRE_LEN), (227, 229));
+        // Every frame type of the shared framing has its own length.
+        let raw = [
+            SensorFrame::RAW_LEN,
+            ActuationFrame::RAW_LEN,
+            CommissioningRequest::RAW_LEN,
+            CommissioningReport::RAW_LEN,
+            board::BoardCommand::RAW_LEN,
+            board::BoardTelemetry::RAW_LEN,
+            board::CaptureChunk::RAW_LEN,
+        ];
+        for (i, a) in raw.iter().enumerate() {
+            assert!(raw[i + 1..].iter().all(|b| b != a), "{raw:?}");
+        }
     }
 
     #[test]
