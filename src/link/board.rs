@@ -239,12 +239,7 @@ impl Frame for BoardTelemetry {
         if self.estimate.is_some() {
             flags |= ACTUATION_FLAG_ESTIMATE_VALID;
         }
-        if let Some(p) = self.position {
-            flags |= ACTUATION_FLAG_POSITION_VALID;
-            if p.idle {
-                flags |= ACTUATION_FLAG_MOTION_IDLE;
-            }
-        }
+        flags |= PositionReport::flags(self.position);
         let mut w = Writer::new(payload);
         w.u8(PROTOCOL_VERSION);
         w.u16(self.sequence);
@@ -258,12 +253,7 @@ impl Frame for BoardTelemetry {
         w.u32(self.capture_len);
         w.u32(self.capture_capacity);
         w.u32(self.periods);
-        let p = self.position.unwrap_or_default();
-        for x in [p.x_hat_m, p.x_ref_m, p.v_ref_m_per_s] {
-            w.f32(x);
-        }
-        w.u8(p.moves_queued);
-        w.u16(p.moves_rejected);
+        PositionReport::write(self.position, &mut w);
         w.finish(Self::PAYLOAD_LEN)
     }
 
@@ -299,22 +289,7 @@ impl Frame for BoardTelemetry {
             return Err(LinkError::Value);
         }
         let periods = r.u32();
-        let position_bytes = r.bytes::<15>();
-        let position = if flags & ACTUATION_FLAG_POSITION_VALID != 0 {
-            let mut p = Reader::new(&position_bytes, 15)?;
-            Some(PositionReport {
-                x_hat_m: p.finite_f32()?,
-                x_ref_m: p.finite_f32()?,
-                v_ref_m_per_s: p.finite_f32()?,
-                moves_queued: p.u8(),
-                idle: flags & ACTUATION_FLAG_MOTION_IDLE != 0,
-                moves_rejected: p.u16(),
-            })
-        } else if flags & ACTUATION_FLAG_MOTION_IDLE != 0 || position_bytes.iter().any(|&b| b != 0) {
-            return Err(LinkError::Value);
-        } else {
-            None
-        };
+        let position = PositionReport::read(flags, &mut r)?;
         Ok(BoardTelemetry {
             sequence,
             state_code,

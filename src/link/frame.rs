@@ -229,8 +229,54 @@ pub struct PositionReport {
 }
 
 impl PositionReport {
+    /// Bytes of the position fields in a frame (the idle flag travels in the flags byte).
+    pub(super) const WIRE_LEN: usize = 15;
+
     pub(super) fn is_finite(&self) -> bool {
         [self.x_hat_m, self.x_ref_m, self.v_ref_m_per_s].iter().all(|x| x.is_finite())
+    }
+
+    /// The flag bits `report` sets: [`ACTUATION_FLAG_POSITION_VALID`], and
+    /// [`ACTUATION_FLAG_MOTION_IDLE`] when idle. Shared by the HIL and the board link.
+    pub(super) fn flags(report: Option<Self>) -> u8 {
+        match report {
+            Some(p) if p.idle => ACTUATION_FLAG_POSITION_VALID | ACTUATION_FLAG_MOTION_IDLE,
+            Some(_) => ACTUATION_FLAG_POSITION_VALID,
+            None => 0,
+        }
+    }
+
+    /// Writes the position fields of `report` (zero bytes for `None`).
+    pub(super) fn write(report: Option<Self>, w: &mut Writer<'_>) {
+        let p = report.unwrap_or_default();
+        for x in [p.x_hat_m, p.x_ref_m, p.v_ref_m_per_s] {
+            w.f32(x);
+        }
+        w.u8(p.moves_queued);
+        w.u16(p.moves_rejected);
+    }
+
+    /// Reads the position fields under `flags`: a report with the position flag (every
+    /// value finite), none without it, and then the fields must be zero bytes and the
+    /// idle flag clear.
+    pub(super) fn read(flags: u8, r: &mut Reader<'_>) -> Result<Option<Self>, LinkError> {
+        let bytes = r.bytes::<{ PositionReport::WIRE_LEN }>();
+        if flags & ACTUATION_FLAG_POSITION_VALID == 0 {
+            return if flags & ACTUATION_FLAG_MOTION_IDLE != 0 || bytes.iter().any(|&b| b != 0) {
+                Err(LinkError::Value)
+            } else {
+                Ok(None)
+            };
+        }
+        let mut p = Reader::new(&bytes, PositionReport::WIRE_LEN)?;
+        Ok(Some(PositionReport {
+            x_hat_m: p.finite_f32()?,
+            x_ref_m: p.finite_f32()?,
+            v_ref_m_per_s: p.finite_f32()?,
+            moves_queued: p.u8(),
+            idle: flags & ACTUATION_FLAG_MOTION_IDLE != 0,
+            moves_rejected: p.u16(),
+        }))
     }
 }
 
@@ -278,13 +324,7 @@ impl ActuationFrame {
         if self.estimate.is_some() {
             flags |= ACTUATION_FLAG_ESTIMATE_VALID;
         }
-        if let Some(p) = self.position {
-            flags |= ACTUATION_FLAG_POSITION_VALID;
-            if p.idle {
-                flags |= ACTUATION_FLAG_MOTION_IDLE;
-            }
-        }
-        flags
+        flags | PositionReport::flags(self.position)
     }
 }
 
@@ -325,12 +365,7 @@ impl Frame for ActuationFrame {
         w.u16(self.stats.malformed);
         w.u16(self.stats.bad_crc);
         w.u16(self.stats.out_of_order);
-        let p = self.position.unwrap_or_default();
-        for x in [p.x_hat_m, p.x_ref_m, p.v_ref_m_per_s] {
-            w.f32(x);
-        }
-        w.u8(p.moves_queued);
-        w.u16(p.moves_rejected);
+        PositionReport::write(self.position, &mut w);
         w.finish(Self::PAYLOAD_LEN)
     }
 
@@ -365,22 +400,7 @@ impl Frame for ActuationFrame {
             None
         };
         let stats = LinkStats { malformed: r.u16(), bad_crc: r.u16(), out_of_order: r.u16() };
-        let position_bytes = r.bytes::<15>();
-        let position = if flags & ACTUATION_FLAG_POSITION_VALID != 0 {
-            let mut p = Reader::new(&position_bytes, 15)?;
-            Some(PositionReport {
-                x_hat_m: p.finite_f32()?,
-                x_ref_m: p.finite_f32()?,
-                v_ref_m_per_s: p.finite_f32()?,
-                moves_queued: p.u8(),
-                idle: flags & ACTUATION_FLAG_MOTION_IDLE != 0,
-                moves_rejected: p.u16(),
-            })
-        } else if flags & ACTUATION_FLAG_MOTION_IDLE != 0 || position_bytes.iter().any(|&b| b != 0) {
-            return Err(LinkError::Value);
-        } else {
-            None
-        };
+        let position = PositionReport::read(flags, &mut r)?;
         Ok(ActuationFrame {
             sequence,
             duty_a,
