@@ -276,17 +276,7 @@ pub fn identify_with(
     let mut started = false;
     for k in 0..n {
         let reading = plant.sample();
-        let sensor = SensorFrame {
-            sequence: k as u16,
-            i_a: reading.i_abc_a[0] as f32,
-            i_b: reading.i_abc_a[1] as f32,
-            i_c: reading.i_abc_a[2] as f32,
-            vdc: reading.vdc_v as f32,
-            speed_ref: 0.0,
-            enable: true,
-            clear_faults: false,
-            move_to: None,
-        };
+        let sensor = reading.sensor_frame(k as u16, 0.0, None);
         let out = drive.step(&sensor)?;
         if pending_on {
             plant.step(pending, 0.0);

@@ -20,7 +20,6 @@
 use std::f64::consts::PI;
 
 use dcfo::drive::{DriveConfig, DriveState};
-use dcfo::link::SensorFrame;
 use dcfo::motion::Move;
 use dcfo::motor::MotorParams;
 use serde::Serialize;
@@ -281,17 +280,7 @@ pub fn run_with(
         let move_to = if queue_room > 0 { moves.pop_front() } else { None };
         let reading = plant.sample();
         let truth = plant.state();
-        let sensor = SensorFrame {
-            sequence: k as u16,
-            i_a: reading.i_abc_a[0] as f32,
-            i_b: reading.i_abc_a[1] as f32,
-            i_c: reading.i_abc_a[2] as f32,
-            vdc: reading.vdc_v as f32,
-            speed_ref: 0.0,
-            enable: true,
-            clear_faults: false,
-            move_to,
-        };
+        let sensor = reading.sensor_frame(k as u16, 0.0, move_to);
         let step = controller.step(&sensor).map_err(|e| e.to_string())?;
         let f = step.frame;
         let Some(pos) = f.position else {

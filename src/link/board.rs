@@ -156,15 +156,7 @@ impl Frame for BoardCommand {
             return Err(LinkError::Flags);
         }
         let capture_read = r.u32();
-        let move_bytes = r.bytes::<8>();
-        let move_to = if flags & BOARD_FLAG_MOVE != 0 {
-            let mut m = Reader::new(&move_bytes, 8)?;
-            Some(Move { target_m: m.finite_f32()?, dwell_s: m.finite_f32()? })
-        } else if move_bytes.iter().any(|&b| b != 0) {
-            return Err(LinkError::Value);
-        } else {
-            None
-        };
+        let move_to = super::frame::read_move(flags & BOARD_FLAG_MOVE != 0, &mut r)?;
         Ok(BoardCommand {
             sequence,
             speed_ref,

@@ -132,6 +132,18 @@ impl SensorFrame {
     }
 }
 
+/// Reads a move's fields (target m, dwell s, 8 bytes): the move when `present` (both
+/// finite), else `None`, and then the fields must be zero bytes. Shared by
+/// [`SensorFrame`] and the board link's [`BoardCommand`](super::board::BoardCommand).
+pub(super) fn read_move(present: bool, r: &mut Reader<'_>) -> Result<Option<Move>, LinkError> {
+    let bytes = r.bytes::<8>();
+    if !present {
+        return if bytes.iter().any(|&b| b != 0) { Err(LinkError::Value) } else { Ok(None) };
+    }
+    let mut m = Reader::new(&bytes, 8)?;
+    Ok(Some(Move { target_m: m.finite_f32()?, dwell_s: m.finite_f32()? }))
+}
+
 impl Frame for SensorFrame {
     const PAYLOAD_LEN: usize = SensorFrame::PAYLOAD_LEN;
 
@@ -166,15 +178,7 @@ impl Frame for SensorFrame {
         if flags & !SENSOR_FLAGS_KNOWN != 0 {
             return Err(LinkError::Flags);
         }
-        let move_bytes = r.bytes::<8>();
-        let move_to = if flags & SENSOR_FLAG_MOVE != 0 {
-            let mut m = Reader::new(&move_bytes, 8)?;
-            Some(Move { target_m: m.finite_f32()?, dwell_s: m.finite_f32()? })
-        } else if move_bytes.iter().any(|&b| b != 0) {
-            return Err(LinkError::Value);
-        } else {
-            None
-        };
+        let move_to = read_move(flags & SENSOR_FLAG_MOVE != 0, &mut r)?;
         Ok(SensorFrame {
             sequence,
             i_a,

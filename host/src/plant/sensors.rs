@@ -36,6 +36,28 @@ impl SensorReading {
             &dcfo::units::Base::SI,
         )
     }
+
+    /// This reading as the lock-step link's sensor frame number `sequence`, with the drive
+    /// enabled, the speed reference `speed_ref_m_per_s` (m/s) and a move to queue, if any.
+    pub fn sensor_frame(
+        &self,
+        sequence: u16,
+        speed_ref_m_per_s: f32,
+        move_to: Option<dcfo::motion::Move>,
+    ) -> dcfo::link::SensorFrame {
+        let [a, b, c] = self.i_abc_a;
+        dcfo::link::SensorFrame {
+            sequence,
+            i_a: a as f32,
+            i_b: b as f32,
+            i_c: c as f32,
+            vdc: self.vdc_v as f32,
+            speed_ref: speed_ref_m_per_s,
+            enable: true,
+            clear_faults: false,
+            move_to,
+        }
+    }
 }
 
 /// Sensor chain state: parameters and the noise generator.

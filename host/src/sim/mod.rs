@@ -353,17 +353,7 @@ pub fn run_with(
         }
         let reading = plant.sample();
         let truth: TrueState = plant.state();
-        let sensor = SensorFrame {
-            sequence: k as u16,
-            i_a: reading.i_abc_a[0] as f32,
-            i_b: reading.i_abc_a[1] as f32,
-            i_c: reading.i_abc_a[2] as f32,
-            vdc: reading.vdc_v as f32,
-            speed_ref: v_ref_target as f32,
-            enable: true,
-            clear_faults: false,
-            move_to: None,
-        };
+        let sensor = reading.sensor_frame(k as u16, v_ref_target as f32, None);
         let step = controller.step(&sensor)?;
         let f = step.frame;
         if pending_on {
