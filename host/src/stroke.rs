@@ -184,6 +184,8 @@ pub struct StrokeEquivalence {
     pub differing: usize,
     /// Largest |x̂ difference|, m.
     pub max_x_diff_m: f64,
+    /// The first period that differs (`None`: none), where to start looking.
+    pub first_differing: Option<usize>,
 }
 
 /// Compares the per-period estimates of two runs bit for bit.
@@ -191,13 +193,15 @@ pub fn compare(a: &[LinkEstimate], b: &[LinkEstimate]) -> StrokeEquivalence {
     let bits = |e: &LinkEstimate| (e.theta_hat.map(f32::to_bits), e.x_hat_m.to_bits());
     let mut differing = a.len().abs_diff(b.len());
     let mut max_x_diff_m = 0.0f64;
-    for (x, y) in a.iter().zip(b) {
+    let mut first_differing = (a.len() != b.len()).then_some(a.len().min(b.len()));
+    for (k, (x, y)) in a.iter().zip(b).enumerate() {
         if bits(x) != bits(y) {
+            first_differing = Some(first_differing.map_or(k, |f| f.min(k)));
             differing += 1;
             max_x_diff_m = max_x_diff_m.max((f64::from(x.x_hat_m) - f64::from(y.x_hat_m)).abs());
         }
     }
-    StrokeEquivalence { periods: a.len().min(b.len()), differing, max_x_diff_m }
+    StrokeEquivalence { periods: a.len().min(b.len()), differing, max_x_diff_m, first_differing }
 }
 
 /// The moves of a stroke run: `count` moves between the stroke's ends, the first to
@@ -696,8 +700,11 @@ pub fn run_command(params: &Params) -> anyhow::Result<()> {
         print!("{}", table(summary));
         if let Some(e) = &report.equivalence {
             println!(
-                "equivalence with the in-process drive: {} of {} periods differ in θ̂ or x̂ (max |Δx̂| {:.2e} m)",
-                e.differing, e.periods, e.max_x_diff_m
+                "equivalence with the in-process drive: {} of {} periods differ in θ̂ or x̂ (max |Δx̂| {:.2e} m){}",
+                e.differing,
+                e.periods,
+                e.max_x_diff_m,
+                e.first_differing.map(|k| format!(", first at period {k}")).unwrap_or_default()
             );
         }
     }

@@ -7,6 +7,11 @@
 //! bit: `Drive<f32>` for the Cortex-M4F image, `Drive<Q24>` for the Cortex-M3 one.
 //! About a minute per target at QEMU's 500 round trips a second.
 //!
+//! The salient motor (`motors/salient.toml`, Lq/Ld = 1.5) runs the same short stroke on
+//! the Cortex-M3: its low-speed mode and the hold at rest are high-frequency injection
+//! and the load observer, so this is the Q8.24 drive with HFI on the target, bit for bit
+//! with the host's `Drive<Q24>`.
+//!
 //! Skips with a message when `qemu-system-arm` or a thumb target is missing, unless
 //! `DCFO_REQUIRE_QEMU=1` (CI sets it), which turns a skip into a failure.
 
@@ -30,14 +35,21 @@ fn firmware(cpu: QemuCpu) -> Option<PathBuf> {
 /// Moves of the short stroke: out and back, one reversal through zero speed.
 const MOVES: usize = 2;
 
-fn short_stroke_equals_the_host_bit_for_bit(cpu: QemuCpu) {
+/// The motor `name` (a preset or a file under the workspace root).
+fn motor(name: &str) -> MotorParams {
+    let workspace = Path::new(env!("CARGO_MANIFEST_DIR")).parent().expect("workspace root");
+    let arg = if name == "paper" { name.to_string() } else { workspace.join(name).display().to_string() };
+    dcfo_host::motor_file::load_motor(&arg).expect("motor file").params
+}
+
+fn short_stroke_equals_the_host_bit_for_bit(cpu: QemuCpu, motor_name: &str) {
     let Some(elf) = firmware(cpu) else { return };
-    let motor = MotorParams::paper();
+    let motor = motor(motor_name);
     let setup = setup_for(&motor);
     let cmdline = qemu_cmdline(&motor, bus_for(&motor)).expect("motor image");
     let started = std::time::Instant::now();
     let (session, mut link) = QemuSession::start_with_cmdline(&elf, cpu, &cmdline).expect("qemu starts");
-    let hil = run_with("paper", &setup, &mut link, MOVES, 100, |_| {}).expect("stroke over the link");
+    let hil = run_with(motor_name, &setup, &mut link, MOVES, 100, |_| {}).expect("stroke over the link");
     let rate = link.round_trips_per_s();
     drop(link);
     drop(session);
@@ -56,7 +68,7 @@ fn short_stroke_equals_the_host_bit_for_bit(cpu: QemuCpu) {
     let far = hil.rows.iter().map(|r| r.x_hat_m).fold(f64::MIN, f64::max);
     assert!(far > 0.29, "x̂ reached {far} m");
     let mut local = cpu.local_drive(&setup).expect("in-process drive");
-    let l = run_with("paper", &setup, local.as_mut(), MOVES, 100, |_| {}).expect("in-process stroke");
+    let l = run_with(motor_name, &setup, local.as_mut(), MOVES, 100, |_| {}).expect("in-process stroke");
     let e = compare(&hil.estimates, &l.estimates);
     println!("equivalence {cpu:?}: {e:?}");
     assert!(e.periods > 30_000, "{} periods", e.periods);
@@ -66,10 +78,17 @@ fn short_stroke_equals_the_host_bit_for_bit(cpu: QemuCpu) {
 
 #[test]
 fn m4f_f32_short_stroke_through_qemu() {
-    short_stroke_equals_the_host_bit_for_bit(QemuCpu::M4f);
+    short_stroke_equals_the_host_bit_for_bit(QemuCpu::M4f, "paper");
 }
 
 #[test]
 fn m3_fixed_point_short_stroke_through_qemu() {
-    short_stroke_equals_the_host_bit_for_bit(QemuCpu::M3);
+    short_stroke_equals_the_host_bit_for_bit(QemuCpu::M3, "paper");
+}
+
+#[test]
+fn m3_fixed_point_salient_stroke_with_hfi_through_qemu() {
+    let salient = motor("motors/salient.toml");
+    assert!(salient.lq_h / salient.ld_h >= 1.15, "the HFI case needs a salient motor");
+    short_stroke_equals_the_host_bit_for_bit(QemuCpu::M3, "motors/salient.toml");
 }
