@@ -85,7 +85,7 @@ pub fn virtual_axis(image: &MotorImage, control_period_s: f32) -> VirtualAxis {
 /// image before it sends it).
 pub fn motor_image_from_hex(hex: &[u8]) -> Result<MotorImage, &'static str> {
     let mut bytes = [0u8; MotorImage::LEN];
-    if hex.len() % 2 != 0 || hex.len() > 2 * MotorImage::LEN {
+    if !hex.len().is_multiple_of(2) || hex.len() > 2 * MotorImage::LEN {
         return Err("motor image: not whole bytes of hex, or longer than a record");
     }
     let digit = |c: u8| (c as char).to_digit(16);

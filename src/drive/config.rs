@@ -345,14 +345,15 @@ impl DriveConfig {
     pub fn check_profile(&self, motor: &MotorParams, limits: &ProfileLimits) -> Result<(), ProfileField> {
         limits.validate()?;
         let accel_current = self.moving_mass_kg * limits.max_accel_m_per_s2 / motor.thrust_constant_n_per_a();
-        // Written so that a NaN refuses (a comparison with NaN is false).
-        if !(accel_current < self.current_limit_a) {
+        // Anything but "less" refuses, a NaN too.
+        let below = |x: f32, limit: f32| x.partial_cmp(&limit) == Some(core::cmp::Ordering::Less);
+        if !below(accel_current, self.current_limit_a) {
             return Err(ProfileField::MaxAccel);
         }
         let omega_per_speed = core::f32::consts::PI / motor.pole_pitch_m;
         let emf_v = limits.max_speed_m_per_s * omega_per_speed * motor.psi_f_wb;
         let max_phase_v = self.faults.bus_min_v * self.modulation_limit * 0.577_350_26;
-        if !(emf_v < max_phase_v) {
+        if !below(emf_v, max_phase_v) {
             return Err(ProfileField::MaxSpeed);
         }
         Ok(())
