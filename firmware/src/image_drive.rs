@@ -145,6 +145,28 @@ mod tests {
         assert_eq!(drive_config(&with, 1e-4, Inverter::Virtual).unwrap().dead_time_compensation, None);
     }
 
+    /// The QEMU drive image's positioning drive from the paper motor's image with the
+    /// stroke axis (what `dcfo board --qemu --move-to` sends) is the drive it built
+    /// before from the word `position`: `stroke_axis` without its compensation.
+    #[test]
+    fn the_stroke_axis_image_gives_the_former_qemu_positioning_drive() {
+        let motor = MotorParams::paper();
+        let image = MotorImage::new(motor, PAPER_AXIS_BUS_V)
+            .unwrap()
+            .with_axis(MotorAxis { limits: STROKE_AXIS_LIMITS, payload_kg: PAPER_AXIS_PAYLOAD_KG })
+            .unwrap();
+        let mut former = DriveConfig::stroke_axis(&motor, PAPER_AXIS_BUS_V);
+        former.control_period_s = 1.0 / 10_000.0;
+        former.dead_time_compensation = None;
+        assert_eq!(drive_config(&image, 1.0 / 10_000.0, Inverter::Virtual), Ok(former));
+        // And the speed drive without an image: `for_motor` moving the carriage.
+        let speed = MotorImage::new(motor, PAPER_AXIS_BUS_V).unwrap();
+        let mut former = DriveConfig::for_motor(&motor, PAPER_AXIS_BUS_V, dcfo::observer::ObserverKind::Dcfo);
+        former.moving_mass_kg = motor.mass_kg + PAPER_AXIS_PAYLOAD_KG;
+        former.control_period_s = 1.0 / 10_000.0;
+        assert_eq!(drive_config(&speed, 1.0 / 10_000.0, Inverter::Virtual), Ok(former));
+    }
+
     #[test]
     fn hex_images_of_every_version_decode_and_bad_text_is_refused() {
         let (speed, positioning) = images();
