@@ -59,7 +59,8 @@ const VALUES: usize = 18;
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum MotorImageError {
-    /// Fewer than [`MotorImage::LEN`] bytes.
+    /// Fewer bytes than the record's version needs ([`MotorImage::LEN`] for version 3,
+    /// 64 for version 2, 56 for version 1; 8 to read the version).
     TooShort,
     /// Every byte is 0xFF: erased flash, nothing was programmed.
     Erased,
@@ -79,15 +80,25 @@ pub enum MotorImageError {
     Compensation,
     /// The axis is not usable; names the field ([`MotorAxis`]'s: `stroke_min_m`,
     /// `stroke_max_m`, `max_speed_m_per_s`, `max_accel_m_per_s2`, `payload_kg`; or
-    /// `flags` for axis values without the axis flag). A speed or an acceleration the
-    /// motor cannot reach ([`DriveConfig::check_profile`]) names that field too.
+    /// `flags` for axis values without the axis flag).
     Axis(&'static str),
+    /// The axis asks more than the motor can do ([`DriveConfig::check_profile`]):
+    /// `max_accel_m_per_s2` when the moving mass (the motor's and the payload) would need
+    /// more than the drive's current limit, `max_speed_m_per_s` when the back-EMF at that
+    /// speed would exceed what the bridge applies at the lowest allowed bus.
+    AxisBeyondMotor(&'static str),
 }
 
 impl core::fmt::Display for MotorImageError {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         match self {
-            MotorImageError::TooShort => write!(f, "motor image shorter than {} bytes", MotorImage::LEN),
+            MotorImageError::TooShort => {
+                write!(
+                    f,
+                    "motor image shorter than its version's record ({} bytes for version 3)",
+                    MotorImage::LEN
+                )
+            }
             MotorImageError::Erased => write!(f, "no motor image programmed (erased flash)"),
             MotorImageError::BadMagic => write!(f, "not a motor image (magic is not DCFM)"),
             MotorImageError::UnsupportedVersion(v) => write!(f, "motor image version {v} is not supported"),
@@ -103,10 +114,9 @@ impl core::fmt::Display for MotorImageError {
             MotorImageError::Axis("flags") => {
                 write!(f, "motor image: axis values without the axis flag")
             }
-            MotorImageError::Axis(field @ ("max_speed_m_per_s" | "max_accel_m_per_s2")) => write!(
-                f,
-                "motor image: axis `{field}` must be a positive finite number the motor can reach (with this mass, current limit and bus)"
-            ),
+            MotorImageError::Axis(field @ ("max_speed_m_per_s" | "max_accel_m_per_s2")) => {
+                write!(f, "motor image: axis `{field}` must be a positive finite number")
+            }
             MotorImageError::Axis("payload_kg") => {
                 write!(f, "motor image: axis `payload_kg` must be a finite mass of at least 0 kg")
             }
@@ -114,6 +124,14 @@ impl core::fmt::Display for MotorImageError {
                 write!(f, "motor image: axis `stroke_max_m` must be a finite position above `stroke_min_m`")
             }
             MotorImageError::Axis(field) => write!(f, "motor image: axis `{field}` must be a finite number"),
+            MotorImageError::AxisBeyondMotor("max_accel_m_per_s2") => write!(
+                f,
+                "motor image: axis `max_accel_m_per_s2` is more than the motor can do: the moving mass (motor and payload) would need more than the drive's current limit (2 x rated peak)"
+            ),
+            MotorImageError::AxisBeyondMotor(field) => write!(
+                f,
+                "motor image: axis `{field}` is more than the motor can do: the back-EMF would exceed what the bridge applies at the lowest allowed bus (60 % of nominal)"
+            ),
         }
     }
 }
@@ -198,7 +216,9 @@ impl MotorImage {
         // `DriveConfig::for_image` builds from this image, moving the payload too.
         let mut drive = DriveConfig::for_motor(&self.motor, self.bus_v, ObserverKind::Dcfo);
         drive.moving_mass_kg = self.motor.mass_kg + axis.payload_kg;
-        drive.check_profile(&self.motor, &axis.limits).map_err(|f| MotorImageError::Axis(f.name()))?;
+        drive
+            .check_profile(&self.motor, &axis.limits)
+            .map_err(|f| MotorImageError::AxisBeyondMotor(f.name()))?;
         Ok(MotorImage { axis: Some(axis), ..self })
     }
 
@@ -501,36 +521,36 @@ mod tests {
     fn every_bad_axis_field_is_named() {
         let image = MotorImage::new(MotorParams::paper(), 311.0).unwrap();
         type Spoil = fn(&mut MotorAxis);
-        let bad: [(Spoil, &str); 13] = [
-            (|a| a.limits.stroke_min_m = f32::NAN, "stroke_min_m"),
-            (|a| a.limits.stroke_min_m = f32::NEG_INFINITY, "stroke_min_m"),
-            (|a| a.limits.stroke_max_m = f32::INFINITY, "stroke_max_m"),
-            (|a| a.limits.stroke_max_m = -0.01, "stroke_max_m"),
-            (|a| a.limits.stroke_max_m = -0.02, "stroke_max_m"),
-            (|a| a.limits.max_speed_m_per_s = 0.0, "max_speed_m_per_s"),
-            (|a| a.limits.max_speed_m_per_s = f32::NAN, "max_speed_m_per_s"),
-            (|a| a.limits.max_accel_m_per_s2 = -3.0, "max_accel_m_per_s2"),
-            (|a| a.limits.max_accel_m_per_s2 = f32::INFINITY, "max_accel_m_per_s2"),
-            (|a| a.payload_kg = -0.1, "payload_kg"),
-            (|a| a.payload_kg = f32::NAN, "payload_kg"),
+        let bad: [(Spoil, MotorImageError); 13] = [
+            (|a| a.limits.stroke_min_m = f32::NAN, MotorImageError::Axis("stroke_min_m")),
+            (|a| a.limits.stroke_min_m = f32::NEG_INFINITY, MotorImageError::Axis("stroke_min_m")),
+            (|a| a.limits.stroke_max_m = f32::INFINITY, MotorImageError::Axis("stroke_max_m")),
+            (|a| a.limits.stroke_max_m = -0.01, MotorImageError::Axis("stroke_max_m")),
+            (|a| a.limits.stroke_max_m = -0.02, MotorImageError::Axis("stroke_max_m")),
+            (|a| a.limits.max_speed_m_per_s = 0.0, MotorImageError::Axis("max_speed_m_per_s")),
+            (|a| a.limits.max_speed_m_per_s = f32::NAN, MotorImageError::Axis("max_speed_m_per_s")),
+            (|a| a.limits.max_accel_m_per_s2 = -3.0, MotorImageError::Axis("max_accel_m_per_s2")),
+            (|a| a.limits.max_accel_m_per_s2 = f32::INFINITY, MotorImageError::Axis("max_accel_m_per_s2")),
+            (|a| a.payload_kg = -0.1, MotorImageError::Axis("payload_kg")),
+            (|a| a.payload_kg = f32::NAN, MotorImageError::Axis("payload_kg")),
             // Beyond the motor (DriveConfig::check_profile, as `Drive::new` refuses it):
             // 300 m/s^2 of 10.66 kg needs 3.2 kN, far above the current limit's thrust;
             // 10 m/s is 2 kV of back-EMF on a 311 V bus.
-            (|a| a.limits.max_accel_m_per_s2 = 300.0, "max_accel_m_per_s2"),
-            (|a| a.limits.max_speed_m_per_s = 10.0, "max_speed_m_per_s"),
+            (|a| a.limits.max_accel_m_per_s2 = 300.0, MotorImageError::AxisBeyondMotor("max_accel_m_per_s2")),
+            (|a| a.limits.max_speed_m_per_s = 10.0, MotorImageError::AxisBeyondMotor("max_speed_m_per_s")),
         ];
-        for (spoil, field) in bad {
+        for (spoil, error) in bad {
             let mut a = axis();
             spoil(&mut a);
-            assert_eq!(image.with_axis(a), Err(MotorImageError::Axis(field)), "{a:?}");
+            assert_eq!(image.with_axis(a), Err(error), "{a:?}");
             // The same record written by a careless tool, with its CRC right.
             let bytes = MotorImage { axis: Some(a), ..image }.encode();
-            assert_eq!(MotorImage::decode(&bytes), Err(MotorImageError::Axis(field)), "{a:?}");
+            assert_eq!(MotorImage::decode(&bytes), Err(error), "{a:?}");
         }
         // The payload is part of the motor's check: a payload that makes 3 m/s^2 need
         // more than the current limit is refused by the acceleration, a lighter one is not.
         let heavy = MotorAxis { payload_kg: 200.0, ..axis() };
-        assert_eq!(image.with_axis(heavy), Err(MotorImageError::Axis("max_accel_m_per_s2")));
+        assert_eq!(image.with_axis(heavy), Err(MotorImageError::AxisBeyondMotor("max_accel_m_per_s2")));
         assert!(image.with_axis(MotorAxis { payload_kg: 0.0, ..axis() }).is_ok());
         // Axis values without the axis flag, with the CRC right.
         let mut bytes = MotorImage { axis: Some(axis()), ..image }.encode();
@@ -543,6 +563,10 @@ mod tests {
         {
             let text = alloc::string::ToString::to_string(&MotorImageError::Axis(field));
             assert!(text.contains(field), "{text}");
+        }
+        for field in ["max_speed_m_per_s", "max_accel_m_per_s2"] {
+            let text = alloc::string::ToString::to_string(&MotorImageError::AxisBeyondMotor(field));
+            assert!(text.contains(field) && text.contains("more than the motor can do"), "{text}");
         }
     }
 
