@@ -44,6 +44,66 @@ pub struct ProfileLimits {
     pub stroke_max_m: f32,
 }
 
+/// A field of [`ProfileLimits`], as errors name it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum ProfileField {
+    /// [`ProfileLimits::max_speed_m_per_s`].
+    MaxSpeed,
+    /// [`ProfileLimits::max_accel_m_per_s2`].
+    MaxAccel,
+    /// [`ProfileLimits::stroke_min_m`].
+    StrokeMin,
+    /// [`ProfileLimits::stroke_max_m`].
+    StrokeMax,
+}
+
+impl ProfileField {
+    /// The field's name (`"max_speed_m_per_s"`, ...).
+    pub fn name(self) -> &'static str {
+        match self {
+            ProfileField::MaxSpeed => "max_speed_m_per_s",
+            ProfileField::MaxAccel => "max_accel_m_per_s2",
+            ProfileField::StrokeMin => "stroke_min_m",
+            ProfileField::StrokeMax => "stroke_max_m",
+        }
+    }
+
+    /// The field's path in a drive's settings (`"motion.limits.max_speed_m_per_s"`,
+    /// ...), as [`DriveConfigError`](crate::drive::DriveConfigError) names it.
+    pub fn config_path(self) -> &'static str {
+        match self {
+            ProfileField::MaxSpeed => "motion.limits.max_speed_m_per_s",
+            ProfileField::MaxAccel => "motion.limits.max_accel_m_per_s2",
+            ProfileField::StrokeMin => "motion.limits.stroke_min_m",
+            ProfileField::StrokeMax => "motion.limits.stroke_max_m",
+        }
+    }
+}
+
+impl ProfileLimits {
+    /// Checks the limits on their own (not against a motor: that is
+    /// [`DriveConfig::check_profile`](crate::drive::DriveConfig::check_profile)): the
+    /// speed and the acceleration positive and finite, the stroke's ends finite with
+    /// `stroke_min_m < stroke_max_m`. The first bad field is named.
+    pub fn validate(&self) -> Result<(), ProfileField> {
+        let positive = |x: f32| x.is_finite() && x > 0.0;
+        if !self.stroke_min_m.is_finite() {
+            return Err(ProfileField::StrokeMin);
+        }
+        if !(self.stroke_max_m.is_finite() && self.stroke_max_m > self.stroke_min_m) {
+            return Err(ProfileField::StrokeMax);
+        }
+        if !positive(self.max_speed_m_per_s) {
+            return Err(ProfileField::MaxSpeed);
+        }
+        if !positive(self.max_accel_m_per_s2) {
+            return Err(ProfileField::MaxAccel);
+        }
+        Ok(())
+    }
+}
+
 /// One move: go to `target_m`, then stay there for `dwell_s`.
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -98,15 +158,7 @@ pub struct Profile<const N: usize> {
 impl<const N: usize> Profile<N> {
     /// A profile at rest at `position_m`, with `limits`.
     pub fn new(limits: ProfileLimits, position_m: f32) -> Result<Self, MotionError> {
-        let positive = |x: f32| x.is_finite() && x > 0.0;
-        if !(positive(limits.max_speed_m_per_s)
-            && positive(limits.max_accel_m_per_s2)
-            && limits.stroke_min_m.is_finite()
-            && limits.stroke_max_m.is_finite()
-            && limits.stroke_max_m > limits.stroke_min_m)
-        {
-            return Err(MotionError::BadLimits);
-        }
+        limits.validate().map_err(|_| MotionError::BadLimits)?;
         let mut p = Profile {
             limits,
             queue: Deque::new(),

@@ -1,52 +1,66 @@
 //! The motor as configuration on a board: a fixed-size binary record of the motor file's
-//! parameters, the nominal DC-bus voltage and (since version 2) the inverter's
-//! voltage-error compensation, protected by a CRC, that a host tool writes
-//! (`dcfo motor-image`, `dcfo identify --image`) and a firmware reads from a reserved
-//! flash page at boot.
+//! parameters, the nominal DC-bus voltage, (since version 2) the inverter's
+//! voltage-error compensation and (since version 3) the positioning axis, protected by a
+//! CRC, that a host tool writes (`dcfo motor-image`, `dcfo identify --image`) and a
+//! firmware reads from a reserved flash page at boot.
 //!
 //! The drive code is never compiled for one motor: the firmware validates the record
 //! exactly as the host validates a motor file ([`MotorParams::new`]) and refuses to run
-//! without a valid one.
+//! without a valid one. A record with an axis makes the board's drive a positioning
+//! drive ([`DriveConfig::for_image`]), one without a speed drive.
 //!
-//! Layout of version 2, little-endian, [`MotorImage::LEN`] = 64 bytes (a multiple of the
+//! Layout of version 3, little-endian, [`MotorImage::LEN`] = 88 bytes (a multiple of the
 //! 8-byte flash programming unit of STM32G4 parts):
 //!
 //! | offset | type | field |
 //! |---|---|---|
 //! | 0 | `[u8; 4]` | magic `b"DCFM"` |
-//! | 4 | u16 | format version ([`MotorImage::VERSION`] = 2) |
-//! | 6 | u16 | flags: bit 0 = the compensation fields hold a compensation; other bits 0 |
+//! | 4 | u16 | format version ([`MotorImage::VERSION`] = 3) |
+//! | 6 | u16 | flags: bit 0 = the compensation fields hold a compensation; bit 1 = the axis fields hold an axis; other bits 0 |
 //! | 8 | 9 × f32 | `rs_ohm`, `ld_h`, `lq_h`, `psi_f_wb`, `pole_pitch_m`, `mass_kg`, `viscous_n_s_per_m`, `rated_current_a`, `rated_voltage_v` (the motor file's keys and units) |
 //! | 44 | f32 | nominal DC-bus voltage, V |
 //! | 48 | 3 × f32 | inverter compensation ([`DeadTimeCompensation`]): dead time (s), device drop (V), current band (A); zero without one |
-//! | 60 | u16 | CRC-16/IBM-3740 of bytes 0..60 |
-//! | 62 | `[u8; 2]` | reserved, 0 |
+//! | 60 | 5 × f32 | axis ([`MotorAxis`]): `stroke_min_m` (m), `stroke_max_m` (m), `max_speed_m_per_s` (m/s), `max_accel_m_per_s2` (m/s²), `payload_kg` (kg, moved besides the mover); zero without one |
+//! | 80 | u16 | CRC-16/IBM-3740 of bytes 0..80 |
+//! | 82 | `[u8; 6]` | reserved, 0 |
 //!
-//! **Version 1** (56 bytes: bytes 0..48 as above with byte 6..8 reserved, the CRC of
-//! bytes 0..48 at 48, 6 reserved bytes) is still read, CRC-checked and validated the same
-//! way, and migrated: it holds no compensation ([`MotorImage::compensation`] is `None`).
-//! [`MotorImage::encode`] writes version 2 only. Any other version is
+//! **Version 2** (64 bytes: bytes 0..60 as above, flags bit 0 only, the CRC of bytes
+//! 0..60 at 60, 2 reserved bytes) and **version 1** (56 bytes: bytes 0..48 as above with
+//! bytes 6..8 reserved, the CRC of bytes 0..48 at 48, 6 reserved bytes) are still read,
+//! CRC-checked and validated the same way, and migrated: neither holds an axis
+//! ([`MotorImage::axis`] is `None`), version 1 no compensation either.
+//! [`MotorImage::encode`] writes version 3 only. Any other version is
 //! [`MotorImageError::UnsupportedVersion`].
 
-use crate::drive::DeadTimeCompensation;
+use crate::drive::{DeadTimeCompensation, DriveConfig};
+use crate::motion::ProfileLimits;
 use crate::motor::{MotorParams, ParamError};
+use crate::observer::ObserverKind;
 use crc::{CRC_16_IBM_3740, Crc};
 
 const MAGIC: [u8; 4] = *b"DCFM";
 const CRC16: Crc<u16> = Crc::<u16>::new(&CRC_16_IBM_3740);
-/// Where the CRC is in a version-2 record.
-const CRC_AT: usize = 60;
+/// Where the CRC is in a version-3 record.
+const CRC_AT: usize = 80;
+/// Where the CRC is in a version-2 record, and that record's length.
+const CRC_AT_V2: usize = 60;
+const LEN_V2: usize = 64;
 /// Where the CRC is in a version-1 record, and that record's length.
 const CRC_AT_V1: usize = 48;
 const LEN_V1: usize = 56;
 /// Flag bit: the record holds a compensation.
 const FLAG_COMPENSATION: u16 = 1 << 0;
+/// Flag bit: the record holds an axis (version 3).
+const FLAG_AXIS: u16 = 1 << 1;
+/// The f32 values of a version-3 record (from offset 8).
+const VALUES: usize = 18;
 
 /// Why a byte record is not a usable motor image.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum MotorImageError {
-    /// Fewer than [`MotorImage::LEN`] bytes.
+    /// Fewer bytes than the record's version needs ([`MotorImage::LEN`] for version 3,
+    /// 64 for version 2, 56 for version 1; 8 to read the version).
     TooShort,
     /// Every byte is 0xFF: erased flash, nothing was programmed.
     Erased,
@@ -64,12 +78,27 @@ pub enum MotorImageError {
     /// negative or non-finite device drop, a band that is not a positive finite current,
     /// or unknown flag bits.
     Compensation,
+    /// The axis is not usable; names the field ([`MotorAxis`]'s: `stroke_min_m`,
+    /// `stroke_max_m`, `max_speed_m_per_s`, `max_accel_m_per_s2`, `payload_kg`; or
+    /// `flags` for axis values without the axis flag).
+    Axis(&'static str),
+    /// The axis asks more than the motor can do ([`DriveConfig::check_profile`]):
+    /// `max_accel_m_per_s2` when the moving mass (the motor's and the payload) would need
+    /// more than the drive's current limit, `max_speed_m_per_s` when the back-EMF at that
+    /// speed would exceed what the bridge applies at the lowest allowed bus.
+    AxisBeyondMotor(&'static str),
 }
 
 impl core::fmt::Display for MotorImageError {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         match self {
-            MotorImageError::TooShort => write!(f, "motor image shorter than {} bytes", MotorImage::LEN),
+            MotorImageError::TooShort => {
+                write!(
+                    f,
+                    "motor image shorter than its version's record ({} bytes for version 3)",
+                    MotorImage::LEN
+                )
+            }
             MotorImageError::Erased => write!(f, "no motor image programmed (erased flash)"),
             MotorImageError::BadMagic => write!(f, "not a motor image (magic is not DCFM)"),
             MotorImageError::UnsupportedVersion(v) => write!(f, "motor image version {v} is not supported"),
@@ -82,12 +111,47 @@ impl core::fmt::Display for MotorImageError {
                 f,
                 "motor image: inverter compensation out of range (dead time 0-10 us, drop >= 0 V, band > 0 A)"
             ),
+            MotorImageError::Axis("flags") => {
+                write!(f, "motor image: axis values without the axis flag")
+            }
+            MotorImageError::Axis(field @ ("max_speed_m_per_s" | "max_accel_m_per_s2")) => {
+                write!(f, "motor image: axis `{field}` must be a positive finite number")
+            }
+            MotorImageError::Axis("payload_kg") => {
+                write!(f, "motor image: axis `payload_kg` must be a finite mass of at least 0 kg")
+            }
+            MotorImageError::Axis("stroke_max_m") => {
+                write!(f, "motor image: axis `stroke_max_m` must be a finite position above `stroke_min_m`")
+            }
+            MotorImageError::Axis(field) => write!(f, "motor image: axis `{field}` must be a finite number"),
+            MotorImageError::AxisBeyondMotor("max_accel_m_per_s2") => write!(
+                f,
+                "motor image: axis `max_accel_m_per_s2` is more than the motor can do: the moving mass (motor and payload) would need more than the drive's current limit (2 x rated peak)"
+            ),
+            MotorImageError::AxisBeyondMotor(field) => write!(
+                f,
+                "motor image: axis `{field}` is more than the motor can do: the back-EMF would exceed what the bridge applies at the lowest allowed bus (60 % of nominal)"
+            ),
         }
     }
 }
 
-/// A validated motor, the nominal DC-bus voltage it runs on and the inverter's
-/// voltage-error compensation, if one was identified or typed in.
+/// The positioning axis a motor drives (a motor image's optional section): the stroke
+/// the targets must lie in, the move profile's limits and the mass carried besides the
+/// mover.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct MotorAxis {
+    /// The stroke (m) and the profile's top speed (m/s) and acceleration (m/s²).
+    pub limits: ProfileLimits,
+    /// Carriage and payload moved besides the mover, kg (>= 0): the drive's moving mass
+    /// is the motor's `mass_kg` plus this.
+    pub payload_kg: f32,
+}
+
+/// A validated motor, the nominal DC-bus voltage it runs on, the inverter's
+/// voltage-error compensation, if one was identified or typed in, and the positioning
+/// axis, if one was given.
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct MotorImage {
@@ -99,16 +163,19 @@ pub struct MotorImage {
     /// ([`DriveConfig::dead_time_compensation`](crate::drive::DriveConfig)); `None`: not
     /// known (a version-1 record, or written without one).
     pub compensation: Option<DeadTimeCompensation>,
+    /// The positioning axis ([`MotorImage::with_axis`]); `None`: a speed drive (a
+    /// version-1 or -2 record, or written without one).
+    pub axis: Option<MotorAxis>,
 }
 
 /// The longest dead time a compensation may hold, s (10 us: beyond any drive's).
 const MAX_DEAD_TIME_S: f32 = 10e-6;
 
 impl MotorImage {
-    /// Length of the record, bytes (version 2).
-    pub const LEN: usize = 64;
-    /// Format version written (versions 1 and 2 are read).
-    pub const VERSION: u16 = 2;
+    /// Length of the record, bytes (version 3; the longest read).
+    pub const LEN: usize = 88;
+    /// Format version written (versions 1, 2 and 3 are read).
+    pub const VERSION: u16 = 3;
 
     /// Validates `motor` and `bus_v`; no compensation.
     pub fn new(motor: MotorParams, bus_v: f32) -> Result<Self, MotorImageError> {
@@ -116,7 +183,7 @@ impl MotorImage {
         if !(bus_v.is_finite() && bus_v > 0.0) {
             return Err(MotorImageError::BusVoltage);
         }
-        Ok(MotorImage { motor, bus_v, compensation: None })
+        Ok(MotorImage { motor, bus_v, compensation: None, axis: None })
     }
 
     /// The same image with the inverter compensation `compensation`, validated (dead time
@@ -134,12 +201,39 @@ impl MotorImage {
         Ok(MotorImage { compensation: Some(c), ..self })
     }
 
-    /// The record's bytes (version 2).
+    /// The same image with the positioning axis `axis`, validated: every value finite,
+    /// `stroke_min_m < stroke_max_m`, speed and acceleration `> 0`
+    /// ([`ProfileLimits::validate`]), `payload_kg >= 0`, and a profile the motor can
+    /// follow when it moves the payload ([`DriveConfig::check_profile`] on the drive
+    /// [`DriveConfig::for_image`] builds: the acceleration within the current limit, the
+    /// top speed's back-EMF within the lowest bus). The first bad field is named.
+    pub fn with_axis(self, axis: MotorAxis) -> Result<Self, MotorImageError> {
+        axis.limits.validate().map_err(|f| MotorImageError::Axis(f.name()))?;
+        if !(axis.payload_kg.is_finite() && axis.payload_kg >= 0.0) {
+            return Err(MotorImageError::Axis("payload_kg"));
+        }
+        // The same current limit, bus limits and modulation as the drive
+        // `DriveConfig::for_image` builds from this image, moving the payload too.
+        let mut drive = DriveConfig::for_motor(&self.motor, self.bus_v, ObserverKind::Dcfo);
+        drive.moving_mass_kg = self.motor.mass_kg + axis.payload_kg;
+        drive
+            .check_profile(&self.motor, &axis.limits)
+            .map_err(|f| MotorImageError::AxisBeyondMotor(f.name()))?;
+        Ok(MotorImage { axis: Some(axis), ..self })
+    }
+
+    /// The record's bytes (version 3).
     pub fn encode(&self) -> [u8; Self::LEN] {
         let mut out = [0u8; Self::LEN];
         out[..4].copy_from_slice(&MAGIC);
         out[4..6].copy_from_slice(&Self::VERSION.to_le_bytes());
-        let flags = if self.compensation.is_some() { FLAG_COMPENSATION } else { 0 };
+        let mut flags = 0;
+        if self.compensation.is_some() {
+            flags |= FLAG_COMPENSATION;
+        }
+        if self.axis.is_some() {
+            flags |= FLAG_AXIS;
+        }
         out[6..8].copy_from_slice(&flags.to_le_bytes());
         for (i, v) in self.values().iter().enumerate() {
             out[8 + 4 * i..12 + 4 * i].copy_from_slice(&v.to_le_bytes());
@@ -149,22 +243,28 @@ impl MotorImage {
         out
     }
 
-    /// Reads and validates a record of version 2, or of version 1 (migrated, no
-    /// compensation; module docs). Bytes beyond the record are ignored: a version-1
-    /// record needs only its 56 bytes.
+    /// Reads and validates a record of version 3, 2 or 1 (migrated: no axis, and for
+    /// version 1 no compensation; module docs). Bytes beyond the record are ignored: a
+    /// version-1 record needs only its 56 bytes, a version-2 record its 64.
     pub fn decode(bytes: &[u8]) -> Result<Self, MotorImageError> {
         let Some(head) = bytes.get(..8) else {
             return Err(MotorImageError::TooShort);
         };
         let version = u16::from_le_bytes([head[4], head[5]]);
-        let len = if version == 1 { LEN_V1 } else { Self::LEN };
+        let (len, crc_at) = match version {
+            1 => (LEN_V1, CRC_AT_V1),
+            2 => (LEN_V2, CRC_AT_V2),
+            Self::VERSION => (Self::LEN, CRC_AT),
+            // An unknown version: only the head is looked at (erased, magic, version).
+            _ => (8, 0),
+        };
         let Some(raw) = bytes.get(..len) else {
             return Err(MotorImageError::TooShort);
         };
         if raw.iter().all(|&b| b == 0xFF) {
             return Err(MotorImageError::Erased);
         }
-        // The record in a fixed-size buffer (a version-1 record padded with zeros): every
+        // The record in a fixed-size buffer (an older record padded with zeros): every
         // index below is a constant within it, so no bounds check can fail (the ESC1
         // images link no panic path, `.ci/no-panic`).
         let mut rec = [0u8; Self::LEN];
@@ -172,16 +272,17 @@ impl MotorImage {
         if rec[..4] != MAGIC {
             return Err(MotorImageError::BadMagic);
         }
-        let crc_at = match version {
-            1 => CRC_AT_V1,
-            Self::VERSION => CRC_AT,
-            v => return Err(MotorImageError::UnsupportedVersion(v)),
-        };
+        if crc_at == 0 {
+            return Err(MotorImageError::UnsupportedVersion(version));
+        }
         let (covered, rest) = rec.split_at(crc_at.min(Self::LEN));
         let sent = rest.get(..2).map(|c| u16::from_le_bytes([c[0], c[1]]));
         if sent != Some(CRC16.checksum(covered)) {
             return Err(MotorImageError::BadCrc);
         }
+        // Older records: the CRC and reserved bytes where the newer fields are read as
+        // zeros (the flags below say none is present).
+        rec[crc_at.min(Self::LEN)..].fill(0);
         let f = |i: usize| {
             let at = (8 + 4 * i).min(Self::LEN - 4);
             f32::from_le_bytes([rec[at], rec[at + 1], rec[at + 2], rec[at + 3]])
@@ -197,27 +298,49 @@ impl MotorImage {
             rated_current_a: f(7),
             rated_voltage_v: f(8),
         };
-        let image = Self::new(motor, f(9))?;
+        let mut image = Self::new(motor, f(9))?;
         if version == 1 {
             // Version 1's bytes 6..8 were reserved and are not read.
             return Ok(image);
         }
         let flags = u16::from_le_bytes([rec[6], rec[7]]);
-        let compensation = [f(10), f(11), f(12)];
-        match flags {
-            FLAG_COMPENSATION => image.with_compensation(DeadTimeCompensation {
-                dead_time_s: compensation[0],
-                device_drop_v: compensation[1],
-                current_band_a: compensation[2],
-            }),
-            0 if compensation.iter().all(|x| x.to_bits() == 0) => Ok(image),
-            _ => Err(MotorImageError::Compensation),
+        let known = if version == 2 { FLAG_COMPENSATION } else { FLAG_COMPENSATION | FLAG_AXIS };
+        if flags & !known != 0 {
+            return Err(MotorImageError::Compensation);
         }
+        let zero = |from: usize, n: usize| (from..from + n).all(|i| f(i).to_bits() == 0);
+        if flags & FLAG_COMPENSATION != 0 {
+            image = image.with_compensation(DeadTimeCompensation {
+                dead_time_s: f(10),
+                device_drop_v: f(11),
+                current_band_a: f(12),
+            })?;
+        } else if !zero(10, 3) {
+            return Err(MotorImageError::Compensation);
+        }
+        if flags & FLAG_AXIS != 0 {
+            image = image.with_axis(MotorAxis {
+                limits: ProfileLimits {
+                    stroke_min_m: f(13),
+                    stroke_max_m: f(14),
+                    max_speed_m_per_s: f(15),
+                    max_accel_m_per_s2: f(16),
+                },
+                payload_kg: f(17),
+            })?;
+        } else if !zero(13, 5) {
+            return Err(MotorImageError::Axis("flags"));
+        }
+        Ok(image)
     }
 
-    fn values(&self) -> [f32; 13] {
+    fn values(&self) -> [f32; VALUES] {
         let m = &self.motor;
         let c = self.compensation.map_or([0.0; 3], |c| [c.dead_time_s, c.device_drop_v, c.current_band_a]);
+        let a = self.axis.map_or([0.0; 5], |a| {
+            let l = a.limits;
+            [l.stroke_min_m, l.stroke_max_m, l.max_speed_m_per_s, l.max_accel_m_per_s2, a.payload_kg]
+        });
         [
             m.rs_ohm,
             m.ld_h,
@@ -232,6 +355,11 @@ impl MotorImage {
             c[0],
             c[1],
             c[2],
+            a[0],
+            a[1],
+            a[2],
+            a[3],
+            a[4],
         ]
     }
 }
@@ -240,6 +368,7 @@ impl MotorImage {
 mod tests {
     use super::*;
     use crate::motor::ParamFault;
+    extern crate alloc;
 
     fn comp() -> DeadTimeCompensation {
         DeadTimeCompensation { dead_time_s: 2.3e-6, device_drop_v: 0.0, current_band_a: 0.0097 }
@@ -279,7 +408,7 @@ mod tests {
     fn reserved_bytes_are_not_read() {
         let image = MotorImage::new(MotorParams::paper(), 24.0).unwrap().with_compensation(comp()).unwrap();
         let mut bytes = image.encode();
-        bytes[62..].fill(0xA5);
+        bytes[82..].fill(0xA5);
         assert_eq!(MotorImage::decode(&bytes), Ok(image));
         // Version 1: bytes 6..8 and 50..56 were reserved.
         let mut v1 = v1_record(&MotorParams::paper(), 24.0);
@@ -291,31 +420,153 @@ mod tests {
         assert_eq!(MotorImage::decode(&v1), MotorImage::new(MotorParams::paper(), 24.0));
     }
 
+    fn axis() -> MotorAxis {
+        MotorAxis {
+            limits: ProfileLimits {
+                stroke_min_m: -0.01,
+                stroke_max_m: 0.31,
+                max_speed_m_per_s: 0.5,
+                max_accel_m_per_s2: 3.0,
+            },
+            payload_kg: 10.0,
+        }
+    }
+
     #[test]
     fn round_trips_and_matches_the_documented_layout() {
         for compensation in [None, Some(comp())] {
-            let mut image = MotorImage::new(MotorParams::paper(), 24.0).unwrap();
-            if let Some(c) = compensation {
-                image = image.with_compensation(c).unwrap();
+            for with_axis in [None, Some(axis())] {
+                let mut image = MotorImage::new(MotorParams::paper(), 311.0).unwrap();
+                if let Some(c) = compensation {
+                    image = image.with_compensation(c).unwrap();
+                }
+                if let Some(a) = with_axis {
+                    image = image.with_axis(a).unwrap();
+                }
+                let bytes = image.encode();
+                assert_eq!(bytes.len(), 88);
+                assert_eq!(&bytes[..4], b"DCFM");
+                assert_eq!(u16::from_le_bytes([bytes[4], bytes[5]]), 3);
+                let flags = u16::from(compensation.is_some()) | (u16::from(with_axis.is_some()) << 1);
+                assert_eq!(u16::from_le_bytes([bytes[6], bytes[7]]), flags);
+                // rs_ohm = 5.0 at offset 8, bus at offset 44, the dead time at 48, the
+                // band at 56, the stroke's ends at 60 and 64, the speed at 68, the
+                // acceleration at 72, the payload at 76, the CRC of 0..80 at 80,
+                // independently of `values`.
+                let at = |i: usize| f32::from_le_bytes(bytes[i..i + 4].try_into().unwrap());
+                assert_eq!(at(8), 5.0);
+                assert_eq!(at(44), 311.0);
+                assert_eq!(at(48), compensation.map_or(0.0, |c| c.dead_time_s));
+                assert_eq!(at(56), compensation.map_or(0.0, |c| c.current_band_a));
+                let a = with_axis.map(|a| a.limits);
+                assert_eq!(at(60), a.map_or(0.0, |l| l.stroke_min_m));
+                assert_eq!(at(64), a.map_or(0.0, |l| l.stroke_max_m));
+                assert_eq!(at(68), a.map_or(0.0, |l| l.max_speed_m_per_s));
+                assert_eq!(at(72), a.map_or(0.0, |l| l.max_accel_m_per_s2));
+                assert_eq!(at(76), with_axis.map_or(0.0, |a| a.payload_kg));
+                assert_eq!(u16::from_le_bytes([bytes[80], bytes[81]]), CRC16.checksum(&bytes[..80]));
+                assert_eq!(bytes[82..], [0; 6]);
+                let back = MotorImage::decode(&bytes).unwrap();
+                assert_eq!(back, image);
+                assert_eq!((back.compensation, back.axis), (compensation, with_axis));
             }
-            let bytes = image.encode();
-            assert_eq!(bytes.len(), 64);
-            assert_eq!(&bytes[..4], b"DCFM");
-            assert_eq!(u16::from_le_bytes([bytes[4], bytes[5]]), 2);
-            assert_eq!(u16::from_le_bytes([bytes[6], bytes[7]]), u16::from(compensation.is_some()));
-            // rs_ohm = 5.0 at offset 8, bus 24 V at offset 44, the dead time at 48, the
-            // band at 56, the CRC of 0..60 at 60, independently of `values`.
-            assert_eq!(f32::from_le_bytes(bytes[8..12].try_into().unwrap()), 5.0);
-            assert_eq!(f32::from_le_bytes(bytes[44..48].try_into().unwrap()), 24.0);
-            let dead_time = compensation.map_or(0.0, |c| c.dead_time_s);
-            let band = compensation.map_or(0.0, |c| c.current_band_a);
-            assert_eq!(f32::from_le_bytes(bytes[48..52].try_into().unwrap()), dead_time);
-            assert_eq!(f32::from_le_bytes(bytes[56..60].try_into().unwrap()), band);
-            assert_eq!(u16::from_le_bytes([bytes[60], bytes[61]]), CRC16.checksum(&bytes[..60]));
-            assert_eq!(bytes[62..], [0; 2]);
-            let back = MotorImage::decode(&bytes).unwrap();
-            assert_eq!(back, image);
-            assert_eq!(back.compensation, compensation);
+        }
+    }
+
+    /// A version-2 record written by hand from its documented layout (as `dcfo
+    /// motor-image` and `dcfo identify --image` wrote it before version 3).
+    fn v2_record(motor: &MotorParams, bus_v: f32, compensation: Option<DeadTimeCompensation>) -> [u8; 64] {
+        let mut b = [0u8; 64];
+        b[..56].copy_from_slice(&v1_record(motor, bus_v));
+        b[4..6].copy_from_slice(&2u16.to_le_bytes());
+        b[6..8].copy_from_slice(&u16::from(compensation.is_some()).to_le_bytes());
+        let c = compensation.map_or([0.0; 3], |c| [c.dead_time_s, c.device_drop_v, c.current_band_a]);
+        for (i, v) in c.iter().enumerate() {
+            b[48 + 4 * i..52 + 4 * i].copy_from_slice(&v.to_le_bytes());
+        }
+        let crc = CRC16.checksum(&b[..60]);
+        b[60..62].copy_from_slice(&crc.to_le_bytes());
+        b
+    }
+
+    #[test]
+    fn a_version_2_record_is_migrated_without_an_axis() {
+        for compensation in [None, Some(comp())] {
+            let v2 = v2_record(&MotorParams::paper(), 24.0, compensation);
+            let image = MotorImage::decode(&v2).unwrap();
+            assert_eq!((image.motor, image.bus_v), (MotorParams::paper(), 24.0));
+            assert_eq!((image.compensation, image.axis), (compensation, None));
+            // Its 64 bytes suffice (a page read of 88 bytes sees erased flash after them).
+            let mut page = [0xFFu8; 88];
+            page[..64].copy_from_slice(&v2);
+            assert_eq!(MotorImage::decode(&page), Ok(image));
+            // Version 2 is CRC-checked as version 2 was, and knows no axis flag.
+            let mut bad = v2;
+            bad[20] ^= 0x10;
+            assert_eq!(MotorImage::decode(&bad), Err(MotorImageError::BadCrc));
+            assert_eq!(MotorImage::decode(&v2[..63]), Err(MotorImageError::TooShort));
+            let mut axis_flag = v2;
+            axis_flag[6] |= 2;
+            let crc = CRC16.checksum(&axis_flag[..60]);
+            axis_flag[60..62].copy_from_slice(&crc.to_le_bytes());
+            assert_eq!(MotorImage::decode(&axis_flag), Err(MotorImageError::Compensation));
+            // Re-encoded, it is version 3 without an axis.
+            let again = image.encode();
+            assert_eq!(u16::from_le_bytes([again[4], again[5]]), 3);
+            assert_eq!(MotorImage::decode(&again), Ok(image));
+        }
+    }
+
+    #[test]
+    fn every_bad_axis_field_is_named() {
+        let image = MotorImage::new(MotorParams::paper(), 311.0).unwrap();
+        type Spoil = fn(&mut MotorAxis);
+        let bad: [(Spoil, MotorImageError); 13] = [
+            (|a| a.limits.stroke_min_m = f32::NAN, MotorImageError::Axis("stroke_min_m")),
+            (|a| a.limits.stroke_min_m = f32::NEG_INFINITY, MotorImageError::Axis("stroke_min_m")),
+            (|a| a.limits.stroke_max_m = f32::INFINITY, MotorImageError::Axis("stroke_max_m")),
+            (|a| a.limits.stroke_max_m = -0.01, MotorImageError::Axis("stroke_max_m")),
+            (|a| a.limits.stroke_max_m = -0.02, MotorImageError::Axis("stroke_max_m")),
+            (|a| a.limits.max_speed_m_per_s = 0.0, MotorImageError::Axis("max_speed_m_per_s")),
+            (|a| a.limits.max_speed_m_per_s = f32::NAN, MotorImageError::Axis("max_speed_m_per_s")),
+            (|a| a.limits.max_accel_m_per_s2 = -3.0, MotorImageError::Axis("max_accel_m_per_s2")),
+            (|a| a.limits.max_accel_m_per_s2 = f32::INFINITY, MotorImageError::Axis("max_accel_m_per_s2")),
+            (|a| a.payload_kg = -0.1, MotorImageError::Axis("payload_kg")),
+            (|a| a.payload_kg = f32::NAN, MotorImageError::Axis("payload_kg")),
+            // Beyond the motor (DriveConfig::check_profile, as `Drive::new` refuses it):
+            // 300 m/s^2 of 10.66 kg needs 3.2 kN, far above the current limit's thrust;
+            // 10 m/s is 2 kV of back-EMF on a 311 V bus.
+            (|a| a.limits.max_accel_m_per_s2 = 300.0, MotorImageError::AxisBeyondMotor("max_accel_m_per_s2")),
+            (|a| a.limits.max_speed_m_per_s = 10.0, MotorImageError::AxisBeyondMotor("max_speed_m_per_s")),
+        ];
+        for (spoil, error) in bad {
+            let mut a = axis();
+            spoil(&mut a);
+            assert_eq!(image.with_axis(a), Err(error), "{a:?}");
+            // The same record written by a careless tool, with its CRC right.
+            let bytes = MotorImage { axis: Some(a), ..image }.encode();
+            assert_eq!(MotorImage::decode(&bytes), Err(error), "{a:?}");
+        }
+        // The payload is part of the motor's check: a payload that makes 3 m/s^2 need
+        // more than the current limit is refused by the acceleration, a lighter one is not.
+        let heavy = MotorAxis { payload_kg: 200.0, ..axis() };
+        assert_eq!(image.with_axis(heavy), Err(MotorImageError::AxisBeyondMotor("max_accel_m_per_s2")));
+        assert!(image.with_axis(MotorAxis { payload_kg: 0.0, ..axis() }).is_ok());
+        // Axis values without the axis flag, with the CRC right.
+        let mut bytes = MotorImage { axis: Some(axis()), ..image }.encode();
+        bytes[6..8].copy_from_slice(&0u16.to_le_bytes());
+        let crc = CRC16.checksum(&bytes[..CRC_AT]);
+        bytes[CRC_AT..CRC_AT + 2].copy_from_slice(&crc.to_le_bytes());
+        assert_eq!(MotorImage::decode(&bytes), Err(MotorImageError::Axis("flags")));
+        // Every message names the field.
+        for field in ["stroke_min_m", "stroke_max_m", "max_speed_m_per_s", "max_accel_m_per_s2", "payload_kg"]
+        {
+            let text = alloc::string::ToString::to_string(&MotorImageError::Axis(field));
+            assert!(text.contains(field), "{text}");
+        }
+        for field in ["max_speed_m_per_s", "max_accel_m_per_s2"] {
+            let text = alloc::string::ToString::to_string(&MotorImageError::AxisBeyondMotor(field));
+            assert!(text.contains(field) && text.contains("more than the motor can do"), "{text}");
         }
     }
 
@@ -335,14 +586,19 @@ mod tests {
         bad[20] ^= 0x10;
         assert_eq!(MotorImage::decode(&bad), Err(MotorImageError::BadCrc));
         assert_eq!(MotorImage::decode(&v1[..55]), Err(MotorImageError::TooShort));
-        // Re-encoded, it is version 2.
+        // Re-encoded, it is version 3.
         assert_eq!(MotorImage::decode(&image.encode()), Ok(image));
     }
 
     #[test]
     fn every_corruption_is_refused() {
-        let good =
-            MotorImage::new(MotorParams::paper(), 24.0).unwrap().with_compensation(comp()).unwrap().encode();
+        let good = MotorImage::new(MotorParams::paper(), 311.0)
+            .unwrap()
+            .with_compensation(comp())
+            .unwrap()
+            .with_axis(axis())
+            .unwrap()
+            .encode();
         // Any single flipped bit in the CRC-covered part or the CRC itself.
         for byte in 0..CRC_AT + 2 {
             for bit in 0..8 {
@@ -351,16 +607,16 @@ mod tests {
                 assert!(MotorImage::decode(&bad).is_err(), "byte {byte} bit {bit}");
             }
         }
-        assert_eq!(MotorImage::decode(&good[..63]), Err(MotorImageError::TooShort));
+        assert_eq!(MotorImage::decode(&good[..87]), Err(MotorImageError::TooShort));
         assert_eq!(MotorImage::decode(&good[..7]), Err(MotorImageError::TooShort));
         assert_eq!(MotorImage::decode(&[0xFF; 64]), Err(MotorImageError::Erased));
         assert_eq!(MotorImage::decode(&[0; 64]), Err(MotorImageError::BadMagic));
         let mut magic = good;
         magic[0] = b'X';
         assert_eq!(MotorImage::decode(&magic), Err(MotorImageError::BadMagic));
-        let mut v3 = good;
-        v3[4] = 3;
-        assert_eq!(MotorImage::decode(&v3), Err(MotorImageError::UnsupportedVersion(3)));
+        let mut v4 = good;
+        v4[4] = 4;
+        assert_eq!(MotorImage::decode(&v4), Err(MotorImageError::UnsupportedVersion(4)));
     }
 
     #[test]
@@ -368,12 +624,14 @@ mod tests {
         let mut motor = MotorParams::paper();
         motor.ld_h = -1.0;
         // Bypass `new` to write a record a careless tool might produce.
-        let bytes = MotorImage { motor, bus_v: 24.0, compensation: None }.encode();
+        let bytes = MotorImage { motor, bus_v: 24.0, compensation: None, axis: None }.encode();
         assert_eq!(
             MotorImage::decode(&bytes),
             Err(MotorImageError::Param(ParamError { field: "ld_h", reason: ParamFault::NotPositive }))
         );
-        let bytes = MotorImage { motor: MotorParams::paper(), bus_v: f32::NAN, compensation: None }.encode();
+        let bytes =
+            MotorImage { motor: MotorParams::paper(), bus_v: f32::NAN, compensation: None, axis: None }
+                .encode();
         assert_eq!(MotorImage::decode(&bytes), Err(MotorImageError::BusVoltage));
         let paper = MotorImage::new(MotorParams::paper(), 24.0).unwrap();
         for bad in [
@@ -388,7 +646,7 @@ mod tests {
         }
         // Compensation values without the flag, or unknown flags, with the CRC right.
         let mut bytes = MotorImage { compensation: Some(comp()), ..paper }.encode();
-        for flags in [0u16, 2, 3] {
+        for flags in [0u16, 4, 5, 0x8001] {
             bytes[6..8].copy_from_slice(&flags.to_le_bytes());
             let crc = CRC16.checksum(&bytes[..CRC_AT]);
             bytes[CRC_AT..CRC_AT + 2].copy_from_slice(&crc.to_le_bytes());

@@ -4,15 +4,19 @@
 //! - The motor comes from the motor image in the last flash page (`dcfo motor-image`,
 //!   or `dcfo identify --image` with the identified inverter compensation, which the
 //!   drive then uses; see the README); without a valid one the bridge stays off and the
-//!   LED blinks fast.
+//!   LED blinks fast. The drive is built by `dcfo_firmware::image_drive::drive_config`,
+//!   as in every drive image: with an axis in the image (`dcfo motor-image
+//!   --stroke-min-m ...`) a positioning drive that takes moves over the board link,
+//!   without one a speed drive (moves are reported refused).
 //! - TIM1 runs centre-aligned complementary PWM at 10 kHz with 800 ns dead time; it
 //!   triggers the injected ADC conversions of the three shunt currents and the bus
 //!   voltage at the carrier valley; the end of conversion raises `ADC1_2`, the control
 //!   interrupt. Pins and peripherals: `dcfo_firmware::board::b_g431b_esc1`.
 //! - USART2 (the ST-LINK virtual COM port, 921600 8N1) speaks the board link
 //!   (`dcfo::link::board`, `dcfo board --port`): each `BoardCommand` from the host sets
-//!   enable, clear-faults and the speed reference, may arm the capture, and is answered
-//!   with a `BoardTelemetry` (state, faults, estimate, currents, bus) or, for a finished
+//!   enable, clear-faults and the speed reference, may arm the capture or carry a move
+//!   (target, dwell), and is answered with a `BoardTelemetry` (state, faults, estimate,
+//!   currents, bus; x̂ and the move queue of a positioning drive) or, for a finished
 //!   capture, a `CaptureChunk`.
 //! - A capture of [`CAPTURE_SAMPLES`] full-rate samples (u_αβ, i_αβ, the estimates) from
 //!   the estimator's start, filled in the control interrupt (`dcfo::capture`): 12.8 ms,
@@ -48,9 +52,8 @@ mod firmware {
     use cortex_m::peripheral::NVIC;
     use cortex_m::peripheral::syst::SystClkSource;
     use cortex_m_rt::{entry, exception};
-    use dcfo::drive::{Drive, DriveConfig, DriveState};
+    use dcfo::drive::{Drive, DriveState};
     use dcfo::link::board::CaptureChunk;
-    use dcfo::observer::ObserverKind;
     use dcfo::units::Base;
     use dcfo_firmware::board::b_g431b_esc1::{
         self as esc1, CONTROL_IRQ, DEFAULT_DEAD_TIME_NS, DEFAULT_PWM_HZ, Esc1Config, Esc1PowerStage,
@@ -59,6 +62,7 @@ mod firmware {
     use dcfo_firmware::board::{Bridge, PhaseSensors, PowerStage};
     use dcfo_firmware::board_link::BoardLinkServer;
     use dcfo_firmware::control::{ControlLoop, Setpoints};
+    use dcfo_firmware::image_drive::{Inverter, drive_config};
     use dcfo_firmware::runtime::{
         BoardLinkState, DriveOnBoard, Slot, StallCheck, install, slot, start_systick,
     };
@@ -114,28 +118,26 @@ mod firmware {
             Ok(image) => image,
             Err(e) => halt(&mut led, defmt::Display2Format(&e)),
         };
-        let mut drive_config = DriveConfig::for_motor(&image.motor, image.bus_v, ObserverKind::Dcfo);
-        drive_config.control_period_s = 1.0 / DEFAULT_PWM_HZ as f32;
-        // The inverter compensation from the image (identified by commissioning: `dcfo
-        // identify --image`); without one (a version-1 image, or none written) the
-        // programmed dead time alone.
-        drive_config.dead_time_compensation =
-            Some(image.compensation.unwrap_or(dcfo::drive::DeadTimeCompensation {
-                dead_time_s: DEFAULT_DEAD_TIME_NS as f32 * 1e-9,
-                // Low-voltage MOSFETs: the drop is small against the bus; not measured.
-                device_drop_v: 0.0,
-                current_band_a: 0.02 * image.motor.rated_current_a,
-            }));
+        // The drive of the image (`image_drive::drive_config`, as every drive image):
+        // positioning on the image's axis, or a speed drive without one; the inverter
+        // compensation from the image (identified by commissioning: `dcfo identify
+        // --image`), without one the programmed dead time alone.
+        let bridge = Inverter::Bridge { dead_time_s: DEFAULT_DEAD_TIME_NS as f32 * 1e-9 };
+        let drive_config = match drive_config(&image, 1.0 / DEFAULT_PWM_HZ as f32, bridge) {
+            Ok(c) => c,
+            Err(e) => halt(&mut led, e.field),
+        };
         let drive = match Drive::<f32>::new(&image.motor, &drive_config, &Base::SI) {
             Ok(d) => d,
             Err(e) => halt(&mut led, e.field),
         };
         defmt::info!(
-            "motor: {}, bus {} V, compensation {} (from the image: {})",
+            "motor: {}, bus {} V, compensation {} (from the image: {}), axis {}",
             image.motor,
             image.bus_v,
             drive_config.dead_time_compensation,
-            image.compensation.is_some()
+            image.compensation.is_some(),
+            image.axis
         );
 
         // The hardware trip a quarter above the drive's own over-current fault (which acts

@@ -4,10 +4,12 @@
 //! never set), operated from the host over the board link on USART2 (`dcfo board --port`),
 //! as `qemu_drive` on QEMU. **Not tried on hardware** (none here); it builds in CI.
 //!
-//! The virtual axis carries the paper axis's 10 kg carriage (`PAPER_AXIS_PAYLOAD_KG`)
-//! besides the motor's own mass (a bare mover trips after the I/f hand-over: README,
-//! "Other motors"); the drive runs `DriveConfig::for_motor` without inverter
-//! compensation, at the motor image's bus voltage.
+//! The drive is the image's (`dcfo_firmware::image_drive::drive_config`, as every drive
+//! image) without inverter compensation (the virtual inverter is ideal): with an axis in
+//! the image a positioning drive moving the axis's payload, which takes moves over the
+//! board link; without one a speed drive, and the virtual axis carries the paper axis's
+//! 10 kg carriage (`PAPER_AXIS_PAYLOAD_KG`) besides the motor's own mass (a bare mover
+//! trips after the I/f hand-over: README, "Other motors").
 //!
 //! | context | priority | work | budget |
 //! |---|---|---|---|
@@ -33,16 +35,17 @@ mod firmware {
     use cortex_m::interrupt;
     use cortex_m::peripheral::syst::SystClkSource;
     use cortex_m_rt::{entry, exception};
-    use dcfo::drive::{Drive, DriveConfig, PAPER_AXIS_BUS_V, PAPER_AXIS_PAYLOAD_KG};
+    use dcfo::drive::{Drive, PAPER_AXIS_BUS_V};
     use dcfo::link::board::CaptureChunk;
     use dcfo::motor::MotorParams;
-    use dcfo::observer::ObserverKind;
+    use dcfo::motor_image::MotorImage;
     use dcfo::units::Base;
-    use dcfo::virtual_motor::{VirtualAxis, VirtualMotor};
+    use dcfo::virtual_motor::VirtualMotor;
     use dcfo_firmware::board::b_g431b_esc1::{self as esc1, DEFAULT_PWM_HZ, Esc1Config, SYSCLK_HZ, stop};
     use dcfo_firmware::board::virtual_motor::VirtualBoard;
     use dcfo_firmware::board_link::BoardLinkServer;
     use dcfo_firmware::control::{ControlLoop, Setpoints};
+    use dcfo_firmware::image_drive::{Inverter, drive_config, virtual_axis};
     use dcfo_firmware::runtime::{BoardLinkState, DriveOnBoard, Slot, install, slot, start_systick};
     use dcfo_firmware::stack;
     use embedded_io::Write as _;
@@ -72,25 +75,25 @@ mod firmware {
         // virtual board has no register).
         let board = esc1::init(dp, &Esc1Config { baud: BAUD, ..Esc1Config::default() });
         let mut uart = board.uart;
-        let (motor, bus_v) = match esc1::motor_image() {
-            Ok(image) => (image.motor, image.bus_v),
-            Err(_) => (MotorParams::paper(), PAPER_AXIS_BUS_V),
+        // The image's drive (`image_drive::drive_config`, as every drive image: with an
+        // axis a positioning drive); without a valid image, the paper motor's speed drive.
+        let image = match esc1::motor_image() {
+            Ok(image) => image,
+            Err(_) => match MotorImage::new(MotorParams::paper(), PAPER_AXIS_BUS_V) {
+                Ok(image) => image,
+                Err(_) => stop("paper motor refused"),
+            },
         };
-        let mut config = DriveConfig::for_motor(&motor, bus_v, ObserverKind::Dcfo);
-        config.control_period_s = 1.0 / DEFAULT_PWM_HZ as f32;
-        config.moving_mass_kg = motor.mass_kg + PAPER_AXIS_PAYLOAD_KG;
-        config.dead_time_compensation = None;
-        let drive = match Drive::<f32>::new(&motor, &config, &Base::SI) {
+        let period_s = 1.0 / DEFAULT_PWM_HZ as f32;
+        let config = match drive_config(&image, period_s, Inverter::Virtual) {
+            Ok(c) => c,
+            Err(e) => stop(e.field),
+        };
+        let drive = match Drive::<f32>::new(&image.motor, &config, &Base::SI) {
             Ok(d) => d,
             Err(e) => stop(e.field),
         };
-        let axis = VirtualAxis {
-            payload_kg: PAPER_AXIS_PAYLOAD_KG,
-            load_n: 0.0,
-            bus_v,
-            period_s: config.control_period_s,
-        };
-        let Ok(virtual_motor) = VirtualMotor::new(&motor, &axis) else {
+        let Ok(virtual_motor) = VirtualMotor::new(&image.motor, &virtual_axis(&image, period_s)) else {
             stop("virtual motor settings refused")
         };
         let control = DriveOnBoard {

@@ -8,14 +8,17 @@
 //!   chunk) and replays bit for bit through `Estimator<Q24>` (`dcfo replay --numeric
 //!   q24`; `dcfo board --qemu --cpu m3 --demo` checks it).
 //!
-//! The motor is the paper's, on the paper axis's carriage (`PAPER_AXIS_PAYLOAD_KG`),
-//! the drive `DriveConfig::for_motor` without inverter compensation (the virtual
-//! inverter is ideal). Started with the command line `position` (QEMU's `-append`, read
-//! through semihosting; `dcfo board --qemu --move-to X` passes it) it runs the
-//! positioning drive of `dcfo stroke` instead (`DriveConfig::stroke_axis`, again without
-//! inverter compensation): it takes moves from the commands and its telemetry carries
-//! the position report. The virtual motor (`dcfo::virtual_motor`) derives everything from
-//! the same `MotorParams`.
+//! The motor and the drive come from a motor image, as on the ESC1 (which reads it from
+//! flash): the command line `image <hex>` (QEMU's `-append`, read through semihosting;
+//! `dcfo board --qemu --image FILE` or `--move-to X` passes it) holds the record, and the
+//! drive is built from it by `dcfo_firmware::image_drive::drive_config`, the function
+//! the ESC1 images use, without inverter compensation (the virtual inverter is ideal).
+//! With an axis in the image (version 3) it is a positioning drive: it takes moves from
+//! the commands and its telemetry carries the position report; without one (or a
+//! version-1 or -2 image) a speed drive, which reports every move refused. Without a
+//! command line: the paper motor's speed drive at the paper axis's bus, on the paper
+//! axis's carriage (`PAPER_AXIS_PAYLOAD_KG`). The virtual motor (`dcfo::virtual_motor`)
+//! derives everything from the same `MotorParams`, with the axis's payload.
 //!
 //! | context | priority | work | budget |
 //! |---|---|---|---|
@@ -48,16 +51,17 @@ mod firmware {
     use cortex_m::interrupt;
     use cortex_m::peripheral::syst::SystClkSource;
     use cortex_m_rt::{entry, exception};
-    use dcfo::drive::{Drive, DriveConfig, PAPER_AXIS_BUS_V, PAPER_AXIS_PAYLOAD_KG};
+    use dcfo::drive::{Drive, PAPER_AXIS_BUS_V};
     use dcfo::link::board::CaptureChunk;
     use dcfo::motor::MotorParams;
-    use dcfo::observer::ObserverKind;
+    use dcfo::motor_image::MotorImage;
     use dcfo::units::Base;
-    use dcfo::virtual_motor::{VirtualAxis, VirtualMotor};
+    use dcfo::virtual_motor::VirtualMotor;
     use dcfo_firmware::board::mps2::{CmsdkUart, SYSCLK_HZ, halt};
     use dcfo_firmware::board::virtual_motor::VirtualBoard;
     use dcfo_firmware::board_link::BoardLinkServer;
     use dcfo_firmware::control::{ControlLoop, Setpoints};
+    use dcfo_firmware::image_drive::{Inverter, drive_config, motor_image_from_hex, virtual_axis};
     use dcfo_firmware::runtime::{BoardLinkState, DriveOnBoard, Slot, install, slot, start_systick};
     use dcfo_firmware::stack;
     use embedded_io::Write as _;
@@ -101,29 +105,30 @@ mod firmware {
             halt("no MPU guard for the stack");
         }
 
-        let motor = MotorParams::paper();
-        let positioning = positioning_requested();
-        let mut config = if positioning {
-            DriveConfig::stroke_axis(&motor, PAPER_AXIS_BUS_V)
-        } else {
-            let mut c = DriveConfig::for_motor(&motor, PAPER_AXIS_BUS_V, ObserverKind::Dcfo);
-            c.moving_mass_kg = motor.mass_kg + PAPER_AXIS_PAYLOAD_KG;
-            c
+        // The motor image from the command line (as the ESC1 reads it from flash), or
+        // the paper motor's speed drive; the drive is the image's, built as on every
+        // drive image (`image_drive::drive_config`): with an axis a positioning drive.
+        let image = match image_from_cmdline() {
+            Some(Ok(image)) => image,
+            Some(Err(why)) => halt(why),
+            None => match MotorImage::new(MotorParams::paper(), PAPER_AXIS_BUS_V) {
+                Ok(image) => image,
+                Err(_) => halt("paper motor refused"),
+            },
         };
-        config.control_period_s = 1.0 / CONTROL_HZ as f32;
-        config.dead_time_compensation = None;
+        let motor = image.motor;
+        let period_s = 1.0 / CONTROL_HZ as f32;
+        let config = match drive_config(&image, period_s, Inverter::Virtual) {
+            Ok(c) => c,
+            Err(e) => halt(e.field),
+        };
+        let positioning = config.motion.is_some();
         let base = working_base(&motor);
         let drive = match Drive::<Work>::new(&motor, &config, &base) {
             Ok(d) => d,
             Err(e) => halt(e.field),
         };
-        let axis = VirtualAxis {
-            payload_kg: PAPER_AXIS_PAYLOAD_KG,
-            load_n: 0.0,
-            bus_v: PAPER_AXIS_BUS_V,
-            period_s: config.control_period_s,
-        };
-        let virtual_motor = match VirtualMotor::new(&motor, &axis) {
+        let virtual_motor = match VirtualMotor::new(&motor, &virtual_axis(&image, period_s)) {
             Ok(m) => m,
             Err(_) => halt("virtual motor settings refused"),
         };
@@ -168,12 +173,18 @@ mod firmware {
         }
     }
 
-    /// `true` when the command line (QEMU's `-append`, through semihosting) holds the
-    /// word `position`: run the positioning drive. Without a command line, a speed drive.
-    fn positioning_requested() -> bool {
-        let mut line = [0u8; 128];
-        dcfo_firmware::board::mps2::semihosting_cmdline(&mut line)
-            .is_some_and(|l| l.split(|&b| b == b' ').any(|w| w == b"position"))
+    /// The motor image from the command line (QEMU's `-append`, through semihosting)
+    /// `... image <hex>`: `None` without the word `image`, an error saying what is wrong
+    /// with the record. Not inlined: its line buffer is given back before the control
+    /// loop runs.
+    #[inline(never)]
+    fn image_from_cmdline() -> Option<Result<MotorImage, &'static str>> {
+        let mut line = [0u8; 512];
+        let line = dcfo_firmware::board::mps2::semihosting_cmdline(&mut line)?;
+        let mut words = line.split(|&b| b == b' ').filter(|w| !w.is_empty());
+        words.by_ref().find(|w| *w == b"image")?;
+        let Some(hex) = words.next() else { return Some(Err("image: no motor image after `image`")) };
+        Some(motor_image_from_hex(hex))
     }
 
     /// The control period: the virtual board, one drive step, the capture and the status.

@@ -199,21 +199,7 @@ mod firmware {
         let mut words = line.split(|&b| b == b' ').filter(|w| !w.is_empty());
         words.by_ref().find(|w| *w == b"stroke")?;
         let Some(hex) = words.next() else { return Some(Err("stroke: no motor image after `stroke`")) };
-        let mut bytes = [0u8; MotorImage::LEN];
-        if hex.len() != 2 * MotorImage::LEN {
-            return Some(Err("stroke: the motor image is not 56 bytes of hex"));
-        }
-        let digit = |c: u8| (c as char).to_digit(16);
-        for (byte, pair) in bytes.iter_mut().zip(hex.chunks_exact(2)) {
-            let (Some(&hi), Some(&lo)) = (pair.first(), pair.get(1)) else {
-                return Some(Err("stroke: bad hex"));
-            };
-            match (digit(hi), digit(lo)) {
-                (Some(h), Some(l)) => *byte = (h * 16 + l) as u8,
-                _ => return Some(Err("stroke: bad hex in the motor image")),
-            }
-        }
-        Some(MotorImage::decode(&bytes).map_err(|_| "stroke: the motor image is invalid"))
+        Some(dcfo_firmware::image_drive::motor_image_from_hex(hex))
     }
 
     /// UART0 RX: drain the receiver through the HIL server; an in-order frame runs one

@@ -7,6 +7,8 @@
 //!   and telemetry.
 //! - [`board_link`]: the drive image's side of the board link (`dcfo board`): commands,
 //!   telemetry, the capture and the command watchdog.
+//! - [`image_drive`]: the drive every drive image builds from its motor image
+//!   (positioning with an axis in the image, a speed drive without), one function.
 //! - [`hil`]: the lock-step HIL link's firmware side on any board (the library's
 //!   [`dcfo::link::LinkServer`], a transmit queue and the watchdog).
 //! - [`queue`]: the fixed-capacity queue between an interrupt and the thread, with no
@@ -29,6 +31,7 @@ pub mod board;
 pub mod board_link;
 pub mod control;
 pub mod hil;
+pub mod image_drive;
 pub mod queue;
 #[cfg(all(target_arch = "arm", feature = "esc1"))]
 #[allow(unsafe_code)]

@@ -25,11 +25,12 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, bail};
 use dcfo::capture::{Capture, CaptureFormat, CaptureSample, CaptureState, Quantity, SiSample};
-use dcfo::drive::DriveState;
+use dcfo::drive::{DriveState, PAPER_AXIS_BUS_V, PAPER_AXIS_PAYLOAD_KG, STROKE_AXIS_LIMITS};
 use dcfo::link::board::{BoardCommand, BoardTelemetry, CaptureChunk, NO_CAPTURE_READ};
 use dcfo::link::{LinkError, decode_raw};
 use dcfo::motion::Move;
 use dcfo::motor::MotorParams;
+use dcfo::motor_image::{MotorAxis, MotorImage};
 use dcfo::observer::ObserverKind;
 
 use crate::qemu::{QemuSession, build_qemu_example};
@@ -483,19 +484,41 @@ pub fn replay_matches(
     Ok(cmp)
 }
 
-/// The motor the QEMU drive image runs (`examples/qemu_drive.rs`): the paper motor, its
-/// drive tuned by `DriveConfig::for_motor` for the paper axis's bus; the replay needs
-/// only the motor (its estimator is `EstimatorConfig::for_motor`, as the drive's; the
-/// M3 image's Q8.24 drive runs in `Base::for_motor` of it, see [`working_base`]).
+/// The motor the QEMU drive image runs without a motor image (`examples/qemu_drive.rs`):
+/// the paper motor, its drive tuned by `DriveConfig::for_motor` for the paper axis's bus;
+/// the replay needs only the motor (its estimator is `EstimatorConfig::for_motor`, as
+/// the drive's; the M3 image's Q8.24 drive runs in `Base::for_motor` of it, see
+/// [`working_base`]).
 pub fn qemu_drive_motor() -> MotorParams {
     MotorParams::paper()
 }
 
 pub use crate::target::{ANSWER_TIMEOUT, Target};
 
-/// The QEMU image's command line that selects its positioning drive
-/// (`DriveConfig::stroke_axis` of the paper motor, `examples/qemu_drive.rs`).
-pub const QEMU_POSITIONING_CMDLINE: &str = "position";
+/// The motor image `dcfo board --qemu --move-to` gives the QEMU image when no `--image`
+/// is: the paper motor at the paper axis's bus with the stroke axis of `dcfo stroke`
+/// ([`STROKE_AXIS_LIMITS`], the [`PAPER_AXIS_PAYLOAD_KG`] carriage), so that the image
+/// builds a positioning drive (`image_drive::drive_config`, as the ESC1 does from
+/// flash).
+pub fn qemu_positioning_image() -> MotorImage {
+    let image = MotorImage::new(MotorParams::paper(), PAPER_AXIS_BUS_V).expect("the paper motor is valid");
+    image
+        .with_axis(MotorAxis { limits: STROKE_AXIS_LIMITS, payload_kg: PAPER_AXIS_PAYLOAD_KG })
+        .expect("the stroke axis fits the paper motor")
+}
+
+/// The QEMU drive image's command line for `image`: `image <hex>` (the image reads it
+/// through semihosting, `image_drive::motor_image_from_hex`).
+pub fn qemu_image_cmdline(image: &MotorImage) -> String {
+    let hex: String = image.encode().iter().map(|b| format!("{b:02x}")).collect();
+    format!("image {hex}")
+}
+
+/// The motor image the QEMU drive image runs: `image` (`--image FILE`), else for a move
+/// ([`qemu_positioning_image`]), else none (the image's paper speed drive).
+pub fn qemu_image(image: Option<MotorImage>, move_to: bool) -> Option<MotorImage> {
+    image.or_else(|| move_to.then(qemu_positioning_image))
+}
 
 /// A move the host sends: a finite target (m) and a finite, non-negative dwell (s).
 /// The drive image checks the stroke itself (a target outside it is refused and
@@ -558,15 +581,24 @@ pub struct MoveDemoReport {
 ///
 /// # Errors
 /// The link failed, the image reports no position (a speed drive), the drive tripped.
-pub fn run_move_demo(target: &Target, m: Move, timeout: Duration) -> anyhow::Result<MoveDemoReport> {
+pub fn run_move_demo(
+    target: &Target,
+    image: Option<&MotorImage>,
+    m: Move,
+    timeout: Duration,
+) -> anyhow::Result<MoveDemoReport> {
     let started = Instant::now();
-    let motor = qemu_drive_motor();
+    let motor = image.map_or_else(qemu_drive_motor, |i| i.motor);
     let tolerance_m = move_tolerance_m(&motor);
-    with_board(target, true, |board| {
+    with_board(target, image, |board| {
         let first = board.poll(false, false)?;
         let Some(p0) = first.position else {
             let _ = board.disable();
-            bail!("the drive image reports no position: it runs a speed drive, which takes no moves");
+            bail!(
+                "the drive image reports no position: it runs a speed drive, which refuses every move; \
+                 its motor image has no axis (a version-1 or -2 image, or written without one): write one with \
+                 `dcfo motor-image ... --stroke-min-m --stroke-max-m --max-speed --max-accel --payload-kg`"
+            );
         };
         *board.wish_mut() = Wish { enable: true, speed_m_per_s: 0.0 };
         board.queue_move(m);
@@ -686,10 +718,12 @@ fn state_rank(s: DriveState) -> u8 {
     }
 }
 
-/// Connects to `target`, then runs `f` with the board; QEMU is stopped afterwards.
+/// Connects to `target`, then runs `f` with the board; QEMU is stopped afterwards. On
+/// QEMU the image runs the drive of `image` (its command line, [`qemu_image_cmdline`]),
+/// without one the paper motor's speed drive; a board reads its own from flash.
 fn with_board<T>(
     target: &Target,
-    positioning: bool,
+    image: Option<&MotorImage>,
     f: impl FnOnce(&mut dyn BoardOps) -> anyhow::Result<T>,
 ) -> anyhow::Result<T> {
     match target {
@@ -699,8 +733,8 @@ fn with_board<T>(
                 Some(e) => e.clone(),
                 None => build_qemu_example(workspace, *cpu, "qemu_drive")?,
             };
-            let cmdline = if positioning { Some(QEMU_POSITIONING_CMDLINE) } else { None };
-            let (_session, stdin, stdout) = QemuSession::spawn_with_cmdline(&elf, *cpu, cmdline)?;
+            let cmdline = image.map(qemu_image_cmdline);
+            let (_session, stdin, stdout) = QemuSession::spawn_with_cmdline(&elf, *cpu, cmdline.as_deref())?;
             let mut board = Board::new(BoardLink::new(stdin, stdout));
             f(&mut board)
         }
@@ -762,12 +796,13 @@ impl<W: Write> BoardOps for Board<W> {
 /// The link failed, or the capture did not finish within `timeout`.
 pub fn run_demo(
     target: &Target,
+    image: Option<&MotorImage>,
     speed: f32,
     record: Option<&Path>,
     timeout: Duration,
 ) -> anyhow::Result<DemoReport> {
     let started = Instant::now();
-    with_board(target, false, |board| {
+    with_board(target, image, |board| {
         let first = board.poll(false, false)?;
         eprintln!(
             "connected: drive {:?}, capture capacity {} samples",
@@ -832,7 +867,7 @@ pub fn run_demo(
             Some(p) => p.to_path_buf(),
             None => dir.path().join("capture.csv"),
         };
-        let motor = qemu_drive_motor();
+        let motor = image.map_or_else(qemu_drive_motor, |i| i.motor);
         write_capture_trace(&path, &data, &motor, CONTROL_PERIOD_S)?;
         let trace = InputTrace::read_path(&path)?;
         let comparison = replay_matches(&trace, &motor, &data)?;
@@ -960,8 +995,8 @@ pub fn parse_typed(line: &str) -> Result<Typed, String> {
 /// The link failed (the image's watchdog then disables the drive within 0.5 s).
 pub fn run_interactive(
     target: &Target,
+    image: Option<&MotorImage>,
     record: Option<&Path>,
-    positioning: bool,
     first_move: Option<Move>,
 ) -> anyhow::Result<()> {
     let (tx, typed) = mpsc::channel::<String>();
@@ -978,7 +1013,7 @@ pub fn run_interactive(
     eprintln!(
         "commands: e(nable), d(isable), c(lear faults), s(peed) <m/s>, m(ove) <m> [dwell s], r(ecord: arm the capture), q(uit)"
     );
-    with_board(target, positioning, |board| {
+    with_board(target, image, |board| {
         if let Some(m) = first_move {
             board.queue_move(m);
         }
@@ -986,7 +1021,7 @@ pub fn run_interactive(
         let mut arm = record.is_some();
         let mut downloaded = false;
         let mut data = CaptureData::default();
-        let motor = qemu_drive_motor();
+        let motor = image.map_or_else(qemu_drive_motor, |i| i.motor);
         loop {
             let t = board.poll(std::mem::take(&mut clear), std::mem::take(&mut arm))?;
             eprint!("\r{}\x1b[K", status_line(&t));
@@ -1081,10 +1116,13 @@ pub struct Params {
     pub speed_m_per_s: f32,
     /// With `demo`: print one JSON object on the last line of stdout.
     pub json: bool,
-    /// Queue this move (target m, dwell s) with the first command; on QEMU the image
-    /// then runs its positioning drive. With `demo`: the move demo
-    /// ([`run_move_demo`]) instead of the capture demo.
+    /// Queue this move (target m, dwell s) with the first command; on QEMU without
+    /// `image` the image then runs the positioning drive of [`qemu_positioning_image`].
+    /// With `demo`: the move demo ([`run_move_demo`]) instead of the capture demo.
     pub move_to: Option<Move>,
+    /// QEMU only: the motor image the QEMU drive image runs (as a board reads its own
+    /// from flash): with an axis a positioning drive, without one a speed drive.
+    pub image: Option<PathBuf>,
 }
 
 /// `dcfo board`: the interactive session, or the demo (its report on stdout; an error
@@ -1096,17 +1134,26 @@ pub fn run_command(params: &Params) -> anyhow::Result<()> {
     if let Some(m) = params.move_to {
         check_move(m.target_m, m.dwell_s).map_err(|e| anyhow::anyhow!("--move-to/--dwell: {e}"))?;
     }
+    let image = match (&params.image, &params.target) {
+        (Some(path), Target::Qemu { .. }) => Some(crate::motor_image::read_image(path)?),
+        (Some(_), Target::Port { .. }) => {
+            bail!("--image is for --qemu: a board reads its motor image from flash (write it with probe-rs)")
+        }
+        (None, _) => None,
+    };
+    let image = match params.target {
+        Target::Qemu { .. } => qemu_image(image, params.move_to.is_some()),
+        Target::Port { .. } => None,
+    };
+    if let Some(i) = &image {
+        eprintln!("motor image: {}", crate::motor_image::describe_axis(i.axis));
+    }
     catch_interrupt()?;
     if !params.demo {
-        return run_interactive(
-            &params.target,
-            params.record.as_deref(),
-            params.move_to.is_some(),
-            params.move_to,
-        );
+        return run_interactive(&params.target, image.as_ref(), params.record.as_deref(), params.move_to);
     }
     if let Some(m) = params.move_to {
-        let report = run_move_demo(&params.target, m, Duration::from_secs(60))?;
+        let report = run_move_demo(&params.target, image.as_ref(), m, Duration::from_secs(60))?;
         if params.json {
             println!("{}", serde_json::to_string(&report)?);
         } else {
@@ -1127,8 +1174,13 @@ pub fn run_command(params: &Params) -> anyhow::Result<()> {
         anyhow::ensure!(report.refused_move_reported, "the refused move was not reported");
         return Ok(());
     }
-    let report =
-        run_demo(&params.target, params.speed_m_per_s, params.record.as_deref(), Duration::from_secs(60))?;
+    let report = run_demo(
+        &params.target,
+        image.as_ref(),
+        params.speed_m_per_s,
+        params.record.as_deref(),
+        Duration::from_secs(60),
+    )?;
     if params.json {
         println!("{}", serde_json::to_string(&report)?);
     } else {

@@ -114,11 +114,12 @@ pub struct BoardArgs {
     /// capture_samples, replay_identical, ...).
     #[arg(long, requires = "demo")]
     pub json: bool,
-    /// Queue a move to this position [m] with the first command (on QEMU the image then
-    /// runs its positioning drive, DriveConfig::stroke_axis of the paper motor; the
-    /// interactive `m <m> [s]` queues more). With --demo: enable, run the move, report
-    /// move_reached and x_err_m (tolerance: pole pitch / 20) and check that a move
-    /// outside the stroke is reported refused.
+    /// Queue a move to this position [m] with the first command (on QEMU without --image
+    /// the image then runs a positioning drive: the paper motor with the stroke axis of
+    /// `dcfo stroke` in its motor image; the interactive `m <m> [s]` queues more). With
+    /// --demo: enable, run the move, report move_reached and x_err_m (tolerance: pole
+    /// pitch / 20) and check that a move outside the stroke is reported refused. A drive
+    /// whose motor image has no axis runs a speed drive and refuses every move.
     #[arg(long, value_name = "X_M", allow_negative_numbers = true)]
     pub move_to: Option<f32>,
     /// Dwell at the --move-to target [s].
@@ -130,6 +131,12 @@ pub struct BoardArgs {
         allow_negative_numbers = true
     )]
     pub dwell: f32,
+    /// The motor image (`dcfo motor-image`, `dcfo identify --image`) the QEMU drive image
+    /// runs, as a board reads its own from flash: with an axis a positioning drive that
+    /// takes moves, without one (or a version-1 or -2 image) a speed drive. Without it:
+    /// the paper motor (with the stroke axis for --move-to).
+    #[arg(long, value_name = "FILE", conflicts_with = "port")]
+    pub image: Option<PathBuf>,
 }
 
 /// Arguments of `dcfo identify`.
@@ -174,7 +181,8 @@ pub struct IdentifyArgs {
     pub output: Option<PathBuf>,
     /// Write the identified motor, the nominal bus and the identified inverter
     /// compensation as a motor image (the board's flash record, `dcfo motor-image`'s
-    /// format) to this file.
+    /// format) to this file. An axis in the image this overwrites is kept (checked
+    /// against the identified motor).
     #[arg(long, value_name = "FILE")]
     pub image: Option<PathBuf>,
     /// Print one JSON object on the last line of stdout.
@@ -286,10 +294,29 @@ pub struct MotorImageArgs {
     /// Nominal DC-bus voltage of the board, V (e.g. 24 on the B-G431B-ESC1).
     #[arg(long, value_name = "V")]
     pub bus_v: f32,
-    /// Output file (56 bytes). Flash it on the B-G431B-ESC1 with
+    /// Output file (88 bytes, version 3). Flash it on the B-G431B-ESC1 with
     /// `probe-rs download --chip STM32G431CBUx --binary-format bin --base-address 0x0801F800 FILE`.
     #[arg(short, long, value_name = "FILE")]
     pub out: PathBuf,
+    /// Positioning axis: the lowest target position [m]. With the four other axis
+    /// options (all or none) the board's drive is a positioning drive that takes moves
+    /// over its command link; without them a speed drive.
+    #[arg(long, value_name = "M", allow_negative_numbers = true)]
+    pub stroke_min_m: Option<f32>,
+    /// Positioning axis: the highest target position [m] (above --stroke-min-m).
+    #[arg(long, value_name = "M", allow_negative_numbers = true)]
+    pub stroke_max_m: Option<f32>,
+    /// Positioning axis: the move profile's top speed [m/s] (> 0, within what the
+    /// motor's back-EMF leaves of the bus).
+    #[arg(long, value_name = "M/S", allow_negative_numbers = true)]
+    pub max_speed: Option<f32>,
+    /// Positioning axis: the move profile's acceleration [m/s^2] (> 0, within the
+    /// drive's current limit for the moving mass).
+    #[arg(long, value_name = "M/S2", allow_negative_numbers = true)]
+    pub max_accel: Option<f32>,
+    /// Positioning axis: carriage and payload moved besides the mover [kg] (>= 0).
+    #[arg(long, value_name = "KG", allow_negative_numbers = true)]
+    pub payload_kg: Option<f32>,
 }
 
 /// Arguments of `dcfo hil`.
@@ -506,6 +533,7 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                 speed_m_per_s: a.speed,
                 json: a.json,
                 move_to: a.move_to.map(|target_m| dcfo::motion::Move { target_m, dwell_s: a.dwell }),
+                image: a.image,
             })?;
             Ok(ExitCode::SUCCESS)
         }
@@ -552,6 +580,13 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             crate::motor_image::run_command(&crate::motor_image::Params {
                 motor: a.motor,
                 bus_v: a.bus_v,
+                axis: crate::motor_image::AxisArgs {
+                    stroke_min_m: a.stroke_min_m,
+                    stroke_max_m: a.stroke_max_m,
+                    max_speed_m_per_s: a.max_speed,
+                    max_accel_m_per_s2: a.max_accel,
+                    payload_kg: a.payload_kg,
+                },
                 out: a.out,
             })?;
             Ok(ExitCode::SUCCESS)

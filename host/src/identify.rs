@@ -19,7 +19,7 @@ use std::fmt::Write as _;
 use dcfo::drive::{CommissioningConfig, CommissioningError, CommissioningResult, Drive, DriveState};
 use dcfo::link::{ActuationFrame, CommissioningStatus, LinkStats, SensorFrame};
 use dcfo::motor::MotorParams;
-use dcfo::motor_image::MotorImage;
+use dcfo::motor_image::{MotorAxis, MotorImage};
 use dcfo::num::{Q24, Scalar};
 use dcfo::observer::ObserverKind;
 use dcfo::units::Base;
@@ -385,19 +385,29 @@ pub fn motor_toml(r: &IdentifyReport, motor: &MotorParams) -> Result<String, Ide
     Ok(s)
 }
 
-/// The identified motor as the board's flash record (`dcfo::motor_image`, version 2):
+/// The identified motor as the board's flash record (`dcfo::motor_image`, version 3):
 /// the motor of [`motor_toml`] (mass and friction of `motor`, not identified), the
-/// nominal bus the drive was told, and the identified inverter compensation as a dead
-/// time at the commissioning's 100 us period; checked by decoding it as the firmware
-/// does.
+/// nominal bus the drive was told, the identified inverter compensation as a dead
+/// time at the commissioning's 100 us period, and `axis` (commissioning does not
+/// identify one: `dcfo identify --image` keeps the axis of the image it overwrites);
+/// checked by decoding it as the firmware does.
 ///
 /// # Errors
-/// No result, or a result the image refuses (named).
-pub fn motor_image(r: &IdentifyReport, motor: &MotorParams) -> Result<[u8; MotorImage::LEN], IdentifyError> {
+/// No result, or a result or an axis the image refuses (named).
+pub fn motor_image(
+    r: &IdentifyReport,
+    motor: &MotorParams,
+    axis: Option<MotorAxis>,
+) -> Result<[u8; MotorImage::LEN], IdentifyError> {
     let result = r.result.ok_or_else(|| IdentifyError::Setup("no result".into()))?;
-    let image = result
+    let mut image = result
         .motor_image(&told(motor), motor.mass_kg, motor.viscous_n_s_per_m, COMMISSIONING_PERIOD_S)
         .map_err(|e| IdentifyError::Setup(format!("identified motor refused for the image: {e}")))?;
+    if let Some(axis) = axis {
+        image = image.with_axis(axis).map_err(|e| {
+            IdentifyError::Setup(format!("the existing image's axis does not fit the identified motor: {e}"))
+        })?;
+    }
     let bytes = image.encode();
     MotorImage::decode(&bytes).map_err(|e| IdentifyError::Setup(format!("encoded image: {e}")))?;
     Ok(bytes)
@@ -686,13 +696,18 @@ pub fn run_command(params: &Params) -> anyhow::Result<std::process::ExitCode> {
         std::fs::write(path, text).with_context(|| format!("writing {}", path.display()))?;
     }
     if let Some(path) = &params.image {
-        let bytes = motor_image(&report, &motor.params)?;
+        // An axis in the image being overwritten is kept: commissioning identifies
+        // the motor and the inverter, not the axis.
+        let axis = crate::motor_image::existing_axis(path);
+        let bytes = motor_image(&report, &motor.params, axis)?;
         std::fs::write(path, bytes).with_context(|| format!("writing {}", path.display()))?;
         println!(
-            "motor image (version {}): {} bytes in {}",
+            "motor image (version {}): {} bytes in {}, {}{}",
             MotorImage::VERSION,
             bytes.len(),
-            path.display()
+            path.display(),
+            crate::motor_image::describe_axis(axis),
+            if axis.is_some() { " kept from the image it replaces" } else { "" }
         );
     }
     print!("{}", table(&report));

@@ -300,7 +300,8 @@ fn a_silent_host_disables_the_drive_image() {
 }
 
 /// `dcfo board --qemu --demo --move-to 0.03 --json` on the M4F image's positioning
-/// drive (command line `position`): the move goes over the board link, the position
+/// drive (without `--image`: the paper motor's image with the stroke axis, command line
+/// `image <hex>`): the move goes over the board link, the position
 /// report comes back with the reference at rest at the target and x̂ within a twentieth
 /// of the pole pitch of it (0.75 mm on the paper motor, 9 electrical degrees), and a
 /// move outside the stroke sent afterwards is reported refused. The true mover
@@ -347,5 +348,107 @@ fn a_bad_move_is_refused_with_a_named_error() {
         assert!(!out.status.success());
         let stderr = String::from_utf8_lossy(&out.stderr);
         assert!(stderr.contains(why), "{stderr}");
+    }
+}
+
+/// A motor image written by `dcfo motor-image` with an axis (version 3): the QEMU drive
+/// image reads it from its command line and builds its drive with
+/// `image_drive::drive_config`, the function the ESC1 images build theirs with from
+/// flash. `dcfo board --qemu --image FILE --demo --move-to X` reaches the target within
+/// the tolerance (a twentieth of the pole pitch) on the image's own axis (its payload,
+/// not the default carriage), and the move outside the stroke is reported refused.
+fn a_v3_image_with_an_axis_takes_moves(cpu: QemuCpu, cpu_arg: &str) {
+    let Some(elf) = drive_image(cpu) else { return };
+    let dir = tempfile::tempdir().expect("temp dir");
+    let image = dir.path().join("axis.bin");
+    let out = Command::new(env!("CARGO_BIN_EXE_dcfo"))
+        .args(["motor-image", "--motor", "paper", "--bus-v", "311.127", "--stroke-min-m", "-0.02"])
+        .args(["--stroke-max-m", "0.1", "--max-speed", "0.4", "--max-accel", "2", "--payload-kg", "5", "-o"])
+        .arg(&image)
+        .output()
+        .expect("dcfo motor-image runs");
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let decoded =
+        dcfo::motor_image::MotorImage::decode(&std::fs::read(&image).expect("written")).expect("valid");
+    assert_eq!(decoded.axis.map(|a| a.payload_kg), Some(5.0));
+    let target = -0.015;
+    let out = Command::new(env!("CARGO_BIN_EXE_dcfo"))
+        .args(["board", "--qemu", "--cpu", cpu_arg, "--demo", "--json", "--move-to", "-0.015", "--image"])
+        .arg(&image)
+        .arg("--elf")
+        .arg(&elf)
+        .output()
+        .expect("dcfo board runs");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    println!("{stderr}\n{stdout}");
+    assert!(out.status.success(), "exit status {}", out.status);
+    assert!(stderr.contains("payload (positioning drive)"), "{stderr}");
+    let last = stdout.lines().last().expect("a JSON line");
+    let report: serde_json::Value = serde_json::from_str(last).expect("the last line is JSON");
+    let tolerance = f64::from(MotorParams::paper().pole_pitch_m) / 20.0;
+    assert_eq!(report["faults"], "none");
+    assert_eq!(report["move_reached"], true);
+    let x_err = report["x_err_m"].as_f64().expect("x_err_m");
+    assert!(x_err.abs() < tolerance, "x_err {x_err} m");
+    let x_ref = report["x_ref_m"].as_f64().expect("x_ref_m");
+    assert!((x_ref - target).abs() < 1e-6, "reference {x_ref} m");
+    assert_eq!(report["refused_move_reported"], true);
+    assert_eq!(report["moves_rejected"], 1);
+}
+
+#[test]
+fn a_v3_image_with_an_axis_takes_moves_on_qemu_m4f() {
+    a_v3_image_with_an_axis_takes_moves(QemuCpu::M4f, "m4f");
+}
+
+#[test]
+fn a_v3_image_with_an_axis_takes_moves_on_qemu_m3() {
+    a_v3_image_with_an_axis_takes_moves(QemuCpu::M3, "m3");
+}
+
+/// CRC-16/IBM-3740 (poly 0x1021, init 0xFFFF), written here from its definition to
+/// write a version-2 record by hand.
+fn crc16(bytes: &[u8]) -> u16 {
+    let mut crc = 0xFFFFu16;
+    for &b in bytes {
+        crc ^= u16::from(b) << 8;
+        for _ in 0..8 {
+            crc = if crc & 0x8000 != 0 { (crc << 1) ^ 0x1021 } else { crc << 1 };
+        }
+    }
+    crc
+}
+
+/// A version-2 motor image (64 bytes, as `dcfo motor-image` wrote before the axis) still
+/// runs, as a speed drive: a move is refused, and `dcfo board --demo --move-to` says why
+/// (no axis in the image) and how to write one.
+#[test]
+fn a_v2_image_runs_a_speed_drive_that_refuses_the_move_with_a_clear_message() {
+    use dcfo::motor_image::MotorImage;
+    let Some(elf) = drive_image(QemuCpu::M4f) else { return };
+    let image = MotorImage::new(MotorParams::paper(), 311.127).expect("paper motor");
+    let v3 = image.encode();
+    let mut v2 = [0u8; 64];
+    v2[..60].copy_from_slice(&v3[..60]);
+    v2[4..6].copy_from_slice(&2u16.to_le_bytes());
+    let crc = crc16(&v2[..60]);
+    v2[60..62].copy_from_slice(&crc.to_le_bytes());
+    assert_eq!(MotorImage::decode(&v2), Ok(image));
+    let dir = tempfile::tempdir().expect("temp dir");
+    let file = dir.path().join("v2.bin");
+    std::fs::write(&file, v2).expect("written");
+    let out = Command::new(env!("CARGO_BIN_EXE_dcfo"))
+        .args(["board", "--qemu", "--demo", "--json", "--move-to", "0.03", "--image"])
+        .arg(&file)
+        .arg("--elf")
+        .arg(&elf)
+        .output()
+        .expect("dcfo board runs");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    println!("{stderr}");
+    assert!(!out.status.success());
+    for words in ["no axis (speed drive)", "runs a speed drive, which refuses every move", "--stroke-min-m"] {
+        assert!(stderr.contains(words), "`{words}` not in: {stderr}");
     }
 }

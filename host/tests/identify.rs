@@ -200,7 +200,7 @@ fn the_motor_image_carries_the_identified_motor_and_compensation() {
     use dcfo::motor_image::MotorImage;
     let m = motor("paper");
     let r = identify("paper", &m, 1, PlantFault::None).unwrap();
-    let bytes = dcfo_host::identify::motor_image(&r, &m).unwrap();
+    let bytes = dcfo_host::identify::motor_image(&r, &m, None).unwrap();
     let image = MotorImage::decode(&bytes).unwrap();
     let result = r.result.unwrap();
     assert_eq!(
@@ -215,6 +215,23 @@ fn the_motor_image_carries_the_identified_motor_and_compensation() {
     let volts = f64::from(c.dead_time_s) / 1e-4 * f64::from(result.bus_v);
     assert!((volts - r.voltage_error_v.identified).abs() < 1e-5 * volts, "{volts}");
     assert!(r.voltage_error_v.err_pct.abs() <= 10.0);
+    assert_eq!(image.axis, None);
+    // An axis (`dcfo identify --image` keeps the one of the image it overwrites) is
+    // carried into the identified image, checked against the identified motor.
+    let axis = dcfo::motor_image::MotorAxis { limits: dcfo::drive::STROKE_AXIS_LIMITS, payload_kg: 10.0 };
+    let dir = tempfile::tempdir().unwrap();
+    let old = dir.path().join("old.bin");
+    std::fs::write(&old, image.with_axis(axis).unwrap().encode()).unwrap();
+    assert_eq!(dcfo_host::motor_image::existing_axis(&old), Some(axis));
+    assert_eq!(dcfo_host::motor_image::existing_axis(&dir.path().join("absent.bin")), None);
+    let kept = MotorImage::decode(&dcfo_host::identify::motor_image(&r, &m, Some(axis)).unwrap()).unwrap();
+    assert_eq!(kept, MotorImage { axis: Some(axis), ..image });
+    let too_fast = dcfo::motor_image::MotorAxis {
+        limits: dcfo::motion::ProfileLimits { max_speed_m_per_s: 100.0, ..axis.limits },
+        ..axis
+    };
+    let e = dcfo_host::identify::motor_image(&r, &m, Some(too_fast)).unwrap_err().to_string();
+    assert!(e.contains("axis") && e.contains("max_speed_m_per_s"), "{e}");
 }
 
 #[test]

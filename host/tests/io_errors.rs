@@ -183,3 +183,79 @@ fn stroke_refuses_a_motor_file_without_the_mass_it_tunes_on() {
     // Nothing written as if complete.
     assert!(!dir.path().join("out").join("stroke.json").exists());
 }
+
+/// `dcfo motor-image` with the axis options: all five write a version-3 image with the
+/// axis; some of them, or a bad value, is an error naming the options or the field, and
+/// no file.
+#[test]
+fn motor_image_axis_options_are_all_or_nothing_and_bad_values_are_named() {
+    use dcfo::motor_image::MotorImage;
+    use std::process::Command;
+    let dir = tempfile::tempdir().unwrap();
+    let run = |extra: &[&str], out: &std::path::Path| {
+        Command::new(env!("CARGO_BIN_EXE_dcfo"))
+            .args(["motor-image", "--motor", "paper", "--bus-v", "311"])
+            .args(extra)
+            .arg("-o")
+            .arg(out)
+            .output()
+            .unwrap()
+    };
+    let axis = [
+        "--stroke-min-m",
+        "-0.01",
+        "--stroke-max-m",
+        "0.31",
+        "--max-speed",
+        "0.5",
+        "--max-accel",
+        "3",
+        "--payload-kg",
+        "10",
+    ];
+    let good = dir.path().join("axis.bin");
+    let out = run(&axis, &good);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let bytes = std::fs::read(&good).unwrap();
+    assert_eq!(bytes.len(), MotorImage::LEN);
+    let image = MotorImage::decode(&bytes).unwrap();
+    let a = image.axis.expect("the axis");
+    assert_eq!(
+        (
+            a.limits.stroke_min_m,
+            a.limits.stroke_max_m,
+            a.limits.max_speed_m_per_s,
+            a.limits.max_accel_m_per_s2,
+            a.payload_kg
+        ),
+        (-0.01, 0.31, 0.5, 3.0, 10.0)
+    );
+    // Without the options: no axis.
+    let plain = dir.path().join("plain.bin");
+    assert!(run(&[], &plain).status.success());
+    assert_eq!(MotorImage::decode(&std::fs::read(&plain).unwrap()).unwrap().axis, None);
+    let bad = dir.path().join("bad.bin");
+    // Partial: the missing options named.
+    let out = run(&axis[..4], &bad);
+    assert!(!out.status.success());
+    assert_has(&String::from_utf8_lossy(&out.stderr), &["missing --max-speed, --max-accel, --payload-kg"]);
+    assert!(!bad.exists());
+    // A bad value: the field named, no file.
+    for (option, value, field) in [
+        ("--stroke-max-m", "-0.02", "stroke_max_m"),
+        ("--stroke-min-m", "nan", "stroke_min_m"),
+        ("--max-speed", "0", "max_speed_m_per_s"),
+        ("--max-speed", "20", "max_speed_m_per_s"),
+        ("--max-accel", "-1", "max_accel_m_per_s2"),
+        ("--max-accel", "500", "max_accel_m_per_s2"),
+        ("--payload-kg", "-1", "payload_kg"),
+    ] {
+        let mut args: Vec<&str> = axis.to_vec();
+        let at = args.iter().position(|a| *a == option).unwrap();
+        args[at + 1] = value;
+        let out = run(&args, &bad);
+        assert!(!out.status.success(), "{option} {value}");
+        assert_has(&String::from_utf8_lossy(&out.stderr), &["axis", field]);
+        assert!(!bad.exists(), "{option} {value}");
+    }
+}

@@ -2,8 +2,9 @@
 
 use crate::estimator::EstimatorConfig;
 use crate::hfi::HfiConfig;
-use crate::motion::ProfileLimits;
+use crate::motion::{ProfileField, ProfileLimits};
 use crate::motor::MotorParams;
+use crate::motor_image::MotorImage;
 use crate::observer::ObserverKind;
 
 /// Open-loop (I/f) start-up: a current vector of fixed amplitude turned at a
@@ -328,6 +329,69 @@ impl DriveConfig {
     }
 }
 
+impl DriveConfig {
+    /// Whether the motor can follow a profile with `limits` in this drive: the
+    /// acceleration of the moving mass ([`DriveConfig::moving_mass_kg`]) must need less
+    /// thrust current than [`DriveConfig::current_limit_a`], and the back-EMF at the top
+    /// speed must stay below the phase voltage the bridge applies at the lowest bus of
+    /// the fault limits (`faults.bus_min_v`, linear modulation scaled by
+    /// `modulation_limit`). The limits themselves are [`ProfileLimits::validate`]'s.
+    /// [`super::Drive::new`] refuses a positioning drive on this check, and a motor
+    /// image's axis ([`crate::motor_image::MotorImage::with_axis`]) is refused on it.
+    ///
+    /// # Errors
+    /// The limit the motor cannot follow: [`ProfileField::MaxAccel`] or
+    /// [`ProfileField::MaxSpeed`] (or the first field [`ProfileLimits::validate`] names).
+    pub fn check_profile(&self, motor: &MotorParams, limits: &ProfileLimits) -> Result<(), ProfileField> {
+        limits.validate()?;
+        let accel_current = self.moving_mass_kg * limits.max_accel_m_per_s2 / motor.thrust_constant_n_per_a();
+        // Anything but "less" refuses, a NaN too.
+        let below = |x: f32, limit: f32| x.partial_cmp(&limit) == Some(core::cmp::Ordering::Less);
+        if !below(accel_current, self.current_limit_a) {
+            return Err(ProfileField::MaxAccel);
+        }
+        let omega_per_speed = core::f32::consts::PI / motor.pole_pitch_m;
+        let emf_v = limits.max_speed_m_per_s * omega_per_speed * motor.psi_f_wb;
+        let max_phase_v = self.faults.bus_min_v * self.modulation_limit * 0.577_350_26;
+        if !below(emf_v, max_phase_v) {
+            return Err(ProfileField::MaxSpeed);
+        }
+        Ok(())
+    }
+
+    /// The drive a board runs for a motor image, the one function every drive image
+    /// builds its drive with (`dcfo-firmware`'s images and the host's checks):
+    /// [`DriveConfig::for_motor`] (DCFO) of the image's motor at its bus voltage, with the
+    /// board's control period `control_period_s` (s) and the inverter compensation
+    /// `compensation` the board uses (the image's, a board default, or `None` for an
+    /// ideal virtual inverter: the board decides). With an axis in the image
+    /// ([`MotorImage::axis`]) it is a positioning drive: the moving mass is the motor's
+    /// plus the axis's payload, and [`MotionConfig::for_drive`] with the axis's limits
+    /// (checked by [`DriveConfig::check_profile`]); without one, a speed drive moving the
+    /// motor's own mass. The result is validated ([`DriveConfig::validate`]).
+    ///
+    /// # Errors
+    /// The setting that is out of range, named (`motion.limits.max_accel_m_per_s2` for
+    /// an axis the motor cannot accelerate, ...).
+    pub fn for_image(
+        image: &MotorImage,
+        control_period_s: f32,
+        compensation: Option<DeadTimeCompensation>,
+    ) -> Result<Self, DriveConfigError> {
+        let motor = &image.motor;
+        let mut d = DriveConfig::for_motor(motor, image.bus_v, ObserverKind::Dcfo);
+        d.control_period_s = control_period_s;
+        d.dead_time_compensation = compensation;
+        if let Some(axis) = image.axis {
+            d.moving_mass_kg = motor.mass_kg + axis.payload_kg;
+            d.check_profile(motor, &axis.limits).map_err(|f| DriveConfigError { field: f.config_path() })?;
+            d.motion = Some(MotionConfig::for_drive(motor, &d, axis.limits));
+        }
+        d.validate()?;
+        Ok(d)
+    }
+}
+
 /// DC bus of the simulated paper axis, V: `sqrt(2) * 220`.
 pub const PAPER_AXIS_BUS_V: f32 = 311.127;
 
@@ -407,15 +471,8 @@ impl DriveConfig {
             }
         }
         if let Some(m) = self.motion {
+            m.limits.validate().map_err(|f| DriveConfigError { field: f.config_path() })?;
             let checks = [
-                (pos(m.limits.max_speed_m_per_s), "motion.limits.max_speed_m_per_s"),
-                (pos(m.limits.max_accel_m_per_s2), "motion.limits.max_accel_m_per_s2"),
-                (
-                    m.limits.stroke_min_m.is_finite()
-                        && m.limits.stroke_max_m.is_finite()
-                        && m.limits.stroke_max_m > m.limits.stroke_min_m,
-                    "motion.limits.stroke_max_m",
-                ),
                 (pos(m.low_speed_m_per_s), "motion.low_speed_m_per_s"),
                 (
                     m.low_speed_exit_ratio.is_finite() && m.low_speed_exit_ratio > 1.0,
@@ -482,5 +539,37 @@ mod tests {
             spoil(&mut c);
             assert_eq!(c.validate(), Err(DriveConfigError { field }));
         }
+    }
+
+    /// `for_image` builds the drive `stroke_axis` builds when the image holds the stroke
+    /// axis (same motor, bus, compensation, limits and payload), and the speed drive of
+    /// `for_motor` without an axis.
+    #[test]
+    fn a_motor_image_with_an_axis_gives_the_positioning_drive() {
+        use crate::motor_image::{MotorAxis, MotorImage};
+        let motor = MotorParams::paper();
+        let comp = DeadTimeCompensation { dead_time_s: 2e-6, device_drop_v: 0.95, current_band_a: 0.01 };
+        let image = MotorImage::new(motor, PAPER_AXIS_BUS_V).unwrap();
+        let axis = MotorAxis { limits: STROKE_AXIS_LIMITS, payload_kg: PAPER_AXIS_PAYLOAD_KG };
+        let positioning = DriveConfig::for_image(&image.with_axis(axis).unwrap(), 1e-4, Some(comp)).unwrap();
+        assert_eq!(positioning, DriveConfig::stroke_axis(&motor, PAPER_AXIS_BUS_V));
+        let speed = DriveConfig::for_image(&image, 1e-4, Some(comp)).unwrap();
+        let mut expected = DriveConfig::for_motor(&motor, PAPER_AXIS_BUS_V, ObserverKind::Dcfo);
+        expected.dead_time_compensation = Some(comp);
+        assert_eq!(speed, expected);
+        assert_eq!(speed.motion, None);
+        // The control period enters the motion settings (HFI's PWM period, the
+        // low-speed threshold through the compensation's dead time).
+        let at_20k = DriveConfig::for_image(&image.with_axis(axis).unwrap(), 5e-5, Some(comp)).unwrap();
+        assert_eq!(at_20k.control_period_s, 5e-5);
+        assert!(at_20k.motion.is_some());
+        // An axis the motor cannot follow is refused by name (bypassing `with_axis`).
+        let too_fast =
+            MotorAxis { limits: ProfileLimits { max_accel_m_per_s2: 300.0, ..STROKE_AXIS_LIMITS }, ..axis };
+        let bad = MotorImage { axis: Some(too_fast), ..image };
+        assert_eq!(
+            DriveConfig::for_image(&bad, 1e-4, None),
+            Err(DriveConfigError { field: "motion.limits.max_accel_m_per_s2" })
+        );
     }
 }

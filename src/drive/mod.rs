@@ -408,20 +408,10 @@ impl<T: Scalar> Drive<T> {
             },
         };
         let positioning = config.motion.map(|m| -> Result<Positioning<T>, DriveConfigError> {
-            // A profile the motor cannot follow is refused: the acceleration of the
-            // moving mass must need less than the current limit, and the back-EMF at
-            // the top speed must leave room under the voltage the bridge can apply
-            // (the lowest bus of the fault limits, linear modulation).
-            let accel_current =
-                config.moving_mass_kg * m.limits.max_accel_m_per_s2 / motor.thrust_constant_n_per_a();
-            if accel_current >= config.current_limit_a {
-                return Err(DriveConfigError { field: "motion.limits.max_accel_m_per_s2" });
-            }
-            let emf_v = m.limits.max_speed_m_per_s * omega_per_speed * motor.psi_f_wb;
-            let max_phase_v = config.faults.bus_min_v * config.modulation_limit * 0.577_350_26;
-            if emf_v >= max_phase_v {
-                return Err(DriveConfigError { field: "motion.limits.max_speed_m_per_s" });
-            }
+            // A profile the motor cannot follow is refused (`DriveConfig::check_profile`).
+            config
+                .check_profile(motor, &m.limits)
+                .map_err(|f| DriveConfigError { field: f.config_path() })?;
             // The low-speed vector at rest is a spring of stiffness K_f I pi / tau (N/m)
             // on the moving mass: its natural frequency w_n (rad/s) sets the damping,
             // the filters and the dither of the low-speed mode (`positioning` docs).
