@@ -413,6 +413,14 @@ impl<T: Scalar> Fll<T> {
         self.notch
     }
 
+    /// The frequency estimate low-passed at the notch frequency (rad/s, time constant
+    /// `1 / w_n`): what the estimator's PLL takes at the hand-over after a seed by
+    /// [`crate::arc_fit`], where the estimate's ripple is the observer settling, not
+    /// the speed.
+    pub fn omega_mean(&self) -> T {
+        self.omega_mean
+    }
+
     /// The signed frequency estimate (rad/s).
     pub fn omega(&self) -> T {
         self.omega

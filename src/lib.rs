@@ -43,6 +43,7 @@
 #![forbid(unsafe_code)]
 #![deny(missing_docs)]
 
+pub mod arc_fit;
 pub mod capture;
 pub mod drive;
 pub mod estimator;

@@ -245,12 +245,20 @@ impl<T: Scalar> FluxObserver<T> for Dcfo<T> {
         }
         let increment =
             AlphaBeta::new(psi_i.alpha - self.psi_i_prev.alpha, psi_i.beta - self.psi_i_prev.beta);
+        // The same without the feedback this sample added: (u - Rs i) dt - Ls di.
+        let emf_increment =
+            AlphaBeta::new(increment.alpha - g_dt * self.d.alpha, increment.beta - g_dt * self.d.beta);
         self.z = z;
         self.psi_i_prev = psi_i;
         self.x1 = x1;
         self.x2 = x2;
         self.d = d;
-        Ok(FluxEstimate { psi_ab: x1, disturbance_ab: Some(d), flux_increment_ab: Some(increment) })
+        Ok(FluxEstimate {
+            psi_ab: x1,
+            disturbance_ab: Some(d),
+            flux_increment_ab: Some(increment),
+            emf_increment_ab: Some(emf_increment),
+        })
     }
 
     fn reset(&mut self) {

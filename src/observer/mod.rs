@@ -64,6 +64,11 @@ pub struct FluxEstimate<T> {
     /// (the back-EMF `e dt` plus the observer's DC correction). With `psi_ab` it gives
     /// the frequency discriminator of [`crate::fll`].
     pub flux_increment_ab: Option<AlphaBeta<T>>,
+    /// The increment over this sample of the model flux without any observer
+    /// correction, `(u - Rs i) dt - Ls di` (Wb), where the observer has a correction to
+    /// leave out: for the DCFO, `flux_increment_ab` less its feedback `(h/Ls) d dt`. It
+    /// draws the arc [`crate::arc_fit`] fits.
+    pub emf_increment_ab: Option<AlphaBeta<T>>,
 }
 
 /// Why an observer refused a sample. The state is left as it was for input faults;

@@ -120,7 +120,7 @@ impl<T: Scalar> StatorFlux<T> {
             return Err(ObserverFault::StateOverflow);
         }
         self.psi_stator = next;
-        Ok(FluxEstimate { psi_ab, disturbance_ab: None, flux_increment_ab: None })
+        Ok(FluxEstimate { psi_ab, disturbance_ab: None, flux_increment_ab: None, emf_increment_ab: None })
     }
 
     pub(super) fn reset(&mut self) {
