@@ -25,12 +25,13 @@ use dcfo::transforms::{Abc, AlphaBeta};
 use dcfo::virtual_motor::{VirtualAxis, VirtualMotor};
 use dcfo_host::board::{Board, BoardLink, CaptureData, capture_trace, replay_matches, write_capture_trace};
 use dcfo_host::plant::{Plant, SimParams};
-use dcfo_host::qemu::{QemuCpu, QemuSession, build_qemu_example, missing_tools};
+use dcfo_host::qemu::{QemuCpu, QemuSession, build_qemu_example};
 use dcfo_host::replay::working_base;
 use dcfo_host::trace::InputTrace;
-use std::path::Path;
 use std::process::Command;
 use std::time::{Duration, Instant};
+
+mod common;
 
 /// The same duties into the virtual motor and into the host's plant (ideal inverter and
 /// sensors, the same motor and mass): a voltage vector turning at 4 Hz that drags the
@@ -193,13 +194,8 @@ fn q24_drive_capture_replays_bit_for_bit_through_the_trace_file() {
 
 /// The drive image for `cpu`, or `None` (after saying why) when the test must skip.
 fn drive_image(cpu: QemuCpu) -> Option<std::path::PathBuf> {
-    if let Some(why) = missing_tools(cpu) {
-        assert!(std::env::var("DCFO_REQUIRE_QEMU").as_deref() != Ok("1"), "QEMU required: {why}");
-        println!("skipped: {why}");
-        return None;
-    }
-    let workspace = Path::new(env!("CARGO_MANIFEST_DIR")).parent().expect("workspace root");
-    Some(build_qemu_example(workspace, cpu, "qemu_drive").expect("the drive image builds"))
+    common::qemu_runs(cpu)
+        .then(|| build_qemu_example(&common::workspace(), cpu, "qemu_drive").expect("the drive image builds"))
 }
 
 /// `dcfo board --qemu --cpu <cpu> --demo --json`: the whole path from the command line,

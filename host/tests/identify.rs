@@ -11,6 +11,8 @@ use dcfo::motor::MotorParams;
 use dcfo_host::identify::{IdentifyError, IdentifyReport, PlantFault, identify, motor_toml};
 use dcfo_host::motor_file::{load_motor, parse_motor_toml};
 
+mod common;
+
 fn motor(arg: &str) -> MotorParams {
     let path =
         if arg == "paper" { arg.to_string() } else { format!("{}/../{arg}", env!("CARGO_MANIFEST_DIR")) };
@@ -136,24 +138,12 @@ fn cli_writes_the_motor_file_and_one_json_object_last() {
     std::fs::remove_dir_all(&dir).ok();
 }
 
-/// The HIL firmware for `cpu`, or `None` (after saying why) when the test must skip.
-fn firmware(cpu: dcfo_host::qemu::QemuCpu) -> Option<std::path::PathBuf> {
-    if let Some(why) = dcfo_host::qemu::missing_tools(cpu) {
-        assert!(std::env::var("DCFO_REQUIRE_QEMU").as_deref() != Ok("1"), "QEMU HIL required: {why}");
-        println!("skipped: {why}");
-        return None;
-    }
-    let workspace =
-        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).parent().expect("workspace root").to_path_buf();
-    Some(dcfo_host::hil::build_qemu_firmware(&workspace, cpu).expect("firmware builds"))
-}
-
 /// The firmware's commissioning on QEMU through the HIL link, against the in-process run
 /// of the same numeric type (bit for bit) and the plant's truth (the floors).
 fn commissioning_through_qemu(cpu: dcfo_host::qemu::QemuCpu) {
     use dcfo_host::identify::{InProcess, identical, identify_over_link, identify_with};
     use dcfo_host::qemu::QemuCpu;
-    let Some(elf) = firmware(cpu) else { return };
+    let Some(elf) = common::hil_firmware(cpu) else { return };
     let m = motor("paper");
     let target = dcfo_host::target::Target::Qemu { cpu, elf: Some(elf) };
     let run = identify_over_link("paper", &m, 1, &target).expect("commissioning over the link");

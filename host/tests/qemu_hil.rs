@@ -14,26 +14,15 @@
 use dcfo::drive::{DriveState, Faults};
 use dcfo::link::SensorFrame;
 use dcfo::observer::ObserverKind;
-use dcfo_host::hil::{QemuCpu, QemuSession, build_qemu_firmware, compare_runs};
-use dcfo_host::qemu::missing_tools;
+use dcfo_host::hil::{QemuCpu, QemuSession, compare_runs};
 use dcfo_host::sim::{Controller, Setup, run_with, scenarios};
-use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::{Duration, Instant};
 
-/// The firmware for `cpu`, or `None` (after saying why) when the test must skip.
-fn firmware(cpu: QemuCpu) -> Option<PathBuf> {
-    if let Some(why) = missing_tools(cpu) {
-        assert!(std::env::var("DCFO_REQUIRE_QEMU").as_deref() != Ok("1"), "QEMU HIL required: {why}");
-        println!("skipped: {why}");
-        return None;
-    }
-    let workspace = Path::new(env!("CARGO_MANIFEST_DIR")).parent().expect("workspace root").to_path_buf();
-    Some(build_qemu_firmware(&workspace, cpu).expect("firmware builds"))
-}
+mod common;
 
 fn steady_scenario_meets_its_figure_and_equals_the_host_bit_for_bit(cpu: QemuCpu) {
-    let Some(elf) = firmware(cpu) else { return };
+    let Some(elf) = common::hil_firmware(cpu) else { return };
     let setup = Setup::paper(ObserverKind::Dcfo);
     let sc = scenarios::scenario("steady").expect("scenario");
     let (session, mut link) = QemuSession::start(&elf, cpu).expect("qemu starts");
@@ -83,7 +72,7 @@ fn m3_fixed_point_steady_scenario_through_qemu() {
 #[test]
 fn a_silent_link_switches_the_bridge_off() {
     let cpu = QemuCpu::M4f;
-    let Some(elf) = firmware(cpu) else { return };
+    let Some(elf) = common::hil_firmware(cpu) else { return };
     let (_session, mut link) = QemuSession::start(&elf, cpu).expect("qemu starts");
     let mut frame = SensorFrame {
         sequence: 0,
@@ -140,7 +129,7 @@ fn a_silent_link_switches_the_bridge_off() {
 #[test]
 fn corrupted_replayed_and_duplicated_frames_are_counted_and_never_acted_on() {
     let cpu = QemuCpu::M4f;
-    let Some(elf) = firmware(cpu) else { return };
+    let Some(elf) = common::hil_firmware(cpu) else { return };
     let (_session, mut link) = QemuSession::start(&elf, cpu).expect("qemu starts");
     let mut frame = SensorFrame {
         sequence: 0,
@@ -196,14 +185,12 @@ fn corrupted_replayed_and_duplicated_frames_are_counted_and_never_acted_on() {
 /// flip-link: unbounded recursion (`examples/stack_guard`) faults at the bottom of the
 /// stack, and the HardFault handler (on a fresh stack) finds `.data` and `.bss` intact.
 fn a_stack_overflow_faults_before_it_reaches_the_statics(cpu: QemuCpu) {
-    if let Some(why) = missing_tools(cpu) {
-        assert!(std::env::var("DCFO_REQUIRE_QEMU").as_deref() != Ok("1"), "QEMU required: {why}");
-        println!("skipped: {why}");
+    if !common::qemu_runs(cpu) {
         return;
     }
-    let workspace = Path::new(env!("CARGO_MANIFEST_DIR")).parent().expect("workspace root");
+    let workspace = common::workspace();
     let status = Command::new(std::env::var("CARGO").unwrap_or_else(|_| "cargo".into()))
-        .current_dir(workspace)
+        .current_dir(&workspace)
         .args(["build", "--release", "-p", "dcfo-firmware", "--features", "mps2", "--example", "stack_guard"])
         .args(["--target", cpu.target()])
         .status()

@@ -16,34 +16,23 @@
 //! `DCFO_REQUIRE_QEMU=1` (CI sets it), which turns a skip into a failure.
 
 use dcfo::motor::MotorParams;
-use dcfo_host::hil::{QemuCpu, QemuSession, build_qemu_firmware};
-use dcfo_host::qemu::missing_tools;
+use dcfo_host::hil::{QemuCpu, QemuSession};
 use dcfo_host::stroke::{bus_for, compare, qemu_cmdline, run_with, setup_for};
-use std::path::{Path, PathBuf};
 
-/// The firmware for `cpu`, or `None` (after saying why) when the test must skip.
-fn firmware(cpu: QemuCpu) -> Option<PathBuf> {
-    if let Some(why) = missing_tools(cpu) {
-        assert!(std::env::var("DCFO_REQUIRE_QEMU").as_deref() != Ok("1"), "QEMU HIL required: {why}");
-        println!("skipped: {why}");
-        return None;
-    }
-    let workspace = Path::new(env!("CARGO_MANIFEST_DIR")).parent().expect("workspace root").to_path_buf();
-    Some(build_qemu_firmware(&workspace, cpu).expect("firmware builds"))
-}
+mod common;
 
 /// Moves of the short stroke: out and back, one reversal through zero speed.
 const MOVES: usize = 2;
 
 /// The motor `name` (a preset or a file under the workspace root).
 fn motor(name: &str) -> MotorParams {
-    let workspace = Path::new(env!("CARGO_MANIFEST_DIR")).parent().expect("workspace root");
-    let arg = if name == "paper" { name.to_string() } else { workspace.join(name).display().to_string() };
+    let arg =
+        if name == "paper" { name.to_string() } else { common::workspace().join(name).display().to_string() };
     dcfo_host::motor_file::load_motor(&arg).expect("motor file").params
 }
 
 fn short_stroke_equals_the_host_bit_for_bit(cpu: QemuCpu, motor_name: &str) {
-    let Some(elf) = firmware(cpu) else { return };
+    let Some(elf) = common::hil_firmware(cpu) else { return };
     let motor = motor(motor_name);
     let setup = setup_for(&motor);
     let cmdline = qemu_cmdline(&motor, bus_for(&motor)).expect("motor image");

@@ -1,0 +1,31 @@
+//! What the QEMU tests share: whether they run (the tools are here, or
+//! `DCFO_REQUIRE_QEMU=1` makes a missing tool a failure, as CI sets it), the workspace
+//! root, and the HIL image they build.
+// Each test crate uses part of it.
+#![allow(dead_code)]
+
+use dcfo_host::qemu::{QemuCpu, missing_tools};
+use std::path::PathBuf;
+
+/// The workspace root (the firmware crate builds from there).
+pub fn workspace() -> PathBuf {
+    std::path::Path::new(env!("CARGO_MANIFEST_DIR")).parent().expect("workspace root").to_path_buf()
+}
+
+/// `true` when the QEMU tests for `cpu` can run; otherwise prints why and gives `false`,
+/// or fails when `DCFO_REQUIRE_QEMU=1`.
+pub fn qemu_runs(cpu: QemuCpu) -> bool {
+    match missing_tools(cpu) {
+        None => true,
+        Some(why) => {
+            assert!(std::env::var("DCFO_REQUIRE_QEMU").as_deref() != Ok("1"), "QEMU required: {why}");
+            println!("skipped: {why}");
+            false
+        }
+    }
+}
+
+/// The HIL firmware (`qemu_hil`) for `cpu`, built; `None` when the test must skip.
+pub fn hil_firmware(cpu: QemuCpu) -> Option<PathBuf> {
+    qemu_runs(cpu).then(|| dcfo_host::hil::build_qemu_firmware(&workspace(), cpu).expect("firmware builds"))
+}
