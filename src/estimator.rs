@@ -691,7 +691,6 @@ impl<T: Scalar> Estimator<T> {
     /// [`Estimator::seed`] with the observer on the flux at `theta_now` (this sample's)
     /// and the PLL on `theta_next` (the next sample's).
     fn seed_at(&mut self, theta_now: Angle, theta_next: Angle, omega_e: T, i_ab: AlphaBeta<T>) {
-        let theta_e = theta_next;
         self.fitted = false;
         let cs = CosSin::<T>::new(theta_now);
         let psi = AlphaBeta::new(self.psi_f * cs.cos, self.psi_f * cs.sin);
@@ -704,9 +703,9 @@ impl<T: Scalar> Estimator<T> {
             self.fll_steers = true;
         }
         if self.fll_steers {
-            self.pll.preset(theta_e, T::ZERO);
+            self.pll.preset(theta_next, T::ZERO);
         } else {
-            self.pll.preset(theta_e, omega_e);
+            self.pll.preset(theta_next, omega_e);
         }
     }
 
