@@ -514,6 +514,37 @@ pub fn figure(starts: &[Start]) -> crate::plot::Figure {
 
 // ---- The command.
 
+/// Which simulated inverter and sensors record the traces: the realistic ones, or
+/// either made ideal, to tell what the estimator loses from what its inputs lose.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, clap::ValueEnum)]
+#[serde(rename_all = "kebab-case")]
+pub enum PlantModel {
+    /// The realistic inverter (dead time, device drops, bus ripple; the drive's
+    /// compensation) and sensors (offsets, gain errors, noise, quantisation).
+    Realistic,
+    /// An ideal inverter (no dead time, drops or ripple; nothing to compensate), the
+    /// realistic sensors.
+    IdealInverter,
+    /// The realistic inverter, ideal sensors.
+    IdealSensors,
+    /// Both ideal: what is left is the estimator's own error.
+    Ideal,
+}
+
+impl PlantModel {
+    /// `setup` with this model's inverter and sensors.
+    pub fn apply(self, setup: &mut Setup) {
+        if matches!(self, PlantModel::IdealInverter | PlantModel::Ideal) {
+            let bus_v = setup.plant.inverter.dc_bus_v;
+            setup.plant.inverter = crate::plant::InverterParams::ideal(bus_v);
+            setup.drive.dead_time_compensation = None;
+        }
+        if matches!(self, PlantModel::IdealSensors | PlantModel::Ideal) {
+            setup.plant.sensors = crate::plant::SensorParams::ideal();
+        }
+    }
+}
+
 /// What `dcfo acquire` is asked to do.
 #[derive(Debug, Clone)]
 pub struct Params {
@@ -522,6 +553,8 @@ pub struct Params {
     /// What tunes the DCFO's notch, in the recording drive and in the cold-started
     /// estimators.
     pub notch: dcfo::estimator::NotchTuning,
+    /// The simulated inverter and sensors that record the traces.
+    pub plant: PlantModel,
     /// Directory for `acquire.json` (every cold start), `acquire.csv` (the table) and
     /// `acquire.png` / `acquire.svg` (lock time against speed).
     pub out: std::path::PathBuf,
@@ -533,13 +566,14 @@ pub fn run_command(params: &Params) -> anyhow::Result<()> {
     use anyhow::Context;
     let mut setup = Setup::paper(dcfo::observer::ObserverKind::Dcfo);
     setup.drive.estimator.notch_tuning = params.notch;
+    params.plant.apply(&mut setup);
     let started = std::time::Instant::now();
     let starts = sweep(&setup, &Options::full(), |done, total| eprintln!("acquire: {done}/{total} speeds"))
         .map_err(|e| anyhow::anyhow!(e))?;
     let summary = summarise(&starts);
     let out = &params.out;
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
-    let all = serde_json::json!({ "summary": &summary, "starts": &starts });
+    let all = serde_json::json!({ "plant": params.plant, "summary": &summary, "starts": &starts });
     std::fs::write(out.join("acquire.json"), serde_json::to_string_pretty(&all)?)
         .with_context(|| format!("writing {}", out.join("acquire.json").display()))?;
     let mut csv = String::from(

@@ -279,6 +279,11 @@ pub struct AcquireArgs {
     /// (the FLL always), `pll` (the PLL's integrator always: the paper's method).
     #[arg(long, value_enum, default_value = "acquire")]
     pub notch: NotchArg,
+    /// The simulated inverter and sensors that record the traces: `realistic` (the
+    /// benchmark), or `ideal-inverter`, `ideal-sensors`, `ideal` to tell the estimator's
+    /// own error from what the inverter's and the sensors' errors cost it.
+    #[arg(long, value_enum, default_value = "realistic")]
+    pub plant: crate::acquire::PlantModel,
     /// Directory for `acquire.json` (every cold start), `acquire.csv` (the table) and
     /// `acquire.png` / `acquire.svg` (lock time against speed).
     #[arg(long, value_name = "DIR", default_value = "out/acquire")]
@@ -595,6 +600,7 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             crate::acquire::run_command(&crate::acquire::Params {
                 json: a.json,
                 notch: a.notch.tuning(),
+                plant: a.plant,
                 out: a.out,
             })?;
             Ok(ExitCode::SUCCESS)
