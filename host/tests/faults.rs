@@ -8,7 +8,7 @@ use dcfo_host::faults::{Expected, cases, run_all};
 /// Cases that do not meet the expectation stated before measuring (README, Status):
 /// their floors (no silent failure, a named fault and the bridge off within a period on
 /// any trip, no trip on a ride-through) are still asserted.
-const SHORTFALLS: [&str; 4] = [
+const SHORTFALLS: [&str; 3] = [
     // Expected CURRENT_CONTROL; trips OVER_CURRENT after 434 ms (9.9 A). At 0.3 m/s and
     // light load the open phase corrupts the flux estimate before the current loops
     // reach their voltage limit, and the drive pushes on a wrong angle until the current
@@ -25,14 +25,6 @@ const SHORTFALLS: [&str; 4] = [
     // Expected LOCK_LOST; the mover reverses under the load and the drive trips
     // CURRENT_CONTROL after 420 ms at 7.4 A (OVER_CURRENT at 10.4 A before the FLL's band).
     "load-400N",
-    // Expected <= 5 deg over the last 0.5 s; 5.0 deg (just above) since the estimator's
-    // circle fit changed the start-up's realisation (2026-11-23), 4.9, 3.9, 5.8 and 5.0
-    // over earlier variants of the drive: it was met with no margin. A dropped frame
-    // is a period the plant ran on repeated duties and the drive never stepped, so the
-    // estimator integrates one period where two passed; counting the missed period
-    // (the frame's sequence number) would take that out. The link part (no corrupted
-    // frame acted on) is asserted below.
-    "corrupted-frames",
 ];
 
 #[test]

@@ -243,6 +243,9 @@ pub struct Drive<T> {
     /// (V).
     u_prev: AlphaBeta<T>,
     u_prev2: AlphaBeta<T>,
+    /// Periods the plant ran since the previous step without a step of the drive
+    /// ([`Drive::step_after_missed`]), for this step only.
+    missed_periods: u16,
     /// Offsets added to the observer's voltage and current inputs only (V, A).
     observer_u_offset: AlphaBeta<T>,
     observer_i_offset: AlphaBeta<T>,
@@ -298,6 +301,12 @@ fn representable<T: Scalar>(x: f32, field: &'static str) -> Result<T, DriveConfi
         Err(DriveConfigError { field })
     }
 }
+
+/// The longest gap of lost periods [`Drive::step_after_missed`] bridges (periods): the
+/// observer's discretisation holds for `w (1 + n) dt / 2 <= 0.2`, up to 800 rad/s at 10
+/// kHz with `n = 4` (the paper motor at 2 m/s turns at 419 rad/s); and the link watchdog
+/// trips at ten.
+pub const MAX_BRIDGED_PERIODS: u16 = 4;
 
 impl<T: Scalar> Drive<T> {
     /// A drive for `motor` with `config`, computing in the working units of `base`.
@@ -504,6 +513,7 @@ impl<T: Scalar> Drive<T> {
             omega_ol: T::ZERO,
             u_prev: AlphaBeta::default(),
             u_prev2: AlphaBeta::default(),
+            missed_periods: 0,
             observer_u_offset: AlphaBeta::default(),
             observer_i_offset: AlphaBeta::default(),
             positioning,
@@ -645,6 +655,22 @@ impl<T: Scalar> Drive<T> {
     /// The working-unit base this drive computes in.
     pub fn base(&self) -> &Base {
         &self.k.base
+    }
+
+    /// [`Drive::step`] after `missed_periods` periods in which the plant ran on the last
+    /// duties while the drive was not stepped (sensor frames lost on a link: the host
+    /// holds the last answered duties). The estimator then integrates the whole time
+    /// since the previous step, `(1 + n) dt`, on the voltages the plant applied in it:
+    /// the command of two steps back for one period and the last one for `n`. Without
+    /// that the angle falls behind by `n w dt` (the fault campaign's corrupted frames:
+    /// one period in 20 lost, 5.0 deg against its 5 deg floor). Gaps beyond
+    /// [`MAX_BRIDGED_PERIODS`] are stepped as one period, as before: a host that loses
+    /// that many frames is the link watchdog's business.
+    pub fn step_after_missed(&mut self, m: &Measurements<T>, missed_periods: u16) -> StepOutput<T> {
+        self.missed_periods = if missed_periods <= MAX_BRIDGED_PERIODS { missed_periods } else { 0 };
+        let out = self.step(m);
+        self.missed_periods = 0;
+        out
     }
 
     /// One control step; see the module documentation for timing and states.
@@ -859,7 +885,22 @@ impl<T: Scalar> Drive<T> {
             out.i_ab.beta + self.observer_i_offset.beta,
         );
         out.alpha_e_ref = self.estimator.commanded_acceleration();
-        let estimate = match self.estimator.update(self.u_prev2, out.i_observer, k.dt) {
+        let (u_observer, dt_observer) = if self.missed_periods == 0 {
+            (self.u_prev2, k.dt)
+        } else {
+            // u_prev2 for one period, u_prev (held) for the missed ones; 1/(1+n) formed
+            // in f32 (n is a count).
+            let n = f32::from(self.missed_periods);
+            let (w_last, w_held) = (T::from_f32(1.0 / (1.0 + n)), T::from_f32(n / (1.0 + n)));
+            (
+                AlphaBeta::new(
+                    self.u_prev2.alpha * w_last + self.u_prev.alpha * w_held,
+                    self.u_prev2.beta * w_last + self.u_prev.beta * w_held,
+                ),
+                k.dt * T::from_f32(1.0 + n),
+            )
+        };
+        let estimate = match self.estimator.update(u_observer, out.i_observer, dt_observer) {
             Ok(e) => e,
             Err(_) => {
                 self.trip(Faults::ESTIMATOR);

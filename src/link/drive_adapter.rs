@@ -247,8 +247,10 @@ impl LinkServer {
 
     /// Feeds one received byte. When it completes an in-order sensor frame, applies its
     /// commands and queues its move ([`SensorFrame::apply_commands`]; a refused move is
-    /// counted, never acted on), runs `drive.step`, encodes the actuation frame into `out` and returns
-    /// its length in bytes. A duplicate of the last accepted frame is not acted on but
+    /// counted, never acted on), runs `drive.step_after_missed` with the periods whose
+    /// frames were lost since the last accepted one (the sequence numbers skipped: the
+    /// plant ran them on the last answered duties), encodes the actuation frame into `out`
+    /// and returns its length in bytes. A duplicate of the last accepted frame is not acted on but
     /// answered again with the same bytes (its answer may have been lost: a host that
     /// resends an unanswered frame then gets it, and the drive still steps once). Otherwise
     /// `None` (partial, rejected or out-of-order frames are counted, never acted on).
@@ -287,8 +289,8 @@ impl LinkServer {
                 return None;
             }
         };
-        match self.sequence.check(frame.sequence) {
-            SequenceOrder::InOrder { .. } => {}
+        let skipped = match self.sequence.check(frame.sequence) {
+            SequenceOrder::InOrder { skipped } => skipped,
             SequenceOrder::Duplicate if self.last_reply_len > 0 => {
                 self.rx.stats_mut().record_out_of_order();
                 out.iter_mut().zip(&self.last_reply).for_each(|(o, b)| *o = *b);
@@ -298,12 +300,13 @@ impl LinkServer {
                 self.rx.stats_mut().record_out_of_order();
                 return None;
             }
-        }
+        };
         self.watchdog.period(true);
         if frame.apply_commands(drive).is_err() {
             self.moves_rejected = self.moves_rejected.wrapping_add(1);
         }
-        let step = drive.step(&frame.measurements(base));
+        // Frames lost in between were periods the plant ran on the last answer's duties.
+        let step = drive.step_after_missed(&frame.measurements(base), skipped);
         let mut reply = ActuationFrame::from_step(frame.sequence, &step, base, self.rx.stats());
         reply.position = PositionReport::of(drive, self.moves_rejected);
         let n = encode(&reply, &mut self.last_reply).ok()?;

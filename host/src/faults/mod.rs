@@ -159,7 +159,7 @@ pub fn cases() -> Vec<Case> {
             name: "corrupted-frames",
             injection: LinkCorrupt { every: 20 },
             expected: RideThrough(5.0),
-            why: "CRC-16 rejects every corrupted frame; a dropped period repeats the duties; no 10 in a row",
+            why: "CRC-16 rejects every corrupted frame; a dropped period repeats the duties, and the next frame's sequence number tells the drive to integrate it; no 10 in a row",
         },
         Case {
             name: "replayed-frames",
