@@ -25,7 +25,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, bail};
 use dcfo::capture::{Capture, CaptureFormat, CaptureSample, CaptureState, Quantity, SiSample};
-use dcfo::drive::{DriveState, PAPER_AXIS_BUS_V, PAPER_AXIS_PAYLOAD_KG, STROKE_AXIS_LIMITS};
+use dcfo::drive::{DriveConfig, DriveState, PAPER_AXIS_BUS_V, PAPER_AXIS_PAYLOAD_KG, STROKE_AXIS_LIMITS};
 use dcfo::link::board::{BoardCommand, BoardTelemetry, CaptureChunk, NO_CAPTURE_READ};
 use dcfo::link::{LinkError, decode_raw};
 use dcfo::motion::Move;
@@ -681,7 +681,8 @@ pub struct DemoReport {
     pub state_before_disable: String,
     /// Faults latched before the disable (`none`).
     pub faults: String,
-    /// Speed estimate when the capture was downloaded, m/s.
+    /// Speed estimate before the download, read once the drive has run long enough to
+    /// finish its ramp to the reference and settle (`speed_settle_periods`), m/s.
     pub speed_m_per_s: Option<f32>,
     /// Samples captured and downloaded (full rate, from the estimator's start).
     pub capture_samples: usize,
@@ -788,6 +789,21 @@ impl<W: Write> BoardOps for Board<W> {
     }
 }
 
+/// Settling time after the drive first reports `Running` before [`run_demo`] reads the
+/// speed estimate, s: past the speed loop's response (a few times its `1/20` s time
+/// constant).
+pub const SPEED_SETTLE_S: f64 = 0.25;
+
+/// Control periods from the first `Running` telemetry to the demo's speed reading: the
+/// longest ramp to `speed` m/s (from rest, at the acceleration limit of the drive the
+/// image builds from `image`, the paper motor's without one) plus [`SPEED_SETTLE_S`].
+fn speed_settle_periods(image: Option<&MotorImage>, speed: f32) -> u32 {
+    let motor = image.map_or_else(qemu_drive_motor, |i| i.motor);
+    let accel = DriveConfig::for_motor(&motor, PAPER_AXIS_BUS_V, ObserverKind::Dcfo).accel_limit_m_per_s2;
+    let ramp_s = f64::from(speed.abs()) / f64::from(accel);
+    ((ramp_s + SPEED_SETTLE_S) / CONTROL_PERIOD_S).ceil() as u32
+}
+
 /// `dcfo board --demo`: connect, arm the capture, enable at `speed` m/s, wait for the
 /// capture to finish (the drive reaching `Running` on the way), download it, replay it,
 /// disable. `record`: also write the capture as a trace there.
@@ -847,6 +863,24 @@ pub fn run_demo(
                     f64::from(t.periods) * CONTROL_PERIOD_S
                 );
             }
+        }
+        // The speed is read at a defined drive time, not at the first poll: the drive
+        // ramps from its hand-over speed to the reference at its acceleration limit, and
+        // where the wall clock's poll falls on that ramp depends on how fast the target
+        // runs against it (QEMU's M3 is slower than its M4F).
+        let settle_periods = speed_settle_periods(image, speed);
+        let running_seen = t.periods;
+        while t.periods.wrapping_sub(running_seen) < settle_periods {
+            if t.state() != DriveState::Running || Instant::now() > deadline {
+                let _ = board.disable();
+                bail!(
+                    "the drive left Running (or the time ran out) while settling at the speed: drive {:?} (faults {})",
+                    t.state(),
+                    fault_names(t.faults())
+                );
+            }
+            std::thread::sleep(POLL_PERIOD);
+            t = board.poll(false, false)?;
         }
         let (state_before, faults, speed_now) = (t.state(), t.faults(), t.estimate.map(|e| e.1));
         let trips_before = board.round_trips();
