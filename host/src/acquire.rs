@@ -121,6 +121,17 @@ pub struct Start {
     pub q24_deviation_deg: Option<f64>,
     /// Lock time of the Q8.24 estimator, s.
     pub q24_lock_time_s: Option<f64>,
+    /// The inverter's voltage error along the mover flux (d axis, true angle), mean over
+    /// the recording, V: what the drive's dead-time compensation leaves (0 on an ideal
+    /// inverter).
+    pub inverter_error_d_v: f64,
+    /// The steady angle error that error alone gives the estimator, `-dU_d / (w_e
+    /// psi_f)`, degrees (as `theta - theta_hat`): the DCFO passes the fundamental with
+    /// unity gain and zero phase, so a voltage error turns the flux by `dU / (j w)`.
+    pub inverter_bias_deg: f64,
+    /// Mean of `theta - theta_hat` over the second half of the window, degrees (`None`
+    /// unless locked by then).
+    pub steady_error_mean_deg: Option<f64>,
 }
 
 impl Start {
@@ -145,6 +156,9 @@ pub fn budget_s(motor: &MotorParams, v: f64) -> f64 {
 struct Row {
     /// Voltage applied during `[t_k, t_k + Ts)` as the controller intended it, V.
     u: [f64; 2],
+    /// Voltage the inverter actually applied over that period (the plant's period
+    /// average), V: `u_actual - u` is the inverter's error the estimator is not told.
+    u_actual: [f64; 2],
     /// Measured currents at `t_k`, A.
     i: [f64; 2],
     /// True electrical angle at `t_k`, rad.
@@ -204,9 +218,13 @@ fn record(setup: &Setup, v: f64, x0_m: f64, duration_s: f64) -> Result<Vec<Row>,
             svpwm(dcfo::transforms::AlphaBeta::new(u_ab.alpha + c.alpha, u_ab.beta + c.beta), reading.vdc_v)
                 .map_err(|e| err(&e))?;
         if k >= skip {
-            rows.push(Row { u: u_pending, i: [i_ab.alpha, i_ab.beta], theta });
+            rows.push(Row { u: u_pending, u_actual: [0.0; 2], i: [i_ab.alpha, i_ab.beta], theta });
         }
         plant.step(pending, 0.0);
+        if let Some(row) = rows.last_mut().filter(|_| k >= skip) {
+            let period = &plant.state().last_period;
+            row.u_actual = [period.u_alpha_avg_v, period.u_beta_avg_v];
+        }
         pending = [m.duties.a, m.duties.b, m.duties.c];
         u_pending = [m.u_applied.alpha - c.alpha, m.u_applied.beta - c.beta];
     }
@@ -274,6 +292,16 @@ fn starts_at(setup: &Setup, v: f64, options: &Options) -> Result<Vec<Start>, Str
         // Eight mover positions spread over a pole pair (one electrical period).
         let x0 = 2.0 * f64::from(motor.pole_pitch_m) * position as f64 / options.positions as f64;
         let rows = record(setup, v, x0, window)?;
+        let inverter_error_d_v = rows
+            .iter()
+            .map(|r| {
+                let e = [r.u_actual[0] - r.u[0], r.u_actual[1] - r.u[1]];
+                e[0] * r.theta.cos() + e[1] * r.theta.sin()
+            })
+            .sum::<f64>()
+            / rows.len().max(1) as f64;
+        let inverter_bias_deg =
+            (-inverter_error_d_v / (omega_e(motor, v) * f64::from(motor.psi_f_wb))).to_degrees();
         for &offset in &options.offsets {
             let f = cold_run::<f32>(setup, &Base::SI, &rows, dt, offset)?;
             let lock = lock_time(&rows, &f, dt);
@@ -283,6 +311,15 @@ fn starts_at(setup: &Setup, v: f64, options: &Options) -> Result<Vec<Start>, Str
                 .filter(|(r, e)| e.1 && wrap_angle(r.theta - e.0).to_degrees().abs() > FALSE_LOCK_DEG)
                 .count();
             let flag_time_s = f.iter().position(|e| e.1).map(|j| j as f64 * dt);
+            let half = rows.len() / 2;
+            let steady_error_mean_deg = lock.filter(|&t| t <= half as f64 * dt).map(|_| {
+                rows[half..]
+                    .iter()
+                    .zip(&f[half..])
+                    .map(|(r, e)| wrap_angle(r.theta - e.0).to_degrees())
+                    .sum::<f64>()
+                    / (rows.len() - half).max(1) as f64
+            });
             let (q24_deviation_deg, q24_lock_time_s) = if options.fixed_point {
                 let q = cold_run::<Q24>(setup, &pu, &rows, dt, offset)?;
                 let from = lock.map(|t| (t / dt).round() as usize);
@@ -308,6 +345,9 @@ fn starts_at(setup: &Setup, v: f64, options: &Options) -> Result<Vec<Start>, Str
                 flag_time_s,
                 q24_deviation_deg,
                 q24_lock_time_s,
+                inverter_error_d_v,
+                inverter_bias_deg,
+                steady_error_mean_deg,
             });
         }
     }
@@ -373,6 +413,15 @@ pub struct SpeedRow {
     pub false_locks: usize,
     /// Largest Q8.24 deviation from f32 after lock, degrees.
     pub q24_deviation_max_deg: Option<f64>,
+    /// Median over the recordings of the inverter's d-axis voltage error, V
+    /// ([`Start::inverter_error_d_v`]; `None` for a row without starts).
+    pub inverter_error_d_v: Option<f64>,
+    /// Median of the steady angle error that error predicts, degrees
+    /// ([`Start::inverter_bias_deg`]).
+    pub inverter_bias_deg: Option<f64>,
+    /// Median of the measured steady mean angle error of the starts that locked, degrees
+    /// ([`Start::steady_error_mean_deg`]).
+    pub steady_error_mean_deg: Option<f64>,
     /// Starts.
     pub runs: usize,
 }
@@ -394,6 +443,13 @@ pub struct Summary {
     pub q24_deviation_max_deg: Option<f64>,
     /// Per signed speed.
     pub speeds: Vec<SpeedRow>,
+}
+
+/// The median of `xs` (the upper one of an even count), `None` for none.
+fn median(xs: impl Iterator<Item = f64>) -> Option<f64> {
+    let mut v: Vec<f64> = xs.collect();
+    v.sort_by(f64::total_cmp);
+    v.get(v.len() / 2).copied()
 }
 
 fn max_opt(mut xs: impl Iterator<Item = Option<f64>>) -> Option<f64> {
@@ -423,6 +479,9 @@ pub fn summarise(starts: &[Start]) -> Summary {
                 budget_violations: of.iter().filter(|s| !s.within_budget()).count(),
                 false_locks: of.iter().filter(|s| s.false_lock_samples > 0).count(),
                 q24_deviation_max_deg: of.iter().filter_map(|s| s.q24_deviation_deg).reduce(f64::max),
+                inverter_error_d_v: median(of.iter().map(|s| s.inverter_error_d_v)),
+                inverter_bias_deg: median(of.iter().map(|s| s.inverter_bias_deg)),
+                steady_error_mean_deg: median(of.iter().filter_map(|s| s.steady_error_mean_deg)),
                 runs: of.len(),
             }
         })
@@ -438,15 +497,17 @@ pub fn summarise(starts: &[Start]) -> Summary {
     }
 }
 
-/// The table as text (times in ms).
+/// The table as text: times in ms; the inverter's d-axis voltage error (V), the steady
+/// angle error it predicts and the measured mean error (degrees).
 pub fn table(summary: &Summary) -> String {
+    let two_places = |x: Option<f64>| x.map(|d| format!("{d:.2}")).unwrap_or_else(|| "-".into());
     let ms = |x: Option<f64>| x.map(|t| format!("{:.0}", t * 1e3)).unwrap_or_else(|| "never".into());
     let mut out = String::from(
-        "speed m/s   f_e Hz  budget ms  lock median ms  lock max ms  over budget  false locks  Q24-f32 max deg\n",
+        "speed m/s   f_e Hz  budget ms  lock median ms  lock max ms  over budget  false locks  Q24-f32 max deg  inverter dU_d V  bias deg  mean err deg\n",
     );
     for r in &summary.speeds {
         out += &format!(
-            "{:>9.2}  {:>7.1}  {:>9.0}  {:>14}  {:>11}  {:>8} /{:>2}  {:>11}  {:>15}\n",
+            "{:>9.2}  {:>7.1}  {:>9.0}  {:>14}  {:>11}  {:>8} /{:>2}  {:>11}  {:>15}  {:>15}  {:>8}  {:>12}\n",
             r.speed_m_per_s,
             r.electrical_hz,
             r.budget_s * 1e3,
@@ -456,6 +517,9 @@ pub fn table(summary: &Summary) -> String {
             r.runs,
             r.false_locks,
             r.q24_deviation_max_deg.map(|d| format!("{d:.3}")).unwrap_or_else(|| "-".into()),
+            two_places(r.inverter_error_d_v),
+            two_places(r.inverter_bias_deg),
+            two_places(r.steady_error_mean_deg),
         );
     }
     out += &format!(
@@ -577,19 +641,22 @@ pub fn run_command(params: &Params) -> anyhow::Result<()> {
     std::fs::write(out.join("acquire.json"), serde_json::to_string_pretty(&all)?)
         .with_context(|| format!("writing {}", out.join("acquire.json").display()))?;
     let mut csv = String::from(
-        "speed_m_per_s,budget_s,lock_time_median_s,lock_time_max_s,budget_violations,runs,false_locks\n",
+        "speed_m_per_s,budget_s,lock_time_median_s,lock_time_max_s,budget_violations,runs,false_locks,inverter_error_d_v,inverter_bias_deg,steady_error_mean_deg\n",
     );
     let opt = |x: Option<f64>| x.map(|v| format!("{v:.6}")).unwrap_or_default();
     for r in &summary.speeds {
         csv += &format!(
-            "{},{:.6},{},{},{},{},{}\n",
+            "{},{:.6},{},{},{},{},{},{},{},{}\n",
             r.speed_m_per_s,
             r.budget_s,
             opt(r.lock_time_median_s),
             opt(r.lock_time_max_s),
             r.budget_violations,
             r.runs,
-            r.false_locks
+            r.false_locks,
+            opt(r.inverter_error_d_v),
+            opt(r.inverter_bias_deg),
+            opt(r.steady_error_mean_deg)
         );
     }
     std::fs::write(out.join("acquire.csv"), csv)
