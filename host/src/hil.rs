@@ -113,12 +113,7 @@ impl<W: Write> SerialController<W> {
         let request = CommissioningRequest { sequence, start };
         let mut buf = [0u8; CommissioningRequest::WIRE_LEN];
         let n = encode(&request, &mut buf).map_err(|e| SimError::Controller(format!("encoding: {e}")))?;
-        let write = |w: &mut W, bytes: &[u8]| {
-            w.write_all(bytes)
-                .and_then(|_| w.flush())
-                .map_err(|e| SimError::Controller(format!("link write failed: {e}")))
-        };
-        write(&mut self.writer, &buf[..n])?;
+        self.send_raw(&buf[..n])?;
         // The report is longer than the lock-step receiver's buffer: frames are split
         // at their delimiters here and decoded as reports; anything else is dropped.
         let mut frame = Vec::with_capacity(CommissioningReport::WIRE_LEN);
@@ -138,24 +133,41 @@ impl<W: Write> SerialController<W> {
                     Err(_) => {}
                 }
             }
-            let starting = self.round_trips == 0;
-            let now = Instant::now();
-            let left = deadline.saturating_duration_since(now);
-            let wait = if starting { left.min(resend_at.saturating_duration_since(now)) } else { left };
-            match self.incoming.recv_timeout(wait) {
-                Ok(Ok(bytes)) => self.pending.extend(bytes),
-                Ok(Err(e)) => return Err(SimError::Controller(format!("link read failed: {e}"))),
-                Err(_) if starting && Instant::now() < deadline => {
-                    write(&mut self.writer, &buf[..n])?;
-                    resend_at = Instant::now() + START_RESEND;
-                }
-                Err(_) => {
-                    return Err(SimError::Controller(format!(
-                        "no answer to commissioning request {sequence} within {} s",
-                        ANSWER_TIMEOUT.as_secs()
-                    )));
-                }
+            if !self.receive_more(deadline, &mut resend_at, &buf[..n])? {
+                return Err(SimError::Controller(format!(
+                    "no answer to commissioning request {sequence} within {} s",
+                    ANSWER_TIMEOUT.as_secs()
+                )));
             }
+        }
+    }
+
+    /// Waits for more bytes from the link (into the pending queue) until `deadline`.
+    /// Until the session's first lock-step answer (the target may still be booting),
+    /// `frame` is sent again at `resend_at`, which then moves on by [`START_RESEND`].
+    /// `Ok(false)`: the deadline passed with nothing received.
+    fn receive_more(
+        &mut self,
+        deadline: Instant,
+        resend_at: &mut Instant,
+        frame: &[u8],
+    ) -> Result<bool, SimError> {
+        let starting = self.round_trips == 0;
+        let now = Instant::now();
+        let left = deadline.saturating_duration_since(now);
+        let wait = if starting { left.min(resend_at.saturating_duration_since(now)) } else { left };
+        match self.incoming.recv_timeout(wait) {
+            Ok(Ok(bytes)) => {
+                self.pending.extend(bytes);
+                Ok(true)
+            }
+            Ok(Err(e)) => Err(SimError::Controller(format!("link read failed: {e}"))),
+            Err(_) if starting && Instant::now() < deadline => {
+                self.send_raw(frame)?;
+                *resend_at = Instant::now() + START_RESEND;
+                Ok(true)
+            }
+            Err(_) => Ok(false),
         }
     }
 
@@ -191,27 +203,15 @@ impl<W: Write> SerialController<W> {
                     Some(Err(_)) | None => {}
                 }
             }
-            let starting = self.round_trips == 0;
-            let now = Instant::now();
-            let left = deadline.saturating_duration_since(now);
-            let wait = if starting { left.min(resend_at.saturating_duration_since(now)) } else { left };
-            match self.incoming.recv_timeout(wait) {
-                Ok(Ok(bytes)) => self.pending.extend(bytes),
-                Ok(Err(e)) => return Err(SimError::Controller(format!("link read failed: {e}"))),
-                Err(_) if starting && Instant::now() < deadline => {
-                    self.writer
-                        .write_all(&self.last_sent)
-                        .and_then(|_| self.writer.flush())
-                        .map_err(|e| SimError::Controller(format!("link write failed: {e}")))?;
-                    resend_at = Instant::now() + START_RESEND;
-                }
-                Err(_) => {
-                    return Err(SimError::Controller(format!(
-                        "no answer to frame {sequence} within {} s (link stats: {:?})",
-                        ANSWER_TIMEOUT.as_secs(),
-                        self.receiver.stats()
-                    )));
-                }
+            let sent = std::mem::take(&mut self.last_sent);
+            let more = self.receive_more(deadline, &mut resend_at, &sent);
+            self.last_sent = sent;
+            if !more? {
+                return Err(SimError::Controller(format!(
+                    "no answer to frame {sequence} within {} s (link stats: {:?})",
+                    ANSWER_TIMEOUT.as_secs(),
+                    self.receiver.stats()
+                )));
             }
         }
     }
@@ -236,10 +236,7 @@ impl<W: Write> Controller for SerialController<W> {
         let n = encode(sensor, &mut buf).map_err(|e| SimError::Controller(format!("encoding: {e}")))?;
         self.last_sent.clear();
         self.last_sent.extend_from_slice(&buf[..n]);
-        self.writer
-            .write_all(&buf[..n])
-            .and_then(|_| self.writer.flush())
-            .map_err(|e| SimError::Controller(format!("link write failed: {e}")))?;
+        self.send_raw(&buf[..n])?;
         let frame = self.await_answer(sensor.sequence)?;
         self.round_trips += 1;
         Ok(ControlStep { frame, detail: None })
