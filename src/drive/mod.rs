@@ -243,9 +243,6 @@ pub struct Drive<T> {
     /// (V).
     u_prev: AlphaBeta<T>,
     u_prev2: AlphaBeta<T>,
-    /// Periods the plant ran since the previous step without a step of the drive
-    /// ([`Drive::step_after_missed`]), for this step only.
-    missed_periods: u16,
     /// Offsets added to the observer's voltage and current inputs only (V, A).
     observer_u_offset: AlphaBeta<T>,
     observer_i_offset: AlphaBeta<T>,
@@ -513,7 +510,6 @@ impl<T: Scalar> Drive<T> {
             omega_ol: T::ZERO,
             u_prev: AlphaBeta::default(),
             u_prev2: AlphaBeta::default(),
-            missed_periods: 0,
             observer_u_offset: AlphaBeta::default(),
             observer_i_offset: AlphaBeta::default(),
             positioning,
@@ -667,14 +663,17 @@ impl<T: Scalar> Drive<T> {
     /// [`MAX_BRIDGED_PERIODS`] are stepped as one period, as before: a host that loses
     /// that many frames is the link watchdog's business.
     pub fn step_after_missed(&mut self, m: &Measurements<T>, missed_periods: u16) -> StepOutput<T> {
-        self.missed_periods = if missed_periods <= MAX_BRIDGED_PERIODS { missed_periods } else { 0 };
-        let out = self.step(m);
-        self.missed_periods = 0;
-        out
+        self.step_bridging(m, if missed_periods <= MAX_BRIDGED_PERIODS { missed_periods } else { 0 })
     }
 
     /// One control step; see the module documentation for timing and states.
     pub fn step(&mut self, m: &Measurements<T>) -> StepOutput<T> {
+        self.step_bridging(m, 0)
+    }
+
+    /// One control step after `missed_periods` (at most [`MAX_BRIDGED_PERIODS`]) periods
+    /// the drive was not stepped in.
+    fn step_bridging(&mut self, m: &Measurements<T>, missed_periods: u16) -> StepOutput<T> {
         let mut out = StepOutput {
             duties: Duties::centred(),
             bridge_enabled: false,
@@ -712,7 +711,7 @@ impl<T: Scalar> Drive<T> {
             }
             DriveState::Calibrating => self.calibrate(m),
             DriveState::Starting | DriveState::Running | DriveState::Reacquiring | DriveState::LowSpeed => {
-                self.control(m, &mut out)
+                self.control(m, missed_periods, &mut out)
             }
             DriveState::Commissioning => self.commission(m, &mut out),
         }
@@ -878,19 +877,21 @@ impl<T: Scalar> Drive<T> {
     }
 
     /// Starting and Running: estimator, references, current loops, modulation.
-    fn control(&mut self, m: &Measurements<T>, out: &mut StepOutput<T>) {
+    /// `missed_periods`: periods the plant ran on the held duties since the previous step
+    /// ([`Drive::step_after_missed`]; 0 normally).
+    fn control(&mut self, m: &Measurements<T>, missed_periods: u16, out: &mut StepOutput<T>) {
         let k = &self.k;
         out.i_observer = AlphaBeta::new(
             out.i_ab.alpha + self.observer_i_offset.alpha,
             out.i_ab.beta + self.observer_i_offset.beta,
         );
         out.alpha_e_ref = self.estimator.commanded_acceleration();
-        let (u_observer, dt_observer) = if self.missed_periods == 0 {
+        let (u_observer, dt_observer) = if missed_periods == 0 {
             (self.u_prev2, k.dt)
         } else {
             // u_prev2 for one period, u_prev (held) for the missed ones; 1/(1+n) formed
             // in f32 (n is a count).
-            let n = f32::from(self.missed_periods);
+            let n = f32::from(missed_periods);
             let (w_last, w_held) = (T::from_f32(1.0 / (1.0 + n)), T::from_f32(n / (1.0 + n)));
             (
                 AlphaBeta::new(
