@@ -33,18 +33,30 @@ use crate::trace::wrap_angle;
 pub const LOCK_DEG: f64 = 5.0;
 /// A `locked` flag with a true error above this is a false lock, electrical degrees.
 pub const FALSE_LOCK_DEG: f64 = 15.0;
-/// Load on the axis while the trace is recorded, opposing the motion, N.
+/// Load on the paper axis while the trace is recorded, opposing the motion, N: a light
+/// load, 6.7 % of the paper motor's rated thrust (0.2 A of thrust current).
 pub const LOAD_N: f64 = 10.0;
 
-/// Disturbance present in the estimator's inputs from its first sample.
+/// Load while the trace is recorded on `motor`, N: the same share of its rated thrust
+/// as [`LOAD_N`] is of the paper motor's ([`LOAD_N`] itself on the paper motor).
+pub fn recording_load_n(motor: &MotorParams) -> f64 {
+    let rated_thrust =
+        |m: &MotorParams| f64::from(m.thrust_constant_n_per_a()) * f64::from(m.rated_current_a);
+    LOAD_N * rated_thrust(motor) / rated_thrust(&MotorParams::paper())
+}
+
+/// Disturbance present in the estimator's inputs from its first sample. The issue's
+/// values are for the paper motor; on another motor they scale with its rated values
+/// ([`Offset::values_for`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum Offset {
     /// None beyond the sensors' own.
     None,
-    /// +0.2 A on `i_beta`.
+    /// +0.2 A on `i_beta` (paper motor): 6.7 % of its rated peak current.
     CurrentBeta,
-    /// +2 V on `u_alpha`.
+    /// +2 V on `u_alpha` (paper motor): 0.64 % of its 311 V bus (`sqrt(2)` times its
+    /// rated voltage).
     VoltageAlpha,
 }
 
@@ -52,13 +64,26 @@ impl Offset {
     /// All variants.
     pub const ALL: [Offset; 3] = [Offset::None, Offset::CurrentBeta, Offset::VoltageAlpha];
 
-    /// (u offset V, i offset A), alpha-beta.
+    /// (u offset V, i offset A), alpha-beta, on the paper motor.
     fn values(self) -> ([f64; 2], [f64; 2]) {
         match self {
             Offset::None => ([0.0; 2], [0.0; 2]),
             Offset::CurrentBeta => ([0.0; 2], [0.0, 0.2]),
             Offset::VoltageAlpha => ([2.0, 0.0], [0.0; 2]),
         }
+    }
+
+    /// (u offset V, i offset A), alpha-beta, on `motor`: the paper motor's values scaled
+    /// by its rated voltage and rated current over the paper motor's (a voltage error
+    /// scales with the bus it is a share of, a current sensor's offset with its full
+    /// scale); exactly [`Offset::values`]' on the paper motor. A 48 V motor thus gets
+    /// 0.44 V, not the 2 V that would be 4 % of its bus.
+    pub fn values_for(self, motor: &MotorParams) -> ([f64; 2], [f64; 2]) {
+        let paper = MotorParams::paper();
+        let u_scale = f64::from(motor.rated_voltage_v) / f64::from(paper.rated_voltage_v);
+        let i_scale = f64::from(motor.rated_current_a) / f64::from(paper.rated_current_a);
+        let (u, i) = self.values();
+        (u.map(|x| x * u_scale), i.map(|x| x * i_scale))
     }
 
     /// Short label.
@@ -85,14 +110,28 @@ pub struct Options {
 }
 
 impl Options {
+    /// The benchmark's speeds on the paper motor, m/s: 0.1 to 2.0 m/s, 3.3 to 67 Hz.
+    pub const PAPER_SPEEDS_M_PER_S: [f64; 12] =
+        [0.1, 0.15, 0.2, 0.3, 0.42, 0.6, 0.8, 1.0, 1.2, 1.5, 1.75, 2.0];
+
     /// The benchmark's sweep: 12 speeds from 0.1 to 2.0 m/s, 8 positions, all offsets,
     /// fixed point included.
     pub fn full() -> Self {
         Options {
-            speeds_m_per_s: vec![0.1, 0.15, 0.2, 0.3, 0.42, 0.6, 0.8, 1.0, 1.2, 1.5, 1.75, 2.0],
+            speeds_m_per_s: Self::PAPER_SPEEDS_M_PER_S.to_vec(),
             positions: 8,
             offsets: Offset::ALL.to_vec(),
             fixed_point: true,
+        }
+    }
+
+    /// The same sweep on `motor`: the benchmark's electrical frequencies (3.3 to 67 Hz),
+    /// so speeds scaled by its pole pitch over the paper motor's.
+    pub fn full_for(motor: &MotorParams) -> Self {
+        let scale = f64::from(motor.pole_pitch_m) / f64::from(MotorParams::paper().pole_pitch_m);
+        Options {
+            speeds_m_per_s: Self::PAPER_SPEEDS_M_PER_S.iter().map(|v| v * scale).collect(),
+            ..Self::full()
         }
     }
 }
@@ -166,8 +205,8 @@ struct Row {
 }
 
 /// Records `duration_s` of the plant held at `v` (m/s, signed), from mover position
-/// `x0_m`, under sensored current control of the thrust current for [`LOAD_N`]. The
-/// first 0.1 s (current loops settling) are dropped.
+/// `x0_m`, under sensored current control of the thrust current for
+/// [`recording_load_n`]. The first 0.1 s (current loops settling) are dropped.
 fn record(setup: &Setup, v: f64, x0_m: f64, duration_s: f64) -> Result<Vec<Row>, String> {
     use dcfo::pi::Pi;
     use dcfo::svpwm::svpwm;
@@ -184,7 +223,7 @@ fn record(setup: &Setup, v: f64, x0_m: f64, duration_s: f64) -> Result<Vec<Row>,
     let pi = |lim: f64| Pi::new(l * wc, r * wc * ts, -lim, lim).map_err(|e| err(&e));
     let vmax = setup.plant.inverter.dc_bus_v / 3f64.sqrt();
     let (mut pi_d, mut pi_q) = (pi(vmax)?, pi(vmax)?);
-    let iq_ref = LOAD_N * v.signum() / f64::from(motor.thrust_constant_n_per_a());
+    let iq_ref = recording_load_n(motor) * v.signum() / f64::from(motor.thrust_constant_n_per_a());
     let omega = omega_e(motor, v);
     let comp = setup.drive.dead_time_compensation;
     let skip = (0.1 / ts).round() as usize;
@@ -242,7 +281,7 @@ fn cold_run<T: Scalar>(
 ) -> Result<Vec<(f64, bool)>, String> {
     let mut est: Estimator<T> = Estimator::new(&setup.motor, &setup.drive.estimator, base)
         .map_err(|e| format!("estimator: {e:?}"))?;
-    let (du, di) = offset.values();
+    let (du, di) = offset.values_for(&setup.motor);
     let dt = base.time(ts as f32);
     let mut out = Vec::with_capacity(rows.len());
     // As `dcfo replay` does: a row's voltage acts during the period after it, so sample
@@ -619,25 +658,40 @@ pub struct Params {
     pub notch: dcfo::estimator::NotchTuning,
     /// The simulated inverter and sensors that record the traces.
     pub plant: PlantModel,
+    /// The motor (`--motor`: a preset name or a motor file) on the simulated realistic
+    /// inverter and sensors with the drive tuned from its file ([`Setup::for_motor`]),
+    /// swept over the benchmark's electrical frequencies ([`Options::full_for`]); `None`:
+    /// the benchmark, the paper motor on its test axis ([`Setup::paper`]).
+    pub motor: Option<String>,
     /// Directory for `acquire.json` (every cold start), `acquire.csv` (the table) and
     /// `acquire.png` / `acquire.svg` (lock time against speed).
     pub out: std::path::PathBuf,
 }
 
-/// `dcfo acquire`: the acquisition sweep on the simulated paper axis, its results in
-/// `params.out` and the table (or JSON) on stdout.
+/// `dcfo acquire`: the acquisition sweep on the simulated paper axis (or `params.motor`),
+/// its results in `params.out` and the table (or JSON) on stdout.
+///
+/// # Errors
+/// The motor could not be loaded, a run failed, or the results could not be written.
 pub fn run_command(params: &Params) -> anyhow::Result<()> {
     use anyhow::Context;
-    let mut setup = Setup::paper(dcfo::observer::ObserverKind::Dcfo);
+    let observer = dcfo::observer::ObserverKind::Dcfo;
+    let (mut setup, options, motor_name) = match &params.motor {
+        None => (Setup::paper(observer), Options::full(), "paper (test axis)".to_string()),
+        Some(arg) => {
+            let file = crate::motor_file::load_motor(arg)?;
+            (Setup::for_motor(&file.params, observer), Options::full_for(&file.params), file.name)
+        }
+    };
     setup.drive.estimator.notch_tuning = params.notch;
     params.plant.apply(&mut setup);
     let started = std::time::Instant::now();
-    let starts = sweep(&setup, &Options::full(), |done, total| eprintln!("acquire: {done}/{total} speeds"))
+    let starts = sweep(&setup, &options, |done, total| eprintln!("acquire: {done}/{total} speeds"))
         .map_err(|e| anyhow::anyhow!(e))?;
     let summary = summarise(&starts);
     let out = &params.out;
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
-    let all = serde_json::json!({ "plant": params.plant, "summary": &summary, "starts": &starts });
+    let all = serde_json::json!({ "motor": motor_name, "plant": params.plant, "summary": &summary, "starts": &starts });
     std::fs::write(out.join("acquire.json"), serde_json::to_string_pretty(&all)?)
         .with_context(|| format!("writing {}", out.join("acquire.json").display()))?;
     let mut csv = String::from(

@@ -284,6 +284,12 @@ pub struct AcquireArgs {
     /// own error from what the inverter's and the sensors' errors cost it.
     #[arg(long, value_enum, default_value = "realistic")]
     pub plant: crate::acquire::PlantModel,
+    /// Another motor (a preset name or a motor file): the same sweep at the benchmark's
+    /// electrical frequencies (speeds scaled by its pole pitch), the same share of its
+    /// rated thrust while recording, the drive tuned from its file. Without it: the
+    /// benchmark, the paper motor on its test axis.
+    #[arg(long, value_name = "FILE|PRESET")]
+    pub motor: Option<String>,
     /// Directory for `acquire.json` (every cold start), `acquire.csv` (the table) and
     /// `acquire.png` / `acquire.svg` (lock time against speed).
     #[arg(long, value_name = "DIR", default_value = "out/acquire")]
@@ -601,6 +607,7 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                 json: a.json,
                 notch: a.notch.tuning(),
                 plant: a.plant,
+                motor: a.motor,
                 out: a.out,
             })?;
             Ok(ExitCode::SUCCESS)

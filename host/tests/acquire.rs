@@ -110,3 +110,31 @@ fn the_steady_angle_error_is_the_inverters_voltage_error_over_the_back_emf() {
         }
     }
 }
+
+/// `dcfo acquire --motor`: another motor is swept at the benchmark's electrical
+/// frequencies (its speeds scaled by its pole pitch) and recorded at the same share of its
+/// rated thrust, both derived from its file alone; the paper motor gets the benchmark's
+/// own speeds and load.
+#[test]
+fn another_motor_is_swept_at_the_benchmarks_electrical_frequencies_and_load_share() {
+    use dcfo::motor::MotorParams;
+    use dcfo_host::acquire::{LOAD_N, electrical_hz, recording_load_n};
+    let paper = MotorParams::paper();
+    assert_eq!(Options::full_for(&paper).speeds_m_per_s, Options::full().speeds_m_per_s);
+    assert_eq!(recording_load_n(&paper), LOAD_N);
+    for file in ["motors/salient.toml", "motors/low_r.toml"] {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("..").join(file);
+        let motor = dcfo_host::motor_file::read_motor_file(&path).expect("motor file").params;
+        let options = Options::full_for(&motor);
+        assert_eq!(options.speeds_m_per_s.len(), Options::full().speeds_m_per_s.len());
+        for (v, v_paper) in options.speeds_m_per_s.iter().zip(&Options::full().speeds_m_per_s) {
+            let (f, f_paper) = (electrical_hz(&motor, *v), electrical_hz(&paper, *v_paper));
+            assert!((f - f_paper).abs() < 1e-9 * f_paper, "{file}: {f} Hz against {f_paper} Hz");
+        }
+        // The same share of rated thrust: the thrust current is the same share of rated current.
+        let share = |m: &MotorParams| {
+            recording_load_n(m) / f64::from(m.thrust_constant_n_per_a()) / f64::from(m.rated_current_a)
+        };
+        assert!((share(&motor) / share(&paper) - 1.0).abs() < 1e-6, "{file}");
+    }
+}
