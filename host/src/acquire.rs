@@ -76,7 +76,7 @@ impl Offset {
     /// (u offset V, i offset A), alpha-beta, on `motor`: the paper motor's values scaled
     /// by its rated voltage and rated current over the paper motor's (a voltage error
     /// scales with the bus it is a share of, a current sensor's offset with its full
-    /// scale); exactly [`Offset::values`]' on the paper motor. A 48 V motor thus gets
+    /// scale); on the paper motor exactly the values. A 48 V motor thus gets
     /// 0.44 V, not the 2 V that would be 4 % of its bus.
     pub fn values_for(self, motor: &MotorParams) -> ([f64; 2], [f64; 2]) {
         let paper = MotorParams::paper();
