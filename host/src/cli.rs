@@ -78,25 +78,54 @@ pub enum Command {
     Identify(IdentifyArgs),
 }
 
-/// Arguments of `dcfo board`.
+/// Where a command that talks to a firmware image runs it: on QEMU (`--qemu`, `--cpu`,
+/// `--elf`) or on a board at a serial port (`--port`, `--baud`). Shared by `dcfo board`
+/// (the drive image, `examples/qemu_drive`), `dcfo hil` and `dcfo identify` (the HIL
+/// image, `examples/qemu_hil`).
 #[derive(Debug, Clone, Args)]
-pub struct BoardArgs {
-    /// Run the drive image with the virtual motor (`examples/qemu_drive`) on QEMU (board:
-    /// --cpu); it is built with cargo unless --elf is given. Needs qemu-system-arm.
-    #[arg(long, conflicts_with = "port", required_unless_present = "port")]
+pub struct TargetArgs {
+    /// Run the command's firmware image on QEMU (board: --cpu); it is built with cargo
+    /// unless --elf is given. Needs qemu-system-arm.
+    #[arg(long, conflicts_with = "port")]
     pub qemu: bool,
-    /// A drive image on this serial port (e.g. /dev/ttyACM0).
+    /// Serial device of a board running the command's firmware image (e.g.
+    /// /dev/ttyACM0).
     #[arg(long, value_name = "DEVICE")]
-    pub port: Option<String>,
-    /// Serial bit rate [bit/s] (--port).
+    pub port: Option<PathBuf>,
+    /// Bit rate of --port [bit/s] (8N1).
     #[arg(long, value_name = "N", default_value_t = 921_600)]
     pub baud: u32,
-    /// QEMU board: m4f (mps2-an386, f32) or m3 (mps2-an385, Q8.24).
+    /// QEMU board for --qemu: m4f (mps2-an386, f32 firmware) or m3 (mps2-an385, Q8.24
+    /// fixed-point firmware).
     #[arg(long, value_enum, default_value = "m4f")]
     pub cpu: crate::qemu::QemuCpu,
-    /// The QEMU image to run instead of building examples/qemu_drive.
+    /// Firmware ELF for --qemu (default: the command's image built with cargo,
+    /// `target/<target>/release/examples/IMAGE`: qemu_drive for `dcfo board`, qemu_hil
+    /// for `dcfo hil` and `dcfo identify`).
     #[arg(long, value_name = "FILE")]
     pub elf: Option<PathBuf>,
+}
+
+impl TargetArgs {
+    /// The target the arguments name: QEMU with --qemu, the board at --port, `None`
+    /// when neither is given.
+    pub fn target(self) -> Option<crate::target::Target> {
+        match (self.qemu, self.port) {
+            (true, _) => Some(crate::target::Target::Qemu { cpu: self.cpu, elf: self.elf }),
+            (false, Some(device)) => Some(crate::target::Target::Port { device, baud: self.baud }),
+            (false, None) => None,
+        }
+    }
+}
+
+/// Arguments of `dcfo board`: the drive image (with the virtual motor on QEMU,
+/// `examples/qemu_drive`).
+#[derive(Debug, Clone, Args)]
+#[command(group(clap::ArgGroup::new("where").args(["qemu", "port"]).required(true)))]
+pub struct BoardArgs {
+    /// QEMU or a serial port.
+    #[command(flatten)]
+    pub target: TargetArgs,
     /// Download the capture into this trace (CSV, shared trace format: t [s], u_alpha and
     /// u_beta [V], i_alpha and i_beta [A], alpha_e_ref [rad/s^2]; comment lines name the
     /// drive's number type, f32 or q24: replay with `dcfo replay --numeric` of it) once it
@@ -145,26 +174,11 @@ pub struct IdentifyArgs {
     /// Run the drive's commissioning in-process against the simulated plant of `--motor`.
     #[arg(long)]
     pub sim: bool,
-    /// Run the firmware's commissioning under QEMU (board: --cpu) through the lock-step
-    /// HIL link against the simulated plant of `--motor`; the image is built with cargo
-    /// unless --elf is given. Needs qemu-system-arm.
-    #[arg(long, conflicts_with = "port")]
-    pub qemu: bool,
-    /// Run the commissioning of a board running the HIL image on this serial port,
-    /// against the simulated plant of `--motor`.
-    #[arg(long, value_name = "DEVICE")]
-    pub port: Option<PathBuf>,
-    /// Baud rate of --port, bit/s (8N1).
-    #[arg(long, value_name = "N", default_value_t = 921_600)]
-    pub baud: u32,
-    /// QEMU board for --qemu: m4f (mps2-an386, f32 firmware) or m3 (mps2-an385, Q8.24
-    /// fixed-point firmware).
-    #[arg(long, value_enum, default_value = "m4f")]
-    pub cpu: crate::qemu::QemuCpu,
-    /// Firmware ELF for --qemu (default: build and use
-    /// `target/<target>/release/examples/qemu_hil`).
-    #[arg(long, value_name = "FILE")]
-    pub elf: Option<PathBuf>,
+    /// Or the firmware's commissioning through the lock-step HIL link (the HIL image,
+    /// `examples/qemu_hil`) against the simulated plant of `--motor`: on QEMU or on a
+    /// board at a serial port.
+    #[command(flatten)]
+    pub target: TargetArgs,
     /// With --qemu or --port: also run the commissioning in this process with the
     /// firmware's numeric type and require identical results, bit for bit.
     #[arg(long)]
@@ -330,19 +344,14 @@ pub struct MotorImageArgs {
     pub payload_kg: Option<f32>,
 }
 
-/// Arguments of `dcfo hil`.
+/// Arguments of `dcfo hil`: the HIL image (`examples/qemu_hil`) against the simulated
+/// plant.
 #[derive(Debug, Clone, Args)]
+#[command(group(clap::ArgGroup::new("where").args(["qemu", "port"]).required(true)))]
 pub struct HilArgs {
-    /// Run the firmware on QEMU (board: --cpu); it is built with cargo unless --elf is
-    /// given. Needs qemu-system-arm.
-    #[arg(long, conflicts_with = "port", required_unless_present = "port")]
-    pub qemu: bool,
-    /// Serial device of a drive board running the HIL firmware (e.g. /dev/ttyACM0).
-    #[arg(long, value_name = "DEVICE")]
-    pub port: Option<PathBuf>,
-    /// Baud rate of --port, bit/s (8N1).
-    #[arg(long, value_name = "N", default_value_t = 921_600)]
-    pub baud: u32,
+    /// QEMU or a serial port.
+    #[command(flatten)]
+    pub target: TargetArgs,
     /// Scenario by name; the link carries no observer offsets, so: steady, speed-step or
     /// load-step.
     #[arg(long, value_name = "NAME", default_value = "steady")]
@@ -350,14 +359,6 @@ pub struct HilArgs {
     /// Simulated time, s (default: the scenario's full duration).
     #[arg(long, value_name = "S")]
     pub duration: Option<f64>,
-    /// QEMU board for --qemu: m4f (mps2-an386, f32 firmware) or m3 (mps2-an385, Q8.24
-    /// fixed-point firmware).
-    #[arg(long, value_enum, default_value = "m4f")]
-    pub cpu: crate::qemu::QemuCpu,
-    /// Firmware ELF for --qemu (default: build and use
-    /// `target/<target>/release/examples/qemu_hil`).
-    #[arg(long, value_name = "FILE")]
-    pub elf: Option<PathBuf>,
     /// Also run the scenario with the drive in this process (same numeric type as the
     /// firmware) and require the angle estimates, as the link reports them, to be
     /// identical bit for bit.
@@ -533,10 +534,7 @@ fn parse_settle(text: &str) -> Result<f64, String> {
 pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
     match cli.command {
         Command::Board(a) => {
-            let target = match a.port {
-                Some(device) => crate::board::Target::Port { device: device.into(), baud: a.baud },
-                None => crate::board::Target::Qemu { cpu: a.cpu, elf: a.elf },
-            };
+            let Some(target) = a.target.target() else { bail!("give --qemu or --port DEVICE") };
             crate::board::run_command(&crate::board::Params {
                 target,
                 record: a.record,
@@ -573,11 +571,7 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             }),
         )),
         Command::Hil(a) => {
-            let target = match (a.qemu, a.port) {
-                (true, _) => crate::hil::Target::Qemu { cpu: a.cpu, elf: a.elf },
-                (false, Some(device)) => crate::hil::Target::Port { device, baud: a.baud },
-                (false, None) => bail!("give --qemu or --port DEVICE"),
-            };
+            let Some(target) = a.target.target() else { bail!("give --qemu or --port DEVICE") };
             crate::hil::run_hil(&crate::hil::Params {
                 target,
                 scenario: a.scenario,
@@ -625,11 +619,10 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         }
         Command::Identify(a) => {
             use crate::identify::Where;
-            let place = match (a.qemu, a.port, a.sim) {
-                (true, _, _) => Where::Link(crate::target::Target::Qemu { cpu: a.cpu, elf: a.elf }),
-                (false, Some(device), _) => Where::Link(crate::target::Target::Port { device, baud: a.baud }),
-                (false, None, true) => Where::Sim,
-                (false, None, false) => Where::Unsaid,
+            let place = match (a.target.target(), a.sim) {
+                (Some(target), _) => Where::Link(target),
+                (None, true) => Where::Sim,
+                (None, false) => Where::Unsaid,
             };
             crate::identify::run_command(&crate::identify::Params {
                 place,
