@@ -9,7 +9,7 @@ use dcfo_host::faults::{Expected, cases, run_all};
 /// their floors (no silent failure, a named fault and the bridge off within a period on
 /// any trip, no trip on a ride-through) are still asserted.
 const SHORTFALLS: [&str; 3] = [
-    // Expected CURRENT_CONTROL; trips OVER_CURRENT after 434 ms (9.9 A). At 0.3 m/s and
+    // Expected CURRENT_CONTROL; trips OVER_CURRENT after 242 ms (10.1 A). At 0.3 m/s and
     // light load the open phase corrupts the flux estimate before the current loops
     // reach their voltage limit, and the drive pushes on a wrong angle until the current
     // overshoots. While the FLL took the notch back above 20 % disagreement (before
@@ -17,13 +17,14 @@ const SHORTFALLS: [&str; 3] = [
     // band and before the angle's phase compensation it was OVER_CURRENT at 260 ms. A
     // per-phase current-imbalance check would name it; not done.
     "open-phase",
-    // Expected CURRENT_CONTROL; trips OVER_CURRENT after 69 ms, the current behind the
-    // stuck sensor at 19.8 A (27 A and CURRENT_CONTROL at 64 ms before the FLL's band):
+    // Expected CURRENT_CONTROL; trips OVER_CURRENT after 76 ms, the current behind the
+    // stuck sensor at 20.3 A (27 A and CURRENT_CONTROL at 64 ms before the FLL's band):
     // the computed third current reaches the trip level before the loops' voltage
     // saturates.
     "sensor-stuck",
     // Expected LOCK_LOST; the mover reverses under the load and the drive trips
-    // CURRENT_CONTROL after 420 ms at 7.4 A (OVER_CURRENT at 10.4 A before the FLL's band).
+    // CURRENT_CONTROL after 320 ms at 7.4 A (OVER_CURRENT at 10.4 A before the FLL's band).
+    // (Figures of 2026-11-25, as the README's table.)
     "load-400N",
 ];
 
