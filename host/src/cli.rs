@@ -725,6 +725,46 @@ mod tests {
         assert!(Cli::try_parse_from(["dcfo", "faults", "--bogus"]).is_err());
     }
 
+    /// `dcfo board`, `hil` and `identify` share the target options: each names the
+    /// same target from the same words, board and hil need exactly one of --qemu and
+    /// --port, identify neither (it also runs in process with --sim).
+    #[test]
+    fn the_target_options_parse_alike_in_board_hil_and_identify() {
+        use crate::qemu::QemuCpu;
+        use crate::target::Target;
+        let target = |words: &[&str]| -> Option<Target> {
+            let cli = Cli::try_parse_from(words).unwrap();
+            match cli.command {
+                Command::Board(a) => a.target.target(),
+                Command::Hil(a) => a.target.target(),
+                Command::Identify(a) => a.target.target(),
+                _ => panic!("{words:?}"),
+            }
+        };
+        for sub in ["board", "hil", "identify"] {
+            let port = target(&["dcfo", sub, "--port", "/dev/ttyACM0", "--baud", "115200"]);
+            assert!(
+                matches!(&port, Some(Target::Port { device, baud: 115_200 }) if device == &PathBuf::from("/dev/ttyACM0")),
+                "{sub}: {port:?}"
+            );
+            let qemu = target(&["dcfo", sub, "--qemu", "--cpu", "m3", "--elf", "x.elf"]);
+            assert!(
+                matches!(&qemu, Some(Target::Qemu { cpu: QemuCpu::M3, elf: Some(e) }) if e == &PathBuf::from("x.elf")),
+                "{sub}: {qemu:?}"
+            );
+            let default = target(&["dcfo", sub, "--qemu"]);
+            assert!(
+                matches!(default, Some(Target::Qemu { cpu: QemuCpu::M4f, elf: None })),
+                "{sub}: {default:?}"
+            );
+            assert!(Cli::try_parse_from(["dcfo", sub, "--qemu", "--port", "/dev/x"]).is_err(), "{sub}");
+        }
+        for sub in ["board", "hil"] {
+            assert!(Cli::try_parse_from(["dcfo", sub]).is_err(), "{sub} without a target");
+        }
+        assert!(target(&["dcfo", "identify", "--sim"]).is_none());
+    }
+
     #[test]
     fn every_option_has_help_with_units() {
         let mut cmd = Cli::command();
