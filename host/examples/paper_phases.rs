@@ -14,23 +14,18 @@
 //! measures the last 0.5 s of the run. Printed per case: the median and the largest of
 //! the runs' maximum angle error (electrical degrees) over the scenario's window, runs
 //! that did not end healthy (sensorless and without a fault), and samples reported
-//! locked while more than 15 degrees off. About 40 s for 8 phases on two cores.
-
-use std::sync::Mutex;
-use std::sync::atomic::{AtomicUsize, Ordering};
+//! locked while more than 15 degrees off. The runs go through `dcfo paper`'s runner
+//! ([`dcfo_host::paper::run_all`]): about 30 s for 8 phases on two cores.
 
 use anyhow::{Context, Result, bail};
 use dcfo::observer::ObserverKind;
+use dcfo_host::paper::run_all;
 use dcfo_host::sim::scenarios::{Event, Scenario, figures, paper_scenarios, scenario};
-use dcfo_host::sim::{Setup, run};
 
 /// Event shift between phases, s.
 const PHASE_STEP_S: f64 = 0.0125;
 /// Shift of `steady`'s window between phases, s.
 const STEADY_WINDOW_STEP_S: f64 = 0.5;
-
-/// One run's figures: max angle error (deg), healthy, falsely locked samples.
-type Figures = (f64, bool, usize);
 
 fn main() -> Result<()> {
     let phases: usize = match std::env::args().nth(1) {
@@ -48,41 +43,19 @@ fn main() -> Result<()> {
     reset.window_s = 0.5;
     cases.push(reset);
 
-    let jobs: Vec<(usize, Scenario)> =
-        cases.iter().enumerate().flat_map(|(c, s)| (0..phases).map(move |k| (c, shifted(s, k)))).collect();
-    let results: Mutex<Vec<Vec<Figures>>> = Mutex::new(vec![Vec::new(); cases.len()]);
-    let next = AtomicUsize::new(0);
-    let threads = std::thread::available_parallelism().map_or(2, |n| n.get());
-    std::thread::scope(|scope| -> Result<()> {
-        let workers: Vec<_> = (0..threads)
-            .map(|_| {
-                scope.spawn(|| -> Result<()> {
-                    while let Some((case, s)) = jobs.get(next.fetch_add(1, Ordering::Relaxed)) {
-                        let r = run(&Setup::paper(ObserverKind::Dcfo), s, |_| {})
-                            .with_context(|| format!("scenario {}", s.name))?;
-                        let f = figures(&r, s);
-                        let mut all = results.lock().map_err(|_| anyhow::anyhow!("a worker panicked"))?;
-                        all[*case].push((f.theta_err_max_deg, f.healthy, f.false_lock_samples));
-                    }
-                    Ok(())
-                })
-            })
-            .collect();
-        for w in workers {
-            w.join().map_err(|_| anyhow::anyhow!("a worker panicked"))??;
-        }
-        Ok(())
-    })?;
-    let results = results.into_inner().map_err(|_| anyhow::anyhow!("a worker panicked"))?;
+    let jobs: Vec<(Scenario, ObserverKind)> =
+        cases.iter().flat_map(|s| (0..phases).map(move |k| (shifted(s, k), ObserverKind::Dcfo))).collect();
+    let (runs, _) = run_all(&jobs)?;
     println!("DCFO max angle error over {phases} phases, electrical degrees");
     println!("{:<16} {:>8} {:>8} {:>10} {:>12}", "case", "median", "max", "unhealthy", "false-lock");
-    for (s, runs) in cases.iter().zip(&results) {
-        let mut e: Vec<f64> = runs.iter().map(|r| r.0).collect();
+    for (s, (runs, jobs)) in cases.iter().zip(runs.chunks(phases).zip(jobs.chunks(phases))) {
+        let figures: Vec<_> = runs.iter().zip(jobs).map(|(r, (sc, _))| figures(r, sc)).collect();
+        let mut e: Vec<f64> = figures.iter().map(|f| f.theta_err_max_deg).collect();
         e.sort_by(f64::total_cmp);
         let n = e.len();
         let median = if n % 2 == 1 { e[n / 2] } else { 0.5 * (e[n / 2 - 1] + e[n / 2]) };
-        let unhealthy = runs.iter().filter(|r| !r.1).count();
-        let false_lock: usize = runs.iter().map(|r| r.2).sum();
+        let unhealthy = figures.iter().filter(|f| !f.healthy).count();
+        let false_lock: usize = figures.iter().map(|f| f.false_lock_samples).sum();
         println!("{:<16} {:>8.2} {:>8.2} {:>10} {:>12}", s.name, median, e[n - 1], unhealthy, false_lock);
     }
     Ok(())
@@ -92,18 +65,12 @@ fn main() -> Result<()> {
 /// window with it); `steady`, which has none, with its window `k` window steps later.
 fn shifted(s: &Scenario, k: usize) -> Scenario {
     let mut s = s.clone();
-    let k = k as f64;
-    if s.events.len() <= 1 {
-        let shift = STEADY_WINDOW_STEP_S * k;
-        s.event_s += shift;
-        s.duration_s += shift;
-    } else {
-        let shift = PHASE_STEP_S * k;
-        for e in s.events.iter_mut().skip(1) {
-            e.0 += shift;
-        }
-        s.event_s += shift;
-        s.duration_s += shift;
+    let step = if s.events.len() <= 1 { STEADY_WINDOW_STEP_S } else { PHASE_STEP_S };
+    let shift = step * k as f64;
+    for e in s.events.iter_mut().skip(1) {
+        e.0 += shift;
     }
+    s.event_s += shift;
+    s.duration_s += shift;
     s
 }

@@ -54,8 +54,10 @@ pub struct PaperReport {
     pub wall_s: f64,
 }
 
-/// Runs `jobs` (scenario, observer) on all cores with a progress bar on stderr.
-fn run_all(jobs: &[(Scenario, ObserverKind)]) -> Result<(Vec<Run>, f64)> {
+/// Runs `jobs` (scenario, observer), each on the paper axis ([`Setup::paper`]), on all
+/// cores with a progress bar on stderr; the runs in the order of `jobs` and the wall time
+/// (s). Also used by `host/examples/paper_phases.rs`.
+pub fn run_all(jobs: &[(Scenario, ObserverKind)]) -> Result<(Vec<Run>, f64)> {
     let bar = ProgressBar::new(jobs.len() as u64);
     bar.set_style(
         ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} runs, {elapsed}")
