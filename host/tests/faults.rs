@@ -3,34 +3,25 @@
 //! before it was measured). Measured figures are in the README's `dcfo faults` table.
 
 use dcfo::drive::Faults;
+use dcfo::observer::ObserverKind;
 use dcfo_host::faults::{Expected, cases, run_all};
+use dcfo_host::sim::Setup;
 
 /// Cases that do not meet the expectation stated before measuring (README, Status):
 /// their floors (no silent failure, a named fault and the bridge off within a period on
 /// any trip, no trip on a ride-through) are still asserted.
-const SHORTFALLS: [&str; 3] = [
-    // Expected CURRENT_CONTROL; trips OVER_CURRENT after 242 ms (10.1 A). At 0.3 m/s and
-    // light load the open phase corrupts the flux estimate before the current loops
-    // reach their voltage limit, and the drive pushes on a wrong angle until the current
-    // overshoots. While the FLL took the notch back above 20 % disagreement (before
-    // 2026-11-23) the loops saturated first (CURRENT_CONTROL at 127 ms); with the FLL's
-    // band and before the angle's phase compensation it was OVER_CURRENT at 260 ms. A
-    // per-phase current-imbalance check would name it; not done.
-    "open-phase",
-    // Expected CURRENT_CONTROL; trips OVER_CURRENT after 76 ms, the current behind the
-    // stuck sensor at 20.3 A (27 A and CURRENT_CONTROL at 64 ms before the FLL's band):
-    // the computed third current reaches the trip level before the loops' voltage
-    // saturates.
-    "sensor-stuck",
+const SHORTFALLS: [&str; 1] = [
     // Expected LOCK_LOST; the mover reverses under the load and the drive trips
     // CURRENT_CONTROL after 320 ms at 7.4 A (OVER_CURRENT at 10.4 A before the FLL's band).
-    // (Figures of 2026-11-25, as the README's table.)
+    // (Figures of 2026-11-26, as the README's table. The open phase and the stuck sensor
+    // were shortfalls until the drive's phase-loss check, `src/drive/phase_loss.rs`.)
     "load-400N",
 ];
 
 #[test]
 fn every_fault_trips_in_a_period_or_rides_through_and_none_fails_silently() {
     let (campaign, _) = run_all(2, |_| {}).expect("campaign runs");
+    let overcurrent_a = f64::from(Setup::paper(ObserverKind::Dcfo).drive.faults.overcurrent_a);
     println!("{}", dcfo_host::faults::table(&campaign));
     assert!(campaign.cases >= 12, "{} cases", campaign.cases);
     assert_eq!(campaign.silent_failures, 0);
@@ -49,6 +40,16 @@ fn every_fault_trips_in_a_period_or_rides_through_and_none_fails_silently() {
                 );
             }
             Expected::RideThrough(_) => assert_eq!(r.faults, "none", "{}: tripped", r.name),
+        }
+        // The phase-loss check names a lost phase before its wrong currents grow to the
+        // over-current trip (`src/drive/phase_loss.rs`): the true current stays below it.
+        if ["open-phase", "sensor-stuck"].contains(&case.name) {
+            assert!(
+                r.i_peak_a < overcurrent_a,
+                "{}: {} A peak, trip at {overcurrent_a} A",
+                r.name,
+                r.i_peak_a
+            );
         }
         if SHORTFALLS.contains(&case.name) {
             println!("known shortfall {}: {}", r.name, r.happened);

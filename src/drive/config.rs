@@ -87,6 +87,16 @@ pub struct FaultConfig {
     pub current_error_a: f32,
     /// See `current_error_a`, s (positive).
     pub current_error_s: f32,
+    /// Averaging time of the phase-loss check, s (> 0). Each phase's measured and
+    /// reference current magnitudes are low-passed with this time constant; a phase
+    /// whose reference averages above `current_error_a` but which carries less than a
+    /// quarter of it, while another phase carries at least half of its own, for longer
+    /// than `current_error_s` trips `CURRENT_CONTROL`: an open phase (its current is
+    /// zero whatever the bridge applies), seen before the voltage reaches its limit.
+    /// Default 10 ms: a lost phase is named `tau ln 4 + current_error_s` (19 ms) after
+    /// its reference averages above the threshold; both magnitudes pass the same filter,
+    /// so the time constant only averages noise and ripple (module `phase_loss`).
+    pub phase_loss_filter_s: f32,
 }
 
 /// Everything the drive needs besides the motor, SI.
@@ -275,6 +285,7 @@ impl DriveConfig {
                 max_offset_a: 0.1 * rated_peak,
                 current_error_a: 0.1 * rated_peak,
                 current_error_s: 0.005,
+                phase_loss_filter_s: 0.01,
             },
             estimator: EstimatorConfig::for_motor(motor, observer),
             motion: None,
@@ -424,7 +435,7 @@ impl DriveConfig {
     pub fn validate(&self) -> Result<(), DriveConfigError> {
         let pos = |x: f32| x.is_finite() && x > 0.0;
         let non_neg = |x: f32| x.is_finite() && x >= 0.0;
-        let checks: [(bool, &'static str); 29] = [
+        let checks: [(bool, &'static str); 30] = [
             (pos(self.control_period_s), "control_period_s"),
             (self.speed_loop_divider >= 1, "speed_loop_divider"),
             (pos(self.current_bandwidth_rad_s), "current_bandwidth_rad_s"),
@@ -464,6 +475,7 @@ impl DriveConfig {
             (pos(self.faults.max_offset_a), "faults.max_offset_a"),
             (pos(self.faults.current_error_a), "faults.current_error_a"),
             (pos(self.faults.current_error_s), "faults.current_error_s"),
+            (pos(self.faults.phase_loss_filter_s), "faults.phase_loss_filter_s"),
         ];
         for (ok, field) in checks {
             if !ok {

@@ -28,8 +28,10 @@ impl Faults {
     /// The board or host link reported a fault (e.g. a silent HIL link).
     pub const EXTERNAL: Faults = Faults(1 << 8);
     /// The current loops lost control: their voltage stayed on the bridge's limit while
-    /// the measured current stayed off its reference (an open phase, a stuck or
-    /// disconnected current sensor), see [`super::FaultConfig::current_error_a`].
+    /// the measured current stayed off its reference, or one phase carried less than a
+    /// quarter of its reference current while another carried its own (an open phase, a
+    /// stuck or disconnected current sensor); see [`super::FaultConfig::current_error_a`]
+    /// and [`super::FaultConfig::phase_loss_filter_s`].
     pub const CURRENT_CONTROL: Faults = Faults(1 << 9);
     /// Commissioning stopped: a named error of its own, or a protection of the drive
     /// while it ran ([`super::Drive::commissioning_result`]).

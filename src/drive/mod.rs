@@ -44,6 +44,7 @@ mod commands;
 mod commissioning;
 mod config;
 mod faults;
+mod phase_loss;
 mod positioning;
 
 pub use commands::Commands;
@@ -56,6 +57,7 @@ pub use config::{
     PAPER_AXIS_PAYLOAD_KG, STROKE_AXIS_LIMITS, STROKE_AXIS_STROKE_M, StartupConfig,
 };
 pub use faults::Faults;
+use phase_loss::PhaseLoss;
 pub use positioning::MOVE_QUEUE;
 use positioning::Positioning;
 
@@ -269,6 +271,8 @@ pub struct Drive<T> {
     /// Consecutive periods with the current loops' voltage on its limit and the current
     /// off its reference (current-control supervision).
     current_error_count: u32,
+    /// Phase-loss supervision ([`phase_loss`]).
+    phase_loss: PhaseLoss<T>,
     /// During the I/f start: the mover's electrical speed less the open-loop speed,
     /// low-passed (rad/s, SI), read from the d voltage.
     startup_speed_error_rad_s: f32,
@@ -488,6 +492,11 @@ impl<T: Scalar> Drive<T> {
             Some(p) => Some(p?),
             None => None,
         };
+        let phase_loss = PhaseLoss::new(
+            T::from_f32(ts / config.faults.phase_loss_filter_s),
+            k.current_error,
+            k.current_error_samples,
+        );
         Ok(Drive {
             k,
             estimator,
@@ -522,6 +531,7 @@ impl<T: Scalar> Drive<T> {
             commissioning: None,
             commissioning_outcome: None,
             current_error_count: 0,
+            phase_loss,
             startup_speed_error_rad_s: 0.0,
         })
     }
@@ -870,6 +880,7 @@ impl<T: Scalar> Drive<T> {
         self.u_prev = AlphaBeta::default();
         self.u_prev2 = AlphaBeta::default();
         self.current_error_count = 0;
+        self.phase_loss.reset();
         self.startup_speed_error_rad_s = 0.0;
         if self.positioning.is_some() {
             self.start_positioning();
@@ -934,7 +945,8 @@ impl<T: Scalar> Drive<T> {
         // the PLL has already computed.
         let cs = if theta == estimate.theta_e { estimate.cos_sin } else { CosSin::new(theta) };
         // With HFI the loops see the fundamental current (the HF swing averaged out).
-        let i_dq = park(hfi.map_or(out.i_ab, |h| h.i_fundamental), &cs);
+        let i_loop = hfi.map_or(out.i_ab, |h| h.i_fundamental);
+        let i_dq = park(i_loop, &cs);
         out.i_dq = i_dq;
         self.i_dq_measured = i_dq;
 
@@ -971,6 +983,21 @@ impl<T: Scalar> Drive<T> {
             self.trip(Faults::CURRENT_CONTROL);
             return;
         }
+        // Phase loss: the loops run (HFI's alignment holds them) and one phase carries
+        // far less than its reference while another carries its own: an open phase, whose
+        // current is zero whatever the bridge applies. The check above sees it only once
+        // the voltage saturates, which at light load comes after the wrong currents have
+        // corrupted the flux estimate (FaultConfig::phase_loss_filter_s).
+        let loops_run = hfi.is_none_or(|h| h.ready);
+        if loops_run
+            && self
+                .phase_loss
+                .update(inverse_clarke(i_loop), inverse_clarke(inverse_park(self.i_dq_ref, &cs)))
+        {
+            self.trip(Faults::CURRENT_CONTROL);
+            return;
+        }
+        let k = &self.k;
 
         // The command is applied from the next period on: rotate it to the middle of
         // its application window.
