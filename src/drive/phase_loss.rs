@@ -26,6 +26,11 @@
 //! - A drive that cannot push its currents at all (the voltage on its limit at high
 //!   speed, a bus sag) falls short on every phase alike: no phase carries while another
 //!   starves, and the saturation check is the one that speaks.
+//! - A phase with no reference "carries" (`0 >= 0`). Requiring a reference of its own
+//!   too (a quarter of the starved phase's) let the current behind a stuck sensor grow
+//!   from 5.5 to 11.3 A before the trip (`dcfo faults`), and the case it would exclude,
+//!   a current vector across two phases that the loops deliver short at standstill, has
+//!   the loops' voltage on its limit: the saturation check names it the same.
 //! - After a phase opens, `m_k` decays from about `r_k` as `(1 - Ts/tau)^n`: it is below
 //!   a quarter after `tau ln 4` (13.9 ms for `tau` = 10 ms), and the trip follows
 //!   `current_error_s` later, provided the reference averages above the threshold.
