@@ -958,8 +958,9 @@ impl<T: Scalar> Drive<T> {
             (T::ZERO, T::ZERO)
         };
         let v_max = m.vdc * k.modulation_limit;
-        let (u_d, u_q) = if hfi.is_some_and(|h| !h.ready) {
-            // HFI aligning: the loops are held, the bridge applies the injection alone.
+        // HFI aligning holds the loops: the bridge applies the injection alone.
+        let loops_run = hfi.is_none_or(|h| h.ready);
+        let (u_d, u_q) = if !loops_run {
             (T::ZERO, T::ZERO)
         } else {
             let u_d = ff_d + self.pi_d.update_within(self.i_dq_ref.d - i_dq.d, -v_max - ff_d, v_max - ff_d);
@@ -988,7 +989,6 @@ impl<T: Scalar> Drive<T> {
         // current is zero whatever the bridge applies. The check above sees it only once
         // the voltage saturates, which at light load comes after the wrong currents have
         // corrupted the flux estimate (FaultConfig::phase_loss_filter_s).
-        let loops_run = hfi.is_none_or(|h| h.ready);
         if loops_run
             && self
                 .phase_loss
@@ -1004,7 +1004,7 @@ impl<T: Scalar> Drive<T> {
         let theta_apply = theta + (omega * k.dt * k.delay_periods).radians_to_angle();
         let cs_apply = CosSin::new(theta_apply);
         let u_ab = inverse_park(Dq::new(u_d, u_q), &cs_apply);
-        let comp = if k.compensate && hfi.is_none_or(|h| h.ready) {
+        let comp = if k.compensate && loops_run {
             self.compensation(m.vdc, i_dq, &cs_apply)
         } else {
             AlphaBeta::default()
