@@ -27,6 +27,7 @@ use dcfo::units::Base;
 use serde::Serialize;
 
 use crate::sim::Setup;
+use crate::sim::scenarios::PaperScale;
 use crate::trace::wrap_angle;
 
 /// Lock criterion: the error stays below this from the lock time on, electrical degrees.
@@ -79,11 +80,10 @@ impl Offset {
     /// scale); on the paper motor exactly the values. A 48 V motor thus gets
     /// 0.44 V, not the 2 V that would be 4 % of its bus.
     pub fn values_for(self, motor: &MotorParams) -> ([f64; 2], [f64; 2]) {
-        let paper = MotorParams::paper();
-        let u_scale = f64::from(motor.rated_voltage_v) / f64::from(paper.rated_voltage_v);
-        let i_scale = f64::from(motor.rated_current_a) / f64::from(paper.rated_current_a);
+        // The axis mass only scales forces, which an offset has none of.
+        let scale = PaperScale::for_axis(motor, f64::from(motor.mass_kg));
         let (u, i) = self.values();
-        (u.map(|x| x * u_scale), i.map(|x| x * i_scale))
+        (u.map(|x| x * scale.voltage), i.map(|x| x * scale.current))
     }
 
     /// Short label.
@@ -128,7 +128,7 @@ impl Options {
     /// The same sweep on `motor`: the benchmark's electrical frequencies (3.3 to 67 Hz),
     /// so speeds scaled by its pole pitch over the paper motor's.
     pub fn full_for(motor: &MotorParams) -> Self {
-        let scale = f64::from(motor.pole_pitch_m) / f64::from(MotorParams::paper().pole_pitch_m);
+        let scale = PaperScale::for_axis(motor, f64::from(motor.mass_kg)).speed;
         Options {
             speeds_m_per_s: Self::PAPER_SPEEDS_M_PER_S.iter().map(|v| v * scale).collect(),
             ..Self::full()

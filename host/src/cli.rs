@@ -504,8 +504,10 @@ pub struct SimArgs {
     pub scenario: String,
 
     /// The motor: a preset (`paper`) or a motor file (TOML, shared trace-format.md). The
-    /// drive tunes itself from it. Without it, the paper motor on the paper's simulated
-    /// test axis (10 kg carriage, the settings the HIL firmware runs).
+    /// drive tunes itself from it, and a paper experiment is scaled to it: speeds to the
+    /// same electrical frequencies, loads to the same deceleration of its mover, offsets
+    /// by its rated voltage and current. Without it, the paper motor on the paper's
+    /// simulated test axis (10 kg carriage, the settings the HIL firmware runs).
     #[arg(long, value_name = "PRESET|FILE")]
     pub motor: Option<String>,
 

@@ -2,7 +2,7 @@
 //! estimates, summary and figure; and what other commands write of a run
 //! ([`write_run_outputs`], [`trace_of`], [`fault_names`]).
 
-use super::scenarios::{Figures, Scenario, figures, paper_scenarios, scenario};
+use super::scenarios::{Figures, PaperScale, Scenario, figures, paper_scenarios, scenario};
 use super::{Run, Setup, run, theta_err_deg};
 use crate::motor_file::load_motor;
 use crate::observer::observer_name;
@@ -32,7 +32,10 @@ pub struct Params {
 
 /// `dcfo sim`: loads the scenario and the motor, then [`run_sim`].
 pub fn run_command(params: &Params) -> Result<()> {
-    let scenario = load_scenario(&params.scenario)?;
+    let mut scenario = load_scenario(&params.scenario)?;
+    // A paper experiment on another motor is scaled to it; a scenario file says what it
+    // means in its own units.
+    let paper_experiment = super::scenarios::scenario(&params.scenario).is_some();
     let setup = match &params.motor {
         None => Setup::paper(params.observer),
         Some(m) => {
@@ -44,6 +47,10 @@ pub fn run_command(params: &Params) -> Result<()> {
                     "motor file {m}: key `mass_kg` is required to simulate the drive (its speed loop \
                      is tuned on the moving mass)"
                 );
+            }
+            if paper_experiment {
+                let axis_kg = f64::from(motor.params.mass_kg) + scenario.plant.payload_kg;
+                scenario = scenario.scaled(&PaperScale::for_axis(&motor.params, axis_kg));
             }
             Setup::for_axis(&motor.params, &scenario, params.observer)
         }

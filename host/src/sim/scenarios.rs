@@ -2,6 +2,7 @@
 //! each run.
 
 use super::{Run, Sample, theta_err_deg};
+use dcfo::motor::MotorParams;
 
 /// Something that happens at a given time in a scenario.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -197,6 +198,76 @@ pub fn paper_scenarios() -> Vec<Scenario> {
     ]
 }
 
+/// How the paper's experiments carry over to another motor ([`Scenario::scaled`]): one
+/// factor per kind of quantity, each the other motor's value over the paper axis's, so
+/// that on the paper axis every factor is exactly 1.
+///
+/// - speeds by the pole pitch: the same electrical frequencies, which is what the
+///   estimator's dynamics depend on (`dcfo acquire --motor` sweeps the same way);
+/// - loads by the moving mass and the pole pitch: the same electrical deceleration (the
+///   paper's 40 N on its 10.66 kg axis slows the mover at 785 rad/s^2 electrical; on a
+///   1.5 kg mover the same 40 N would be ten times that and drive it backwards through
+///   zero speed, another experiment);
+/// - voltage offsets by the rated voltage (an inverter's or a sensor's voltage error is a
+///   share of the bus) and current offsets by the rated current (a sensor's offset is a
+///   share of its full scale), as `dcfo acquire --motor` scales its offsets.
+///
+/// Plant deviations given as multiples (`R = 2 Rs`) need no scaling.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PaperScale {
+    /// Speeds, dimensionless (m/s per m/s of the paper's).
+    pub speed: f64,
+    /// Forces, dimensionless (N per N of the paper's).
+    pub force: f64,
+    /// Voltage offsets, dimensionless (V per V of the paper's).
+    pub voltage: f64,
+    /// Current offsets, dimensionless (A per A of the paper's).
+    pub current: f64,
+}
+
+impl PaperScale {
+    /// The paper's experiments on `motor` moving `axis_mass_kg` (its mover and whatever
+    /// it carries), against the paper motor on its test axis.
+    pub fn for_axis(motor: &MotorParams, axis_mass_kg: f64) -> Self {
+        let paper = MotorParams::paper();
+        let paper_axis_kg = f64::from(paper.mass_kg) + f64::from(dcfo::drive::PAPER_AXIS_PAYLOAD_KG);
+        let speed = f64::from(motor.pole_pitch_m) / f64::from(paper.pole_pitch_m);
+        PaperScale {
+            speed,
+            force: axis_mass_kg / paper_axis_kg * speed,
+            voltage: f64::from(motor.rated_voltage_v) / f64::from(paper.rated_voltage_v),
+            current: f64::from(motor.rated_current_a) / f64::from(paper.rated_current_a),
+        }
+    }
+}
+
+impl Scenario {
+    /// The same experiment with its speeds, loads and offsets scaled by `scale`; the
+    /// description says so, with the factors. Times, plant multiples and the estimator
+    /// reset are unchanged.
+    pub fn scaled(&self, scale: &PaperScale) -> Scenario {
+        let event = |e: Event| match e {
+            Event::Speed(v) => Event::Speed(v * scale.speed),
+            Event::Load(f) => Event::Load(f * scale.force),
+            Event::ObserverOffsets { u_v, i_a } => Event::ObserverOffsets {
+                u_v: u_v.map(|u| u * scale.voltage),
+                i_a: i_a.map(|i| i * scale.current),
+            },
+            Event::ResetEstimator => Event::ResetEstimator,
+            Event::MoverSpeed(v) => Event::MoverSpeed(v * scale.speed),
+        };
+        Scenario {
+            description: format!(
+                "{}; scaled to this motor: speeds x{:.3}, loads x{:.3}, voltage offsets x{:.3}, current \
+                 offsets x{:.3}",
+                self.description, scale.speed, scale.force, scale.voltage, scale.current
+            ),
+            events: self.events.iter().map(|&(t, e)| (t, event(e))).collect(),
+            ..self.clone()
+        }
+    }
+}
+
 /// Looks up a paper scenario by name.
 pub fn scenario(name: &str) -> Option<Scenario> {
     paper_scenarios().into_iter().find(|s| s.name == name)
@@ -309,5 +380,77 @@ pub fn figures(run: &Run, scenario: &Scenario) -> Figures {
             .iter()
             .filter(|s| s.locked == Some(true) && theta_err_deg(s).abs() > 15.0)
             .count(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::f64::consts::PI;
+
+    fn paper_axis_kg() -> f64 {
+        f64::from(MotorParams::paper().mass_kg) + f64::from(dcfo::drive::PAPER_AXIS_PAYLOAD_KG)
+    }
+
+    /// On the paper axis the experiments are the paper's, to the bit.
+    #[test]
+    fn the_paper_axis_keeps_every_experiment_as_it_is() {
+        let scale = PaperScale::for_axis(&MotorParams::paper(), paper_axis_kg());
+        assert_eq!(scale, PaperScale { speed: 1.0, force: 1.0, voltage: 1.0, current: 1.0 });
+        for sc in paper_scenarios() {
+            assert_eq!(sc.scaled(&scale).events, sc.events, "{}", sc.name);
+        }
+    }
+
+    /// On another motor the estimator sees the same electrical frequencies and the same
+    /// electrical deceleration under the load step, and the offsets are the same share
+    /// of its rated voltage and current.
+    #[test]
+    fn another_motor_gets_the_same_electrical_experiment() {
+        let motor = MotorParams {
+            rs_ohm: 0.3,
+            ld_h: 0.0012,
+            lq_h: 0.0012,
+            psi_f_wb: 0.05,
+            pole_pitch_m: 0.012,
+            mass_kg: 1.5,
+            viscous_n_s_per_m: 0.5,
+            rated_current_a: 10.0,
+            rated_voltage_v: 48.0,
+        };
+        let paper = MotorParams::paper();
+        let omega_per_speed = |m: &MotorParams| PI / f64::from(m.pole_pitch_m);
+        let axis_kg = 2.5;
+        let scale = PaperScale::for_axis(&motor, axis_kg);
+        for (name, paper_event, event) in paper_scenarios().iter().flat_map(|sc| {
+            let scaled = sc.scaled(&scale);
+            sc.events
+                .iter()
+                .zip(scaled.events)
+                .map(|(&(_, p), (_, e))| (sc.name.clone(), p, e))
+                .collect::<Vec<_>>()
+        }) {
+            // The motor's values are f32: equal to their precision.
+            let close = |a: f64, b: f64| (a - b).abs() <= 1e-6 * b.abs().max(1e-3);
+            match (paper_event, event) {
+                (Event::Speed(v0), Event::Speed(v)) => {
+                    assert!(close(v * omega_per_speed(&motor), v0 * omega_per_speed(&paper)), "{name}")
+                }
+                (Event::Load(f0), Event::Load(f)) => assert!(
+                    close(
+                        f / axis_kg * omega_per_speed(&motor),
+                        f0 / paper_axis_kg() * omega_per_speed(&paper)
+                    ),
+                    "{name}"
+                ),
+                (Event::ObserverOffsets { u_v: u0, i_a: i0 }, Event::ObserverOffsets { u_v, i_a }) => {
+                    for k in 0..2 {
+                        assert!(close(u_v[k] / 48.0, u0[k] / 220.0), "{name}");
+                        assert!(close(i_a[k] / 10.0, i0[k] / 2.1), "{name}");
+                    }
+                }
+                (p, e) => panic!("{name}: {p:?} became {e:?}"),
+            }
+        }
     }
 }
