@@ -41,9 +41,7 @@ pub const LOAD_N: f64 = 10.0;
 /// Load while the trace is recorded on `motor`, N: the same share of its rated thrust
 /// as [`LOAD_N`] is of the paper motor's ([`LOAD_N`] itself on the paper motor).
 pub fn recording_load_n(motor: &MotorParams) -> f64 {
-    let rated_thrust =
-        |m: &MotorParams| f64::from(m.thrust_constant_n_per_a()) * f64::from(m.rated_current_a);
-    LOAD_N * rated_thrust(motor) / rated_thrust(&MotorParams::paper())
+    LOAD_N * PaperScale::for_motor(motor).thrust
 }
 
 /// Disturbance present in the estimator's inputs from its first sample. The issue's
@@ -80,8 +78,7 @@ impl Offset {
     /// scale); on the paper motor exactly the values. A 48 V motor thus gets
     /// 0.44 V, not the 2 V that would be 4 % of its bus.
     pub fn values_for(self, motor: &MotorParams) -> ([f64; 2], [f64; 2]) {
-        // The axis mass only scales forces, which an offset has none of.
-        let scale = PaperScale::for_axis(motor, f64::from(motor.mass_kg));
+        let scale = PaperScale::for_motor(motor);
         let (u, i) = self.values();
         (u.map(|x| x * scale.voltage), i.map(|x| x * scale.current))
     }
@@ -128,7 +125,7 @@ impl Options {
     /// The same sweep on `motor`: the benchmark's electrical frequencies (3.3 to 67 Hz),
     /// so speeds scaled by its pole pitch over the paper motor's.
     pub fn full_for(motor: &MotorParams) -> Self {
-        let scale = PaperScale::for_axis(motor, f64::from(motor.mass_kg)).speed;
+        let scale = PaperScale::for_motor(motor).speed;
         Options {
             speeds_m_per_s: Self::PAPER_SPEEDS_M_PER_S.iter().map(|v| v * scale).collect(),
             ..Self::full()

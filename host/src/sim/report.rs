@@ -49,8 +49,7 @@ pub fn run_command(params: &Params) -> Result<()> {
                 );
             }
             if paper_experiment {
-                let axis_kg = f64::from(motor.params.mass_kg) + scenario.plant.payload_kg;
-                scenario = scenario.scaled(&PaperScale::for_axis(&motor.params, axis_kg));
+                scenario = scenario.scaled(&PaperScale::for_motor(&motor.params));
             }
             Setup::for_axis(&motor.params, &scenario, params.observer)
         }

@@ -198,53 +198,72 @@ pub fn paper_scenarios() -> Vec<Scenario> {
     ]
 }
 
-/// How the paper's experiments carry over to another motor ([`Scenario::scaled`]): one
-/// factor per kind of quantity, each the other motor's value over the paper axis's, so
-/// that on the paper axis every factor is exactly 1.
+/// How the paper's experiments carry over to another motor ([`Scenario::scaled`]): the
+/// same experiment in every ratio the estimator and the drive see, so that on the paper
+/// motor every factor is exactly 1 and the axis is the paper's.
 ///
 /// - speeds by the pole pitch: the same electrical frequencies, which is what the
 ///   estimator's dynamics depend on (`dcfo acquire --motor` sweeps the same way);
-/// - loads by the moving mass and the pole pitch: the same electrical deceleration (the
-///   paper's 40 N on its 10.66 kg axis slows the mover at 785 rad/s^2 electrical; on a
-///   1.5 kg mover the same 40 N would be ten times that and drive it backwards through
-///   zero speed, another experiment);
+/// - the axis: the paper axis's mass per rated thrust (10.7 kg for the paper motor's
+///   105 N), as a payload on the mover, so that thrust, friction and end-effect force
+///   (shares of the rated thrust) move it as they move the paper's axis. On a bare mover
+///   the plant's friction and end-effect force (3 % of rated thrust each) are tens of
+///   m/s^2, more than a 20 rad/s speed loop on a back-EMF estimate holds at 0.25 m/s:
+///   another experiment (`scenarios/bare-mover.toml` is that one);
+/// - loads by the rated thrust and the pole pitch: on that axis the same electrical
+///   deceleration (the paper's 40 N slows its axis by 785 rad/s^2 electrical, 30 % of
+///   the speed in 90 ms). The paper's 40 N on a bare 1.5 kg mover drove it backwards
+///   through zero speed, and so did the same share of rated thrust on a motor of a
+///   shorter pole pitch (the same linear deceleration at a lower linear speed);
 /// - voltage offsets by the rated voltage (an inverter's or a sensor's voltage error is a
 ///   share of the bus) and current offsets by the rated current (a sensor's offset is a
-///   share of its full scale), as `dcfo acquire --motor` scales its offsets.
+///   share of its full scale), as `dcfo acquire --motor` scales its offsets. The paper's
+///   2 V was half the 48 V low-resistance motor's back-EMF at 0.24 m/s.
 ///
 /// Plant deviations given as multiples (`R = 2 Rs`) need no scaling.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PaperScale {
     /// Speeds, dimensionless (m/s per m/s of the paper's).
     pub speed: f64,
-    /// Forces, dimensionless (N per N of the paper's).
+    /// Rated thrust over the paper motor's, dimensionless: a steady load of the same
+    /// share of it (`dcfo acquire --motor` records at one).
+    pub thrust: f64,
+    /// Load steps, dimensionless (N per N of the paper's): `thrust * speed`, the same
+    /// electrical deceleration on the scaled axis.
     pub force: f64,
     /// Voltage offsets, dimensionless (V per V of the paper's).
     pub voltage: f64,
     /// Current offsets, dimensionless (A per A of the paper's).
     pub current: f64,
+    /// Payload the mover carries, kg (>= 0): the paper axis's mass per rated thrust
+    /// less the mover's own mass.
+    pub payload_kg: f64,
 }
 
 impl PaperScale {
-    /// The paper's experiments on `motor` moving `axis_mass_kg` (its mover and whatever
-    /// it carries), against the paper motor on its test axis.
-    pub fn for_axis(motor: &MotorParams, axis_mass_kg: f64) -> Self {
+    /// The paper's experiments on `motor`, against the paper motor on its test axis.
+    pub fn for_motor(motor: &MotorParams) -> Self {
         let paper = MotorParams::paper();
-        let paper_axis_kg = f64::from(paper.mass_kg) + f64::from(dcfo::drive::PAPER_AXIS_PAYLOAD_KG);
+        let rated_thrust_n =
+            |m: &MotorParams| f64::from(m.thrust_constant_n_per_a()) * f64::from(m.rated_current_a);
+        let thrust = rated_thrust_n(motor) / rated_thrust_n(&paper);
         let speed = f64::from(motor.pole_pitch_m) / f64::from(paper.pole_pitch_m);
+        let paper_axis_kg = f64::from(paper.mass_kg) + f64::from(dcfo::drive::PAPER_AXIS_PAYLOAD_KG);
         PaperScale {
             speed,
-            force: axis_mass_kg / paper_axis_kg * speed,
+            thrust,
+            force: thrust * speed,
             voltage: f64::from(motor.rated_voltage_v) / f64::from(paper.rated_voltage_v),
             current: f64::from(motor.rated_current_a) / f64::from(paper.rated_current_a),
+            payload_kg: (paper_axis_kg * thrust - f64::from(motor.mass_kg)).max(0.0),
         }
     }
 }
 
 impl Scenario {
-    /// The same experiment with its speeds, loads and offsets scaled by `scale`; the
-    /// description says so, with the factors. Times, plant multiples and the estimator
-    /// reset are unchanged.
+    /// The same experiment with its speeds, loads and offsets scaled by `scale` and the
+    /// payload added; the description says so, with the factors. Times, plant multiples
+    /// and the estimator reset are unchanged.
     pub fn scaled(&self, scale: &PaperScale) -> Scenario {
         let event = |e: Event| match e {
             Event::Speed(v) => Event::Speed(v * scale.speed),
@@ -259,10 +278,11 @@ impl Scenario {
         Scenario {
             description: format!(
                 "{}; scaled to this motor: speeds x{:.3}, loads x{:.3}, voltage offsets x{:.3}, current \
-                 offsets x{:.3}",
-                self.description, scale.speed, scale.force, scale.voltage, scale.current
+                 offsets x{:.3}, {:.1} kg payload",
+                self.description, scale.speed, scale.force, scale.voltage, scale.current, scale.payload_kg
             ),
             events: self.events.iter().map(|&(t, e)| (t, event(e))).collect(),
+            plant: PlantChanges { payload_kg: self.plant.payload_kg + scale.payload_kg, ..self.plant },
             ..self.clone()
         }
     }
@@ -388,25 +408,25 @@ mod tests {
     use super::*;
     use std::f64::consts::PI;
 
-    fn paper_axis_kg() -> f64 {
-        f64::from(MotorParams::paper().mass_kg) + f64::from(dcfo::drive::PAPER_AXIS_PAYLOAD_KG)
-    }
-
-    /// On the paper axis the experiments are the paper's, to the bit.
+    /// On the paper motor the experiments are the paper's, to the bit, on its axis.
     #[test]
-    fn the_paper_axis_keeps_every_experiment_as_it_is() {
-        let scale = PaperScale::for_axis(&MotorParams::paper(), paper_axis_kg());
-        assert_eq!(scale, PaperScale { speed: 1.0, force: 1.0, voltage: 1.0, current: 1.0 });
+    fn the_paper_motor_keeps_every_experiment_and_its_axis() {
+        let scale = PaperScale::for_motor(&MotorParams::paper());
+        assert_eq!(
+            (scale.speed, scale.thrust, scale.force, scale.voltage, scale.current),
+            (1.0, 1.0, 1.0, 1.0, 1.0)
+        );
+        assert!((scale.payload_kg - f64::from(dcfo::drive::PAPER_AXIS_PAYLOAD_KG)).abs() < 1e-6, "{scale:?}");
         for sc in paper_scenarios() {
             assert_eq!(sc.scaled(&scale).events, sc.events, "{}", sc.name);
         }
     }
 
-    /// On another motor the estimator sees the same electrical frequencies and the same
-    /// electrical deceleration under the load step, and the offsets are the same share
-    /// of its rated voltage and current.
+    /// On another motor the estimator sees the same electrical frequencies and, under the
+    /// load step, the same electrical deceleration; the axis has the paper axis's mass
+    /// per rated thrust; the offsets are the same share of its rated voltage and current.
     #[test]
-    fn another_motor_gets_the_same_electrical_experiment() {
+    fn another_motor_gets_the_same_experiment_on_the_same_axis() {
         let motor = MotorParams {
             rs_ohm: 0.3,
             ld_h: 0.0012,
@@ -419,37 +439,41 @@ mod tests {
             rated_voltage_v: 48.0,
         };
         let paper = MotorParams::paper();
+        // Rated thrust, N: 1.5 pi / tau psi_f I_rated.
+        let thrust = |m: &MotorParams| {
+            1.5 * PI / f64::from(m.pole_pitch_m) * f64::from(m.psi_f_wb) * f64::from(m.rated_current_a)
+        };
         let omega_per_speed = |m: &MotorParams| PI / f64::from(m.pole_pitch_m);
-        let axis_kg = 2.5;
-        let scale = PaperScale::for_axis(&motor, axis_kg);
-        for (name, paper_event, event) in paper_scenarios().iter().flat_map(|sc| {
+        let paper_axis_kg = f64::from(paper.mass_kg) + f64::from(dcfo::drive::PAPER_AXIS_PAYLOAD_KG);
+        let scale = PaperScale::for_motor(&motor);
+        // The motor's values are f32: equal to their precision.
+        let close = |a: f64, b: f64| (a - b).abs() <= 1e-6 * b.abs().max(1e-3);
+        let axis_kg = f64::from(motor.mass_kg) + scale.payload_kg;
+        assert!(close(axis_kg / thrust(&motor), paper_axis_kg / thrust(&paper)), "{scale:?}");
+        for sc in paper_scenarios() {
             let scaled = sc.scaled(&scale);
-            sc.events
-                .iter()
-                .zip(scaled.events)
-                .map(|(&(_, p), (_, e))| (sc.name.clone(), p, e))
-                .collect::<Vec<_>>()
-        }) {
-            // The motor's values are f32: equal to their precision.
-            let close = |a: f64, b: f64| (a - b).abs() <= 1e-6 * b.abs().max(1e-3);
-            match (paper_event, event) {
-                (Event::Speed(v0), Event::Speed(v)) => {
-                    assert!(close(v * omega_per_speed(&motor), v0 * omega_per_speed(&paper)), "{name}")
-                }
-                (Event::Load(f0), Event::Load(f)) => assert!(
-                    close(
-                        f / axis_kg * omega_per_speed(&motor),
-                        f0 / paper_axis_kg() * omega_per_speed(&paper)
-                    ),
-                    "{name}"
-                ),
-                (Event::ObserverOffsets { u_v: u0, i_a: i0 }, Event::ObserverOffsets { u_v, i_a }) => {
-                    for k in 0..2 {
-                        assert!(close(u_v[k] / 48.0, u0[k] / 220.0), "{name}");
-                        assert!(close(i_a[k] / 10.0, i0[k] / 2.1), "{name}");
+            assert_eq!(scaled.plant.payload_kg, scale.payload_kg, "{}", sc.name);
+            for (&(_, p), &(_, e)) in sc.events.iter().zip(&scaled.events) {
+                let name = &sc.name;
+                match (p, e) {
+                    (Event::Speed(v0), Event::Speed(v)) => {
+                        assert!(close(v * omega_per_speed(&motor), v0 * omega_per_speed(&paper)), "{name}")
                     }
+                    (Event::Load(f0), Event::Load(f)) => assert!(
+                        close(
+                            f / axis_kg * omega_per_speed(&motor),
+                            f0 / paper_axis_kg * omega_per_speed(&paper)
+                        ),
+                        "{name}: the same electrical deceleration"
+                    ),
+                    (Event::ObserverOffsets { u_v: u0, i_a: i0 }, Event::ObserverOffsets { u_v, i_a }) => {
+                        for k in 0..2 {
+                            assert!(close(u_v[k] / 48.0, u0[k] / 220.0), "{name}");
+                            assert!(close(i_a[k] / 10.0, i0[k] / 2.1), "{name}");
+                        }
+                    }
+                    (p, e) => panic!("{name}: {p:?} became {e:?}"),
                 }
-                (p, e) => panic!("{name}: {p:?} became {e:?}"),
             }
         }
     }
