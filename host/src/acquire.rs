@@ -239,12 +239,22 @@ fn record(setup: &Setup, v: f64, x0_m: f64, duration_s: f64) -> Result<Vec<Row>,
         let apply = theta + 1.5 * omega * ts;
         let cs_apply = CosSin { cos: apply.cos(), sin: apply.sin() };
         let u_ab = inverse_park(Dq::new(u_d, u_q), &cs_apply);
-        // The drive's inverter compensation, from the current carried to the window.
+        // The drive's inverter compensation, from the current carried to the window: the
+        // measured current blended into the reference as the drive does
+        // (`Drive::compensation_current`).
         let c = match comp {
             Some(c) => {
                 let amp = reading.vdc_v * f64::from(c.dead_time_s) / ts + f64::from(c.device_drop_v);
                 let band = f64::from(c.current_band_a);
-                let i = inverse_clarke(inverse_park(i_dq, &cs_apply));
+                let from = f64::from(dcfo::drive::COMPENSATION_REFERENCE_FROM_BANDS);
+                let w = match setup.drive.compensation_signs {
+                    dcfo::drive::CompensationSigns::Measured => 0.0,
+                    dcfo::drive::CompensationSigns::ReferenceAboveNoise => {
+                        ((iq_ref.abs() / band - from) / from).clamp(0.0, 1.0)
+                    }
+                };
+                let i_sign = Dq::new(i_dq.d * (1.0 - w), i_dq.q + w * (iq_ref - i_dq.q));
+                let i = inverse_clarke(inverse_park(i_sign, &cs_apply));
                 let sign = |x: f64| (x / band).clamp(-1.0, 1.0);
                 clarke(Abc { a: amp * sign(i.a), b: amp * sign(i.b), c: amp * sign(i.c) })
             }
@@ -655,6 +665,9 @@ pub struct Params {
     pub notch: dcfo::estimator::NotchTuning,
     /// The simulated inverter and sensors that record the traces.
     pub plant: PlantModel,
+    /// Which current the drive's (and the recorder's) inverter compensation takes its
+    /// signs from.
+    pub compensation_signs: dcfo::drive::CompensationSigns,
     /// The motor (`--motor`: a preset name or a motor file) on the simulated realistic
     /// inverter and sensors with the drive tuned from its file ([`Setup::for_motor`]),
     /// swept over the benchmark's electrical frequencies ([`Options::full_for`]); `None`:
@@ -681,6 +694,7 @@ pub fn run_command(params: &Params) -> anyhow::Result<()> {
         }
     };
     setup.drive.estimator.notch_tuning = params.notch;
+    setup.drive.compensation_signs = params.compensation_signs;
     params.plant.apply(&mut setup);
     let started = std::time::Instant::now();
     let starts = sweep(&setup, &options, |done, total| eprintln!("acquire: {done}/{total} speeds"))

@@ -232,6 +232,27 @@ impl NotchArg {
     }
 }
 
+/// Which current the drive's inverter compensation takes its signs from
+/// (`dcfo::drive::CompensationSigns`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum CompensationSignsArg {
+    /// The measured current (the drive's default).
+    Measured,
+    /// The current reference where it is clear of the sensors' noise, the measured
+    /// current near zero (an experiment: README, "Inverter compensation: what was tried").
+    Reference,
+}
+
+impl CompensationSignsArg {
+    /// The library's setting.
+    pub fn signs(self) -> dcfo::drive::CompensationSigns {
+        match self {
+            CompensationSignsArg::Measured => dcfo::drive::CompensationSigns::Measured,
+            CompensationSignsArg::Reference => dcfo::drive::CompensationSigns::ReferenceAboveNoise,
+        }
+    }
+}
+
 /// Arguments of `dcfo stroke`.
 #[derive(Debug, Clone, Args)]
 pub struct StrokeArgs {
@@ -298,6 +319,10 @@ pub struct AcquireArgs {
     /// own error from what the inverter's and the sensors' errors cost it.
     #[arg(long, value_enum, default_value = "realistic")]
     pub plant: crate::acquire::PlantModel,
+    /// Which current the drive's inverter compensation (and the recorder's) takes its
+    /// signs from.
+    #[arg(long, value_enum, default_value = "measured")]
+    pub compensation_signs: CompensationSignsArg,
     /// Another motor (a preset name or a motor file): the same sweep at the benchmark's
     /// electrical frequencies (speeds scaled by its pole pitch), the same share of its
     /// rated thrust while recording, the drive tuned from its file. Without it: the
@@ -505,15 +530,21 @@ pub struct SimArgs {
 
     /// The motor: a preset (`paper`) or a motor file (TOML, shared trace-format.md). The
     /// drive tunes itself from it, and a paper experiment is scaled to it: speeds to the
-    /// same electrical frequencies, loads to the same deceleration of its mover, offsets
-    /// by its rated voltage and current. Without it, the paper motor on the paper's
-    /// simulated test axis (10 kg carriage, the settings the HIL firmware runs).
+    /// same electrical frequencies, the axis to the paper axis's mass per rated thrust
+    /// (a payload), load steps to the same electrical deceleration, offsets by its rated
+    /// voltage and current (`--motor paper` is `dcfo paper`'s axis). Without it, the paper
+    /// motor on the paper's simulated test axis (10 kg carriage, the settings the HIL
+    /// firmware runs).
     #[arg(long, value_name = "PRESET|FILE")]
     pub motor: Option<String>,
 
     /// Flux observer of the sensorless drive.
     #[arg(long, value_enum, value_name = "OBSERVER")]
     pub observer: DriveObserverArg,
+
+    /// Which current the drive's inverter compensation takes its signs from.
+    #[arg(long, value_enum, default_value = "measured")]
+    pub compensation_signs: CompensationSignsArg,
 
     /// Directory for the results: the trace (CSV, SI units), its summary (JSON) and figures
     /// (PNG and SVG). Created if absent.
@@ -569,6 +600,7 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                 scenario: a.scenario,
                 motor: a.motor,
                 observer: a.observer.kind(),
+                compensation_signs: a.compensation_signs.signs(),
                 out: a.out,
             }),
         )),
@@ -603,6 +635,7 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                 json: a.json,
                 notch: a.notch.tuning(),
                 plant: a.plant,
+                compensation_signs: a.compensation_signs.signs(),
                 motor: a.motor,
                 out: a.out,
             })?;

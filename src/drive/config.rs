@@ -59,6 +59,24 @@ pub struct DeadTimeCompensation {
     pub current_band_a: f32,
 }
 
+/// Which current the inverter compensation takes its per-phase signs from (see
+/// `Drive::compensation_current` for the measurements behind both).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum CompensationSigns {
+    /// The measured current (the default): within the compensation's band its sign is
+    /// proportional to the current sensors' noise as well.
+    Measured,
+    /// The current reference where it is clear of the sensors' noise (above
+    /// [`super::COMPENSATION_REFERENCE_FROM_BANDS`] bands, fully from twice that), the
+    /// measured current near zero. An experiment, not the default: it takes the paper
+    /// axis's steady error at 0.3 m/s from 1.56 / 0.62 deg to 0.65 / 0.25 and 0.6 m/s from
+    /// 9.2 to 0.4 deg max, but 1.5 m/s from 6.7 to 9.3 deg, and its faster cold-start
+    /// locks put the Q8.24 estimator's one-sample-later circle-fit seed inside the
+    /// measured window (README, "Inverter compensation: what was tried").
+    ReferenceAboveNoise,
+}
+
 /// Protection thresholds.
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -143,6 +161,8 @@ pub struct DriveConfig {
     pub startup: StartupConfig,
     /// Inverter compensation; `None` feeds the command uncompensated.
     pub dead_time_compensation: Option<DeadTimeCompensation>,
+    /// Which current the inverter compensation takes its signs from.
+    pub compensation_signs: CompensationSigns,
     /// Protection.
     pub faults: FaultConfig,
     /// Observer and PLL.
@@ -275,6 +295,7 @@ impl DriveConfig {
                 min_timeout_s: 1.0,
             },
             dead_time_compensation: None,
+            compensation_signs: CompensationSigns::Measured,
             faults: FaultConfig {
                 overcurrent_a: 3.0 * rated_peak,
                 bus_min_v: 0.6 * bus_v,

@@ -26,6 +26,8 @@ pub struct Params {
     pub motor: Option<String>,
     /// Flux observer of the sensorless drive.
     pub observer: ObserverKind,
+    /// Which current the drive's inverter compensation takes its signs from.
+    pub compensation_signs: dcfo::drive::CompensationSigns,
     /// Directory for the trace, its summary and figures.
     pub out: PathBuf,
 }
@@ -36,7 +38,7 @@ pub fn run_command(params: &Params) -> Result<()> {
     // A paper experiment on another motor is scaled to it; a scenario file says what it
     // means in its own units.
     let paper_experiment = super::scenarios::scenario(&params.scenario).is_some();
-    let setup = match &params.motor {
+    let mut setup = match &params.motor {
         None => Setup::paper(params.observer),
         Some(m) => {
             let motor = load_motor(m)?;
@@ -54,6 +56,7 @@ pub fn run_command(params: &Params) -> Result<()> {
             Setup::for_axis(&motor.params, &scenario, params.observer)
         }
     };
+    setup.drive.compensation_signs = params.compensation_signs;
     run_sim(&setup, &scenario, &params.out)?;
     Ok(())
 }
