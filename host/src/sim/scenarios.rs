@@ -2,6 +2,7 @@
 //! each run.
 
 use super::{Run, Sample, theta_err_deg};
+use crate::plant::rated_thrust_n;
 use dcfo::motor::MotorParams;
 
 /// Something that happens at a given time in a scenario.
@@ -226,11 +227,9 @@ pub struct PaperScale {
     /// Speeds, dimensionless (m/s per m/s of the paper's).
     pub speed: f64,
     /// Rated thrust over the paper motor's, dimensionless: a steady load of the same
-    /// share of it (`dcfo acquire --motor` records at one).
+    /// share of it (`dcfo acquire --motor` records at one). Load steps scale by
+    /// `thrust * speed`: the same electrical deceleration on the scaled axis.
     pub thrust: f64,
-    /// Load steps, dimensionless (N per N of the paper's): `thrust * speed`, the same
-    /// electrical deceleration on the scaled axis.
-    pub force: f64,
     /// Voltage offsets, dimensionless (V per V of the paper's).
     pub voltage: f64,
     /// Current offsets, dimensionless (A per A of the paper's).
@@ -244,15 +243,12 @@ impl PaperScale {
     /// The paper's experiments on `motor`, against the paper motor on its test axis.
     pub fn for_motor(motor: &MotorParams) -> Self {
         let paper = MotorParams::paper();
-        let rated_thrust_n =
-            |m: &MotorParams| f64::from(m.thrust_constant_n_per_a()) * f64::from(m.rated_current_a);
         let thrust = rated_thrust_n(motor) / rated_thrust_n(&paper);
         let speed = f64::from(motor.pole_pitch_m) / f64::from(paper.pole_pitch_m);
         let paper_axis_kg = f64::from(paper.mass_kg) + f64::from(dcfo::drive::PAPER_AXIS_PAYLOAD_KG);
         PaperScale {
             speed,
             thrust,
-            force: thrust * speed,
             voltage: f64::from(motor.rated_voltage_v) / f64::from(paper.rated_voltage_v),
             current: f64::from(motor.rated_current_a) / f64::from(paper.rated_current_a),
             payload_kg: (paper_axis_kg * thrust - f64::from(motor.mass_kg)).max(0.0),
@@ -267,7 +263,7 @@ impl Scenario {
     pub fn scaled(&self, scale: &PaperScale) -> Scenario {
         let event = |e: Event| match e {
             Event::Speed(v) => Event::Speed(v * scale.speed),
-            Event::Load(f) => Event::Load(f * scale.force),
+            Event::Load(f) => Event::Load(f * scale.thrust * scale.speed),
             Event::ObserverOffsets { u_v, i_a } => Event::ObserverOffsets {
                 u_v: u_v.map(|u| u * scale.voltage),
                 i_a: i_a.map(|i| i * scale.current),
@@ -279,7 +275,12 @@ impl Scenario {
             description: format!(
                 "{}; scaled to this motor: speeds x{:.3}, loads x{:.3}, voltage offsets x{:.3}, current \
                  offsets x{:.3}, {:.1} kg payload",
-                self.description, scale.speed, scale.force, scale.voltage, scale.current, scale.payload_kg
+                self.description,
+                scale.speed,
+                scale.thrust * scale.speed,
+                scale.voltage,
+                scale.current,
+                scale.payload_kg
             ),
             events: self.events.iter().map(|&(t, e)| (t, event(e))).collect(),
             plant: PlantChanges { payload_kg: self.plant.payload_kg + scale.payload_kg, ..self.plant },
@@ -412,10 +413,7 @@ mod tests {
     #[test]
     fn the_paper_motor_keeps_every_experiment_and_its_axis() {
         let scale = PaperScale::for_motor(&MotorParams::paper());
-        assert_eq!(
-            (scale.speed, scale.thrust, scale.force, scale.voltage, scale.current),
-            (1.0, 1.0, 1.0, 1.0, 1.0)
-        );
+        assert_eq!((scale.speed, scale.thrust, scale.voltage, scale.current), (1.0, 1.0, 1.0, 1.0));
         assert!((scale.payload_kg - f64::from(dcfo::drive::PAPER_AXIS_PAYLOAD_KG)).abs() < 1e-6, "{scale:?}");
         for sc in paper_scenarios() {
             assert_eq!(sc.scaled(&scale).events, sc.events, "{}", sc.name);
