@@ -195,6 +195,12 @@ pub const COMPENSATION_FLL_SHARE: f32 = 0.25;
 /// locked (rad): one period.
 pub const COMPENSATION_FADE_RAD: f32 = 2.0 * core::f32::consts::PI;
 
+/// Electrical angle over which the compensation fades out once the estimate stops
+/// tracking (rad): a quarter period. At once (before 2026-11-26), a tracking flag that
+/// flipped for one sample in Q8.24 and not in f32 on the same inputs (the paper's +2 V
+/// step) put the two 14 deg apart for that sample.
+pub const COMPENSATION_FADE_OUT_RAD: f32 = 0.5 * core::f32::consts::PI;
+
 /// Damping of the notch at the fundamental in the phase compensation (dimensionless):
 /// narrow (0.3), so that the compensation of a speed change (its spectrum below `w`)
 /// passes while the PLL error's ripple at `w` that a DC offset in the flux estimate causes
@@ -391,6 +397,10 @@ pub struct Estimator<T> {
     compensation_weight: T,
     /// `1 /` [`COMPENSATION_FADE_RAD`] (1/rad).
     compensation_fade: T,
+    /// `1 /` [`COMPENSATION_FADE_OUT_RAD`] (1/rad).
+    compensation_fade_out: T,
+    /// The last compensation before its weight (rad): what fades out.
+    compensation_phase: T,
     /// Magnet flux (Wb), for seeding.
     psi_f: T,
     /// Commanded electrical acceleration (rad/s^2, working units): the ramp the notch
@@ -466,6 +476,8 @@ impl<T: Scalar> Estimator<T> {
             compensation_armed: false,
             compensation_weight: T::ZERO,
             compensation_fade: T::from_f32(1.0 / COMPENSATION_FADE_RAD),
+            compensation_fade_out: T::from_f32(1.0 / COMPENSATION_FADE_OUT_RAD),
+            compensation_phase: T::ZERO,
             psi_f: base.flux(motor.psi_f_wb),
             commanded_accel: T::ZERO,
             ramp_phase: T::ZERO,
@@ -605,8 +617,11 @@ impl<T: Scalar> Estimator<T> {
             if out.locked && agree {
                 self.compensate_notch_phase(&mut out, notch, f.omega_e, dt);
             } else {
-                // Not tracking: nothing to compensate; faded in again once tracking.
-                self.compensation_weight = T::ZERO;
+                // Not tracking: nothing new to compensate. What was applied fades out over
+                // a quarter period rather than at once (a flag that flips for a sample in
+                // one arithmetic and not the other must not move the angle by the whole
+                // compensation), and fades in again once tracking.
+                self.fade_out_compensation(&mut out, notch, dt);
             }
             let locked = out.locked && agree && f.settled && calm;
             self.compensation_armed |= locked;
@@ -650,9 +665,22 @@ impl<T: Scalar> Estimator<T> {
         let phi = raw - self.compensation_bp;
         self.compensation_weight = (self.compensation_weight + h * self.compensation_fade).min(T::ONE);
         let excess = phi - phi.clamp_to(-self.phase_deadband, self.phase_deadband);
-        let phi = self.compensation_weight * excess.clamp_to(-self.phase_limit, self.phase_limit);
+        self.compensation_phase = excess.clamp_to(-self.phase_limit, self.phase_limit);
+        let phi = self.compensation_weight * self.compensation_phase;
         out.theta_e = out.theta_e - phi.radians_to_angle();
         out.cos_sin = CosSin::new(out.theta_e);
+    }
+
+    /// While not tracking: the last compensation, its weight falling to zero over
+    /// [`COMPENSATION_FADE_OUT_RAD`] of electrical angle.
+    fn fade_out_compensation(&mut self, out: &mut PllOutput<T>, notch: T, dt: T) {
+        let h = notch.abs().max(self.agreement_floor) * dt;
+        self.compensation_weight = (self.compensation_weight - h * self.compensation_fade_out).max(T::ZERO);
+        if self.compensation_weight > T::ZERO {
+            let phi = self.compensation_weight * self.compensation_phase;
+            out.theta_e = out.theta_e - phi.radians_to_angle();
+            out.cos_sin = CosSin::new(out.theta_e);
+        }
     }
 
     fn clear_compensation(&mut self) {
@@ -660,6 +688,7 @@ impl<T: Scalar> Estimator<T> {
         self.compensation_q = T::ZERO;
         self.compensation_armed = false;
         self.compensation_weight = T::ZERO;
+        self.compensation_phase = T::ZERO;
     }
 
     /// Sets the PLL's angle (for its next sample) and speed (rad/s, working units),
