@@ -15,6 +15,7 @@
 //! | [`transforms`] | §5 | Clarke, Park and inverses |
 //! | [`pi`] | §5 | PI controller with anti-windup |
 //! | [`svpwm`] | §5 | space-vector modulation |
+//! | [`dead_time`] | §8 | the inverter's dead-time and drop error with the PWM ripple at the switching edges, as the drive compensates it |
 //! | [`observer`] | §2–3 | pure integrator, LPF (CFO) and DCFO flux observers |
 //! | [`pll`] | §4 | angle and speed from the flux |
 //! | [`fll`] | — | the frequency from the flux vector's rotation: tunes the DCFO's notch, acquires a moving mover |
@@ -45,6 +46,7 @@
 
 pub mod arc_fit;
 pub mod capture;
+pub mod dead_time;
 pub mod drive;
 pub mod estimator;
 pub mod fll;

@@ -207,7 +207,7 @@ struct Row {
 fn record(setup: &Setup, v: f64, x0_m: f64, duration_s: f64) -> Result<Vec<Row>, String> {
     use dcfo::pi::Pi;
     use dcfo::svpwm::svpwm;
-    use dcfo::transforms::{Abc, CosSin, Dq, clarke, inverse_clarke, inverse_park, park};
+    use dcfo::transforms::{CosSin, Dq, inverse_clarke, inverse_park, park};
 
     let err = |e: &dyn std::fmt::Debug| format!("{v} m/s: {e:?}");
     let motor = &setup.motor;
@@ -223,6 +223,8 @@ fn record(setup: &Setup, v: f64, x0_m: f64, duration_s: f64) -> Result<Vec<Row>,
     let iq_ref = recording_load_n(motor) * v.signum() / f64::from(motor.thrust_constant_n_per_a());
     let omega = omega_e(motor, v);
     let comp = setup.drive.dead_time_compensation;
+    let model =
+        comp.map(|c| dcfo::dead_time::InverterErrorModel::<f64>::for_drive(&c, ts as f32, motor, &Base::SI));
     let skip = (0.1 / ts).round() as usize;
     let n = skip + (duration_s / ts).round() as usize;
     let mut rows = Vec::with_capacity(n);
@@ -239,12 +241,11 @@ fn record(setup: &Setup, v: f64, x0_m: f64, duration_s: f64) -> Result<Vec<Row>,
         let apply = theta + 1.5 * omega * ts;
         let cs_apply = CosSin { cos: apply.cos(), sin: apply.sin() };
         let u_ab = inverse_park(Dq::new(u_d, u_q), &cs_apply);
-        // The drive's inverter compensation, from the current carried to the window: the
-        // measured current blended into the reference as the drive does
-        // (`Drive::compensation_current`).
-        let c = match comp {
-            Some(c) => {
-                let amp = reading.vdc_v * f64::from(c.dead_time_s) / ts + f64::from(c.device_drop_v);
+        // The drive's inverter compensation (`dcfo::dead_time`), from the current carried
+        // to the window: the measured current blended into the reference as the drive
+        // does (`Drive::compensation_current`).
+        let c = match comp.zip(model) {
+            Some((c, model)) => {
                 let band = f64::from(c.current_band_a);
                 let from = f64::from(dcfo::drive::COMPENSATION_REFERENCE_FROM_BANDS);
                 let w = match setup.drive.compensation_signs {
@@ -254,9 +255,7 @@ fn record(setup: &Setup, v: f64, x0_m: f64, duration_s: f64) -> Result<Vec<Row>,
                     }
                 };
                 let i_sign = Dq::new(i_dq.d * (1.0 - w), i_dq.q + w * (iq_ref - i_dq.q));
-                let i = inverse_clarke(inverse_park(i_sign, &cs_apply));
-                let sign = |x: f64| (x / band).clamp(-1.0, 1.0);
-                clarke(Abc { a: amp * sign(i.a), b: amp * sign(i.b), c: amp * sign(i.c) })
+                model.compensation(u_ab, reading.vdc_v, inverse_clarke(inverse_park(i_sign, &cs_apply)))
             }
             None => dcfo::transforms::AlphaBeta::new(0.0, 0.0),
         };

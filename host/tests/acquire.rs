@@ -76,15 +76,20 @@ fn on_ideal_inputs_the_estimator_locks_well_within_budget() {
     }
 }
 
-/// Where the estimator's steady angle error comes from once locked: the inverter's
-/// voltage error along the mover flux, which the dead-time compensation leaves at light
-/// load. The DCFO passes the fundamental with unity gain and zero phase (digest §3,
+/// The steady angle error of a cold-started estimator is the inverter's period-average
+/// voltage error across the mover flux over the back-EMF, and the compensation with
+/// the ripple at the switching edges (`dcfo::dead_time`) removes most of it where it
+/// applies.
+///
+/// The DCFO passes the fundamental with unity gain and zero phase (digest §3,
 /// `tests/observer_analysis.rs`), so an error `dU_d` the estimator is not told turns the
 /// flux estimate by `dU_d / (w psi_f)`: [`dcfo_host::acquire::Start::inverter_bias_deg`],
 /// computed from the plant's period-average voltages, predicts the mean error the
 /// estimator shows. Ideal sensors, so that the inverter is the only error. Measured
-/// (2026-11-24): within 0.07 deg at every start; the bias itself grows with speed to
-/// 4.5 deg at 1.2 m/s, which is why `dcfo acquire` counts starts over budget there.
+/// (2026-11-26): within 0.1 deg at every start. At 0.6 m/s (a duty spread of 5.6 dead
+/// times, below the ripple's fade-in) the compensation is the sign of the mean current
+/// and leaves 2.2 deg; at 1.2 m/s (11 dead times, the ripple in full) 0.4 deg, where the
+/// sign alone left 4.5.
 #[test]
 fn the_steady_angle_error_is_the_inverters_voltage_error_over_the_back_emf() {
     let mut setup = Setup::paper(ObserverKind::Dcfo);
@@ -104,9 +109,13 @@ fn the_steady_angle_error_is_the_inverters_voltage_error_over_the_back_emf() {
             s.speed_m_per_s, s.position, s.inverter_error_d_v, s.inverter_bias_deg, mean
         );
         assert!((mean - s.inverter_bias_deg).abs() < 0.2, "{s:?}");
-        if s.speed_m_per_s.abs() >= 1.2 {
-            // Not a trivial agreement of two zeros: the bias is large there.
-            assert!(s.inverter_bias_deg.abs() > 3.0, "{s:?}");
+        let v = s.speed_m_per_s.abs();
+        if (v - 0.6).abs() < 1e-9 {
+            // Not a trivial agreement of two zeros: the sign's bias is large here.
+            assert!(s.inverter_bias_deg.abs() > 1.0, "{s:?}");
+        }
+        if v >= 1.2 {
+            assert!(s.inverter_bias_deg.abs() < 1.0, "{s:?}");
         }
     }
 }

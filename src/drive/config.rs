@@ -46,8 +46,9 @@ pub struct StartupConfig {
 }
 
 /// Compensation of the inverter's dead time and device drops, added to the voltage
-/// command per phase as `(dead_time / Ts * Vdc + device_drop) * sign(i)`, with the
-/// sign taken smoothly from the current reference (digest §8).
+/// command per phase as `(dead_time / Ts * Vdc + device_drop) * sign(i)` (digest §8),
+/// the sign smoothed over `current_band_a` and, where the duties spread far enough,
+/// taken at the switching edges through the PWM ripple ([`crate::dead_time`]).
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct DeadTimeCompensation {

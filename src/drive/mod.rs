@@ -70,6 +70,7 @@ use phase_loss::PhaseLoss;
 pub use positioning::MOVE_QUEUE;
 use positioning::Positioning;
 
+use crate::dead_time::InverterErrorModel;
 use crate::estimator::{Estimate, Estimator};
 use crate::motor::MotorParams;
 use crate::num::{Angle, Scalar};
@@ -187,8 +188,8 @@ struct Constants<T> {
     at_limit_sq: T,
     reacquire_timeout_samples: u32,
     delay_periods: T,
-    dead_time_ratio: T,
-    device_drop: T,
+    /// The inverter's error as compensated ([`crate::dead_time`]).
+    inverter: InverterErrorModel<T>,
     /// The square root of 1/band (1/A): the compensation's sign function multiplies by
     /// it twice, so that 1/band may exceed the fixed-point range (saturation keeps the
     /// sign and the clamp to +-1 follows).
@@ -360,10 +361,14 @@ impl<T: Scalar> Drive<T> {
         let pi_d = Pi::new(kp_i, ki_dt_i, -T::ONE, T::ONE)
             .map_err(|_| DriveConfigError { field: "current_bandwidth_rad_s" })?;
         let samples = |s: f32| (s / ts) as u32;
-        let (dead_time_ratio, device_drop, band, compensate) = match config.dead_time_compensation {
-            Some(c) => (c.dead_time_s / ts, c.device_drop_v, c.current_band_a, true),
-            None => (0.0, 0.0, 1.0, false),
+        let (band, compensate) = match config.dead_time_compensation {
+            Some(c) => (c.current_band_a, true),
+            None => (1.0, false),
         };
+        let inv_current_band_sqrt = representable(
+            libm::sqrtf(1.0 / (band / base.current_a)),
+            "dead_time_compensation.current_band_a",
+        )?;
         let k = Constants {
             dt: base.time(ts),
             ld: base.inductance(motor.ld_h),
@@ -400,12 +405,24 @@ impl<T: Scalar> Drive<T> {
             at_limit_sq: T::from_f32(0.98 * 0.98),
             reacquire_timeout_samples: samples(config.faults.reacquire_timeout_s).max(1),
             delay_periods: T::from_f32(config.delay_compensation_periods),
-            dead_time_ratio: T::from_f32(dead_time_ratio),
-            device_drop: base.voltage(device_drop),
-            inv_current_band_sqrt: representable(
-                libm::sqrtf(1.0 / (band / base.current_a)),
-                "dead_time_compensation.current_band_a",
-            )?,
+            inverter: match config.dead_time_compensation {
+                Some(c) => {
+                    representable::<T>(
+                        InverterErrorModel::<T>::ripple_per_volt_si(ts, motor) * base.impedance_ohm(),
+                        "control_period_s",
+                    )?;
+                    InverterErrorModel::for_drive(&c, ts, motor, base)
+                }
+                None => InverterErrorModel {
+                    dead_time_ratio: T::ZERO,
+                    device_drop: T::ZERO,
+                    inv_band_sqrt: T::ZERO,
+                    ripple_per_volt: T::ZERO,
+                    fade_from: T::ZERO,
+                    fade_rate: T::ZERO,
+                },
+            },
+            inv_current_band_sqrt,
             signs_from_reference: config.compensation_signs == CompensationSigns::ReferenceAboveNoise,
             compensation_reference_from: T::from_f32(COMPENSATION_REFERENCE_FROM_BANDS),
             compensation_blend_rate: T::from_f32(1.0 / COMPENSATION_REFERENCE_FROM_BANDS),
@@ -1023,7 +1040,7 @@ impl<T: Scalar> Drive<T> {
         let cs_apply = CosSin::new(theta_apply);
         let u_ab = inverse_park(Dq::new(u_d, u_q), &cs_apply);
         let comp = if k.compensate && loops_run {
-            self.compensation(m.vdc, self.compensation_current(i_dq), &cs_apply)
+            self.compensation(u_ab, m.vdc, self.compensation_current(i_dq), &cs_apply)
         } else {
             AlphaBeta::default()
         };
@@ -1094,20 +1111,13 @@ impl<T: Scalar> Drive<T> {
         Dq::new(i_measured.d + w * (r.d - i_measured.d), i_measured.q + w * (r.q - i_measured.q))
     }
 
-    /// Inverter-error compensation in alpha-beta (V): per phase
-    /// `(dead_time/Ts * Vdc + drop) * sat(i / band)`, from the current vector `i_dq`
-    /// (control frame; [`Drive::compensation_current`]) carried forward to the
-    /// application window.
-    fn compensation(&self, vdc: T, i_dq: Dq<T>, cs_apply: &CosSin<T>) -> AlphaBeta<T> {
-        let k = &self.k;
-        let i_ref = inverse_clarke(inverse_park(i_dq, cs_apply));
-        let amplitude = vdc * k.dead_time_ratio + k.device_drop;
-        let sign = |i: T| (i * k.inv_current_band_sqrt * k.inv_current_band_sqrt).clamp_to(-T::ONE, T::ONE);
-        clarke(Abc {
-            a: amplitude * sign(i_ref.a),
-            b: amplitude * sign(i_ref.b),
-            c: amplitude * sign(i_ref.c),
-        })
+    /// Inverter-error compensation in alpha-beta (V) for the command `u_ab` (V): per
+    /// phase the dead time's `(dead_time/Ts) Vdc` with the current's sign at the
+    /// switching edges, and the device drop ([`crate::dead_time`]), from the current
+    /// vector `i_dq` (control frame; [`Drive::compensation_current`]) carried forward to
+    /// the application window.
+    fn compensation(&self, u_ab: AlphaBeta<T>, vdc: T, i_dq: Dq<T>, cs_apply: &CosSin<T>) -> AlphaBeta<T> {
+        self.k.inverter.compensation(u_ab, vdc, inverse_clarke(inverse_park(i_dq, cs_apply)))
     }
 
     /// Open-loop I/f: ramps the frequency to the hand-over speed in the direction of
