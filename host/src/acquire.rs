@@ -152,8 +152,9 @@ pub struct Start {
     pub false_lock_samples: usize,
     /// When the lock flag was first set, s (`None`: never).
     pub flag_time_s: Option<f64>,
-    /// Largest |theta_q24 - theta_f32| after the f32 lock time, degrees (`None` if not
-    /// run or not locked).
+    /// Largest |theta_q24 - theta_f32| after the later of the f32 and Q8.24 lock times
+    /// (the f32 one if Q8.24 never locks), degrees (`None` if not run or f32 never
+    /// locks).
     pub q24_deviation_deg: Option<f64>,
     /// Lock time of the Q8.24 estimator, s.
     pub q24_lock_time_s: Option<f64>,
@@ -367,7 +368,13 @@ fn starts_at(setup: &Setup, v: f64, options: &Options) -> Result<Vec<Start>, Str
             });
             let (q24_deviation_deg, q24_lock_time_s) = if options.fixed_point {
                 let q = cold_run::<Q24>(setup, &pu, &rows, dt, offset)?;
-                let from = lock.map(|t| (t / dt).round() as usize);
+                let q_lock = lock_time(&rows, &q, dt);
+                // From the later of the two lock times: the two arithmetics may seed a
+                // sample apart (the circle fit's test crosses its threshold a sample
+                // later in one), and before its own lock an estimator's angle is its
+                // acquisition, not its numerics; the lock times are reported apart. A
+                // Q8.24 run that never locks is measured from the f32 lock.
+                let from = lock.map(|t| (t.max(q_lock.unwrap_or(t)) / dt).round() as usize);
                 let dev = from.map(|j0| {
                     f[j0.min(f.len())..]
                         .iter()
@@ -375,7 +382,7 @@ fn starts_at(setup: &Setup, v: f64, options: &Options) -> Result<Vec<Start>, Str
                         .map(|(a, b)| wrap_angle(a.0 - b.0).to_degrees().abs())
                         .fold(0.0, f64::max)
                 });
-                (dev, lock_time(&rows, &q, dt))
+                (dev, q_lock)
             } else {
                 (None, None)
             };

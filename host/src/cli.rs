@@ -236,10 +236,10 @@ impl NotchArg {
 /// (`dcfo::drive::CompensationSigns`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
 pub enum CompensationSignsArg {
-    /// The measured current (the drive's default).
+    /// The measured current (README, "Inverter compensation: what was tried").
     Measured,
     /// The current reference where it is clear of the sensors' noise, the measured
-    /// current near zero (an experiment: README, "Inverter compensation: what was tried").
+    /// current near zero (the drive's default).
     Reference,
 }
 
@@ -321,7 +321,7 @@ pub struct AcquireArgs {
     pub plant: crate::acquire::PlantModel,
     /// Which current the drive's inverter compensation (and the recorder's) takes its
     /// signs from.
-    #[arg(long, value_enum, default_value = "measured")]
+    #[arg(long, value_enum, default_value = "reference")]
     pub compensation_signs: CompensationSignsArg,
     /// Another motor (a preset name or a motor file): the same sweep at the benchmark's
     /// electrical frequencies (speeds scaled by its pole pitch), the same share of its
@@ -543,7 +543,7 @@ pub struct SimArgs {
     pub observer: DriveObserverArg,
 
     /// Which current the drive's inverter compensation takes its signs from.
-    #[arg(long, value_enum, default_value = "measured")]
+    #[arg(long, value_enum, default_value = "reference")]
     pub compensation_signs: CompensationSignsArg,
 
     /// Directory for the results: the trace (CSV, SI units), its summary (JSON) and figures

@@ -65,16 +65,17 @@ pub struct DeadTimeCompensation {
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum CompensationSigns {
-    /// The measured current (the default): within the compensation's band its sign is
-    /// proportional to the current sensors' noise as well.
+    /// The measured current: within the compensation's band its sign is proportional to
+    /// the current sensors' noise as well.
     Measured,
     /// The current reference where it is clear of the sensors' noise (above
     /// [`super::COMPENSATION_REFERENCE_FROM_BANDS`] bands, fully from twice that), the
-    /// measured current near zero. An experiment, not the default: it takes the paper
-    /// axis's steady error at 0.3 m/s from 1.56 / 0.62 deg to 0.65 / 0.25 and 0.6 m/s from
-    /// 9.2 to 0.4 deg max, but 1.5 m/s from 6.7 to 9.3 deg, and its faster cold-start
-    /// locks put the Q8.24 estimator's one-sample-later circle-fit seed inside the
-    /// measured window (README, "Inverter compensation: what was tried").
+    /// measured current near zero: the default since 2026-11-26, when the compensation
+    /// took the PWM ripple at the switching edges into account ([`crate::dead_time`]).
+    /// Against [`Self::Measured`] on the paper axis (max deg): steady 0.3 m/s 0.70 / 0.25
+    /// against 1.23 / 0.54, 0.6 m/s 3.5 against 7.9, 1.0 m/s 1.5 against 1.8; `dcfo
+    /// acquire` 52 cold starts over budget against 178 (README, "Inverter compensation:
+    /// what was tried"). Before the ripple it lost at 1.0-1.5 m/s (11.1 and 9.2 deg).
     ReferenceAboveNoise,
 }
 
@@ -296,7 +297,7 @@ impl DriveConfig {
                 min_timeout_s: 1.0,
             },
             dead_time_compensation: None,
-            compensation_signs: CompensationSigns::Measured,
+            compensation_signs: CompensationSigns::ReferenceAboveNoise,
             faults: FaultConfig {
                 overcurrent_a: 3.0 * rated_peak,
                 bus_min_v: 0.6 * bus_v,

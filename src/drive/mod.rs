@@ -1094,8 +1094,9 @@ impl<T: Scalar> Drive<T> {
     /// the compensation to about what the inverter loses there. Measured (2026-11-26; the
     /// blend from 4 to 8 bands, against 2 to 4 and the reference alone): `dcfo paper`
     /// steady 0.65 / 0.25 deg (0.61 / 0.25, 0.63 / 0.25), the reset at speed 1.45 (3.20,
-    /// 7.14). Not the default: at 1.0-1.5 m/s it loses (README, "Inverter compensation:
-    /// what was tried"). Filtering the measured current instead (at the current loop's
+    /// 7.14). The default since the compensation took the PWM ripple at the switching
+    /// edges into account ([`crate::dead_time`]); before, it lost at 1.0-1.5 m/s (README,
+    /// "Inverter compensation: what was tried"). Filtering the measured current instead (at the current loop's
     /// bandwidth, in a frame turning with it) made the steady error 18 deg: a lag inside
     /// that 600 V/A path.
     fn compensation_current(&self, i_measured: Dq<T>) -> Dq<T> {
