@@ -223,9 +223,10 @@ fn record(setup: &Setup, v: f64, x0_m: f64, duration_s: f64) -> Result<Vec<Row>,
     let (mut pi_d, mut pi_q) = (pi(vmax)?, pi(vmax)?);
     let iq_ref = recording_load_n(motor) * v.signum() / f64::from(motor.thrust_constant_n_per_a());
     let omega = omega_e(motor, v);
-    let comp = setup.drive.dead_time_compensation;
-    let model =
-        comp.map(|c| dcfo::dead_time::InverterErrorModel::<f64>::for_drive(&c, ts as f32, motor, &Base::SI));
+    let comp = setup
+        .drive
+        .dead_time_compensation
+        .map(|c| (c, dcfo::dead_time::InverterErrorModel::<f64>::for_drive(&c, ts as f32, motor, &Base::SI)));
     let skip = (0.1 / ts).round() as usize;
     let n = skip + (duration_s / ts).round() as usize;
     let mut rows = Vec::with_capacity(n);
@@ -245,7 +246,7 @@ fn record(setup: &Setup, v: f64, x0_m: f64, duration_s: f64) -> Result<Vec<Row>,
         // The drive's inverter compensation (`dcfo::dead_time`), from the current carried
         // to the window: the measured current blended into the reference as the drive
         // does (`Drive::compensation_current`).
-        let c = match comp.zip(model) {
+        let c = match comp {
             Some((c, model)) => {
                 let band = f64::from(c.current_band_a);
                 let from = f64::from(dcfo::drive::COMPENSATION_REFERENCE_FROM_BANDS);

@@ -188,19 +188,16 @@ struct Constants<T> {
     at_limit_sq: T,
     reacquire_timeout_samples: u32,
     delay_periods: T,
-    /// The inverter's error as compensated ([`crate::dead_time`]).
-    inverter: InverterErrorModel<T>,
-    /// The square root of 1/band (1/A): the compensation's sign function multiplies by
-    /// it twice, so that 1/band may exceed the fixed-point range (saturation keeps the
-    /// sign and the clamp to +-1 follows).
-    inv_current_band_sqrt: T,
+    /// The inverter's error as compensated ([`crate::dead_time`]); `None`: no
+    /// compensation. Its `inv_band_sqrt` also measures the reference in bands
+    /// ([`Drive::compensation_current`]).
+    inverter: Option<InverterErrorModel<T>>,
     /// [`CompensationSigns::ReferenceAboveNoise`].
     signs_from_reference: bool,
     /// [`COMPENSATION_REFERENCE_FROM_BANDS`], and its reciprocal: the reference's weight
     /// in the compensation's current rises by this per band above it.
     compensation_reference_from: T,
     compensation_blend_rate: T,
-    compensate: bool,
     omega_per_speed: f32,
     base: Base,
     /// Control period, s (SI, for the motion profile).
@@ -361,14 +358,22 @@ impl<T: Scalar> Drive<T> {
         let pi_d = Pi::new(kp_i, ki_dt_i, -T::ONE, T::ONE)
             .map_err(|_| DriveConfigError { field: "current_bandwidth_rad_s" })?;
         let samples = |s: f32| (s / ts) as u32;
-        let (band, compensate) = match config.dead_time_compensation {
-            Some(c) => (c.current_band_a, true),
-            None => (1.0, false),
+        // The model's 1/band and Ts/2L in working units, checked representable first
+        // (fixed point; 1/band enters as its square root, applied twice).
+        let inverter = match config.dead_time_compensation {
+            Some(c) => {
+                representable::<T>(
+                    libm::sqrtf(base.current_a / c.current_band_a),
+                    "dead_time_compensation.current_band_a",
+                )?;
+                representable::<T>(
+                    InverterErrorModel::<T>::ripple_per_volt_si(ts, motor) * base.impedance_ohm(),
+                    "control_period_s",
+                )?;
+                Some(InverterErrorModel::for_drive(&c, ts, motor, base))
+            }
+            None => None,
         };
-        let inv_current_band_sqrt = representable(
-            libm::sqrtf(1.0 / (band / base.current_a)),
-            "dead_time_compensation.current_band_a",
-        )?;
         let k = Constants {
             dt: base.time(ts),
             ld: base.inductance(motor.ld_h),
@@ -405,28 +410,10 @@ impl<T: Scalar> Drive<T> {
             at_limit_sq: T::from_f32(0.98 * 0.98),
             reacquire_timeout_samples: samples(config.faults.reacquire_timeout_s).max(1),
             delay_periods: T::from_f32(config.delay_compensation_periods),
-            inverter: match config.dead_time_compensation {
-                Some(c) => {
-                    representable::<T>(
-                        InverterErrorModel::<T>::ripple_per_volt_si(ts, motor) * base.impedance_ohm(),
-                        "control_period_s",
-                    )?;
-                    InverterErrorModel::for_drive(&c, ts, motor, base)
-                }
-                None => InverterErrorModel {
-                    dead_time_ratio: T::ZERO,
-                    device_drop: T::ZERO,
-                    inv_band_sqrt: T::ZERO,
-                    ripple_per_volt: T::ZERO,
-                    fade_from: T::ZERO,
-                    fade_rate: T::ZERO,
-                },
-            },
-            inv_current_band_sqrt,
+            inverter,
             signs_from_reference: config.compensation_signs == CompensationSigns::ReferenceAboveNoise,
             compensation_reference_from: T::from_f32(COMPENSATION_REFERENCE_FROM_BANDS),
             compensation_blend_rate: T::from_f32(1.0 / COMPENSATION_REFERENCE_FROM_BANDS),
-            compensate,
             omega_per_speed,
             base: *base,
             dt_s: ts,
@@ -1039,10 +1026,12 @@ impl<T: Scalar> Drive<T> {
         let theta_apply = theta + (omega * k.dt * k.delay_periods).radians_to_angle();
         let cs_apply = CosSin::new(theta_apply);
         let u_ab = inverse_park(Dq::new(u_d, u_q), &cs_apply);
-        let comp = if k.compensate && loops_run {
-            self.compensation(u_ab, m.vdc, self.compensation_current(i_dq), &cs_apply)
-        } else {
-            AlphaBeta::default()
+        let comp = match &k.inverter {
+            Some(model) if loops_run => {
+                let i = inverse_clarke(inverse_park(self.compensation_current(model, i_dq), &cs_apply));
+                model.compensation(u_ab, m.vdc, i)
+            }
+            _ => AlphaBeta::default(),
         };
         let command = AlphaBeta::new(u_ab.alpha + comp.alpha, u_ab.beta + comp.beta);
         let command = match hfi {
@@ -1096,29 +1085,21 @@ impl<T: Scalar> Drive<T> {
     /// steady 0.65 / 0.25 deg (0.61 / 0.25, 0.63 / 0.25), the reset at speed 1.45 (3.20,
     /// 7.14). The default since the compensation took the PWM ripple at the switching
     /// edges into account ([`crate::dead_time`]); before, it lost at 1.0-1.5 m/s (README,
-    /// "Inverter compensation: what was tried"). Filtering the measured current instead (at the current loop's
-    /// bandwidth, in a frame turning with it) made the steady error 18 deg: a lag inside
-    /// that 600 V/A path.
-    fn compensation_current(&self, i_measured: Dq<T>) -> Dq<T> {
+    /// "Inverter compensation: what was tried"). Filtering the measured current instead
+    /// (at the current loop's bandwidth, in a frame turning with it) made the steady
+    /// error 18 deg: a lag inside that 600 V/A path. The result is carried forward to the
+    /// application window and handed to the inverter model per phase.
+    fn compensation_current(&self, model: &InverterErrorModel<T>, i_measured: Dq<T>) -> Dq<T> {
         let k = &self.k;
         if !k.signs_from_reference {
             return i_measured;
         }
         let r = self.i_dq_ref;
         // |i_ref| in bands; saturates (far above the blend) where 1/band exceeds the range.
-        let bands = (r.d * r.d + r.q * r.q).sqrt() * k.inv_current_band_sqrt * k.inv_current_band_sqrt;
+        let bands = (r.d * r.d + r.q * r.q).sqrt() * model.inv_band_sqrt * model.inv_band_sqrt;
         let w =
             ((bands - k.compensation_reference_from) * k.compensation_blend_rate).clamp_to(T::ZERO, T::ONE);
         Dq::new(i_measured.d + w * (r.d - i_measured.d), i_measured.q + w * (r.q - i_measured.q))
-    }
-
-    /// Inverter-error compensation in alpha-beta (V) for the command `u_ab` (V): per
-    /// phase the dead time's `(dead_time/Ts) Vdc` with the current's sign at the
-    /// switching edges, and the device drop ([`crate::dead_time`]), from the current
-    /// vector `i_dq` (control frame; [`Drive::compensation_current`]) carried forward to
-    /// the application window.
-    fn compensation(&self, u_ab: AlphaBeta<T>, vdc: T, i_dq: Dq<T>, cs_apply: &CosSin<T>) -> AlphaBeta<T> {
-        self.k.inverter.compensation(u_ab, vdc, inverse_clarke(inverse_park(i_dq, cs_apply)))
     }
 
     /// Open-loop I/f: ramps the frequency to the hand-over speed in the direction of
