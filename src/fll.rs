@@ -58,11 +58,11 @@
 //! of `|x + n|` exceeds `|x|` (by 17 % for noise of the rotation's size): the notch sat
 //! above the mover, the DCFO's angle lagged by `dw / (zeta w)` and the two frequencies
 //! never agreed. On the salient example motor at 3.3 Hz the notch sat at 25 rad/s on a
-//! 21 rad/s mover, 10 deg of steady error, and none of 48 cold starts locked; now 46 of
-//! 48 lock (`dcfo acquire --motor motors/salient.toml`: 85 of 576 over budget and 45
-//! never locked before, 62 and 1 after; the paper motor 52 / 0 -> 51 / 1, the low-R
-//! motor 21 -> 13; Q8.24 within 0.92 deg of f32 on the paper motor, 2.36 before;
-//! `tests/fll.rs` checks the bias).
+//! 21 rad/s mover, 10 deg of steady error, and 3 of 48 cold starts locked within their
+//! window (none within budget); now 47 do (27 within budget) (`dcfo acquire --motor
+//! motors/salient.toml`: 85 of 576 over budget and 45 never locked before, 62 and 1
+//! after; the paper motor 52 / 0 -> 51 / 1, the low-R motor 21 -> 13; Q8.24 within
+//! 0.92 deg of f32 on the paper motor, 2.36 before; `tests/fll.rs` checks the bias).
 //!
 //! Below `psi_ref` a measurement is weighted down by `|x1|^2 / psi_ref^2` (the `max` in
 //! the denominator): a weak or absent flux reads as "no rotation", so the notch sweeps
