@@ -117,6 +117,15 @@ pub struct FaultConfig {
     /// its reference averages above the threshold; both magnitudes pass the same filter,
     /// so the time constant only averages noise and ripple (module `phase_loss`).
     pub phase_loss_filter_s: f32,
+    /// Overload supervision, s (> 0): the thrust-current reference on its limit (within
+    /// 2 %) in the direction the speed error asks for, continuously for this long, trips
+    /// `OVERLOAD`; so does a loss of the estimate's tracking after a tenth of it there
+    /// (the stalled or reversed mover takes the back-EMF with it, and a flying restart
+    /// would push into the same load again). Default 0.2 s: the speed reference is
+    /// ramped at `accel_limit_m_per_s2` and a positioning profile is checked against the
+    /// limit ([`DriveConfig::check_profile`]), so a healthy axis reaches the limit only
+    /// for a transient.
+    pub overload_s: f32,
 }
 
 /// Everything the drive needs besides the motor, SI.
@@ -303,6 +312,7 @@ impl DriveConfig {
                 bus_min_v: 0.6 * bus_v,
                 bus_max_v: 1.3 * bus_v,
                 lock_loss_s: 0.05,
+                overload_s: 0.1,
                 reacquire_timeout_s: 0.5,
                 calibration_samples: 1024,
                 max_offset_a: 0.1 * rated_peak,
@@ -458,7 +468,7 @@ impl DriveConfig {
     pub fn validate(&self) -> Result<(), DriveConfigError> {
         let pos = |x: f32| x.is_finite() && x > 0.0;
         let non_neg = |x: f32| x.is_finite() && x >= 0.0;
-        let checks: [(bool, &'static str); 30] = [
+        let checks: [(bool, &'static str); 31] = [
             (pos(self.control_period_s), "control_period_s"),
             (self.speed_loop_divider >= 1, "speed_loop_divider"),
             (pos(self.current_bandwidth_rad_s), "current_bandwidth_rad_s"),
@@ -493,6 +503,7 @@ impl DriveConfig {
             (pos(self.faults.overcurrent_a), "faults.overcurrent_a"),
             (pos(self.faults.bus_min_v) && self.faults.bus_max_v > self.faults.bus_min_v, "faults.bus_max_v"),
             (pos(self.faults.lock_loss_s), "faults.lock_loss_s"),
+            (pos(self.faults.overload_s), "faults.overload_s"),
             (pos(self.faults.reacquire_timeout_s), "faults.reacquire_timeout_s"),
             (self.faults.calibration_samples > 0, "faults.calibration_samples"),
             (pos(self.faults.max_offset_a), "faults.max_offset_a"),

@@ -36,10 +36,16 @@ impl Faults {
     /// Commissioning stopped: a named error of its own, or a protection of the drive
     /// while it ran ([`super::Drive::commissioning_result`]).
     pub const COMMISSIONING: Faults = Faults(1 << 10);
+    /// The axis needs more thrust than the current limit gives: the speed loop pushed
+    /// on the thrust-current limit towards its reference for longer than
+    /// [`super::FaultConfig::overload_s`], or the estimate stopped tracking after it had
+    /// pushed there for a tenth of that (the mover overpowered: stopped, or pushed
+    /// back). A flying restart would only repeat the stall.
+    pub const OVERLOAD: Faults = Faults(1 << 11);
 
     /// Every fault bit with its name (as the constants are called), for logs and
     /// reports.
-    pub const NAMES: [(Faults, &'static str); 11] = [
+    pub const NAMES: [(Faults, &'static str); 12] = [
         (Faults::OVER_CURRENT, "OVER_CURRENT"),
         (Faults::BUS_UNDER_VOLTAGE, "BUS_UNDER_VOLTAGE"),
         (Faults::BUS_OVER_VOLTAGE, "BUS_OVER_VOLTAGE"),
@@ -51,6 +57,7 @@ impl Faults {
         (Faults::EXTERNAL, "EXTERNAL"),
         (Faults::CURRENT_CONTROL, "CURRENT_CONTROL"),
         (Faults::COMMISSIONING, "COMMISSIONING"),
+        (Faults::OVERLOAD, "OVERLOAD"),
     ];
 
     /// The raw bits (for telemetry frames).

@@ -180,6 +180,11 @@ struct Constants<T> {
     startup_timeout_samples: u32,
     id_ramp_step: T,
     lock_loss_samples: u32,
+    /// `FaultConfig::overload_s` and a tenth of it, in periods; the thrust-current level
+    /// (98 % of the limit, working units) that counts as on the limit.
+    overload_samples: u32,
+    overload_on_loss_samples: u32,
+    overload_level: T,
     /// Current-control supervision: the error (A, working units) and the periods it may
     /// last with the voltage on its limit ([`FaultConfig::current_error_a`]).
     current_error: T,
@@ -245,6 +250,9 @@ pub struct Drive<T> {
     omega_ref: T,
     /// Filtered speed feedback (rad/s).
     omega_filtered: T,
+    /// Consecutive periods the thrust-current reference has pushed on its limit towards
+    /// the speed reference (`Running`; overload supervision).
+    overload_count: u32,
     i_dq_ref: Dq<T>,
     offsets: Abc<T>,
     offset_sum: Abc<T>,
@@ -405,6 +413,9 @@ impl<T: Scalar> Drive<T> {
                 .max(samples(config.startup.min_timeout_s)),
             id_ramp_step: base.current(config.startup.current_a * ts / config.startup.id_ramp_s),
             lock_loss_samples: samples(config.faults.lock_loss_s).max(1),
+            overload_samples: samples(config.faults.overload_s).max(1),
+            overload_on_loss_samples: samples(0.1 * config.faults.overload_s).max(1),
+            overload_level: base.current(0.98 * config.current_limit_a),
             current_error: base.current(config.faults.current_error_a),
             current_error_samples: samples(config.faults.current_error_s).max(1),
             at_limit_sq: T::from_f32(0.98 * 0.98),
@@ -532,6 +543,7 @@ impl<T: Scalar> Drive<T> {
             applied_speed_ref_bits: None,
             omega_ref: T::ZERO,
             omega_filtered: T::ZERO,
+            overload_count: 0,
             i_dq_ref: Dq::default(),
             offsets: Abc::default(),
             offset_sum: Abc::default(),
@@ -1177,6 +1189,7 @@ impl<T: Scalar> Drive<T> {
         self.state = DriveState::Running;
         self.counter = 0;
         self.speed_divider_count = 0;
+        self.overload_count = 0;
     }
 
     /// Sensorless: rate-limited speed reference, speed loop at its divided rate, d-axis
@@ -1204,9 +1217,26 @@ impl<T: Scalar> Drive<T> {
             if d > T::ZERO { (d - k.id_ramp_step).max(T::ZERO) } else { (d + k.id_ramp_step).min(T::ZERO) };
         let limit = k.current_limit;
         self.i_dq_ref.q = self.i_dq_ref.q.clamp_to(-limit, limit);
+        // Overload supervision: pushing on the current limit towards the reference.
+        let q = self.i_dq_ref.q;
+        let speed_error = self.omega_ref - self.omega_filtered;
+        let pushing = (q >= k.overload_level && speed_error > T::ZERO)
+            || (q <= -k.overload_level && speed_error < T::ZERO);
+        self.overload_count = if pushing { self.overload_count.saturating_add(1) } else { 0 };
+        if self.overload_count > k.overload_samples {
+            self.trip(Faults::OVERLOAD);
+            return (estimate.theta_e, estimate.omega_e);
+        }
         if estimate.tracking {
             self.counter = 0;
         } else {
+            let lost = self.counter > k.lock_loss_samples || estimate.acquiring;
+            if lost && self.overload_count >= k.overload_on_loss_samples {
+                // The estimate went with a mover the limit could not hold: a flying
+                // restart (or the low-speed mode) would push into the same load again.
+                self.trip(Faults::OVERLOAD);
+                return (estimate.theta_e, estimate.omega_e);
+            }
             self.counter = self.counter.saturating_add(1);
             // An estimator that has lost the frequency too (acquiring) has no angle to
             // ride through on: stop pushing at once. Otherwise allow `lock_loss_s`.
@@ -1243,6 +1273,7 @@ impl<T: Scalar> Drive<T> {
             self.state = DriveState::Running;
             self.counter = 0;
             self.speed_divider_count = 0;
+            self.overload_count = 0;
             self.pi_speed.reset();
             self.omega_ref = estimate.omega_e;
             self.omega_filtered = estimate.omega_e;

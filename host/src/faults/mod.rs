@@ -138,10 +138,16 @@ pub fn cases() -> Vec<Case> {
             why: "no back-EMF: the estimate stops tracking, Reacquiring (no thrust), LOCK_LOST after 0.5 s",
         },
         Case {
+            name: "load-200N",
+            injection: Load(200.0),
+            expected: RideThrough(10.0),
+            why: "two thirds of the 299 N at the current limit: the speed loop holds it below the limit, no OVERLOAD",
+        },
+        Case {
             name: "load-400N",
             injection: Load(400.0),
-            expected: Trip(Faults::LOCK_LOST),
-            why: "beyond the 299 N at the current limit: the mover stops and reverses, the estimate stops tracking, LOCK_LOST",
+            expected: Trip(Faults::OVERLOAD),
+            why: "beyond the 299 N at the current limit: the speed loop pushes on the limit while the mover stops, and the estimate stops tracking with it: OVERLOAD, not a flying restart into the same load",
         },
         Case {
             name: "lock-loss",
