@@ -362,8 +362,13 @@ impl<T: Scalar> Drive<T> {
             base.current(config.current_limit_a),
         )
         .map_err(|_| DriveConfigError { field: "speed_bandwidth_rad_s" })?;
-        // Current PIs: limits set per step from the bus.
-        let pi_d = Pi::new(kp_i, ki_dt_i, -T::ONE, T::ONE)
+        // Current PIs: limits set per step from the bus. The stored range only bounds a
+        // preset integrator (a hand-over's, `Pi::preset`): the highest bus the drive
+        // accepts, so a back-EMF or a resistive drop is carried over whole in any
+        // working units (it was +-1, i.e. 1 V in SI and 180 V per unit on the paper
+        // motor).
+        let v_preset: T = representable(config.faults.bus_max_v / base.voltage_v, "faults.bus_max_v")?;
+        let pi_d = Pi::new(kp_i, ki_dt_i, -v_preset, v_preset)
             .map_err(|_| DriveConfigError { field: "current_bandwidth_rad_s" })?;
         let samples = |s: f32| (s / ts) as u32;
         // The model's 1/band and Ts/2L in working units, checked representable first
