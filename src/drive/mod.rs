@@ -253,6 +253,9 @@ pub struct Drive<T> {
     /// Consecutive periods the thrust-current reference has pushed on its limit towards
     /// the speed reference (`Running`; overload supervision).
     overload_count: u32,
+    /// The speed integrator's thrust current when the estimate was lost (working
+    /// units), resumed with after the re-acquisition.
+    thrust_before_loss: T,
     i_dq_ref: Dq<T>,
     offsets: Abc<T>,
     offset_sum: Abc<T>,
@@ -549,6 +552,7 @@ impl<T: Scalar> Drive<T> {
             omega_ref: T::ZERO,
             omega_filtered: T::ZERO,
             overload_count: 0,
+            thrust_before_loss: T::ZERO,
             i_dq_ref: Dq::default(),
             offsets: Abc::default(),
             offset_sum: Abc::default(),
@@ -908,6 +912,7 @@ impl<T: Scalar> Drive<T> {
     fn start_open_loop(&mut self) {
         self.state = DriveState::Starting;
         self.counter = 0;
+        self.thrust_before_loss = T::ZERO;
         self.pi_d.reset();
         self.pi_q.reset();
         self.pi_speed.reset();
@@ -1258,6 +1263,10 @@ impl<T: Scalar> Drive<T> {
                 self.state = DriveState::Reacquiring;
                 self.counter = 0;
                 self.i_dq_ref = Dq::default();
+                // The thrust the axis needed (the speed integrator's share: friction,
+                // load) is resumed with; the proportional share followed an angle that
+                // was already going wrong.
+                self.thrust_before_loss = self.pi_speed.integral();
                 self.pi_speed.reset();
                 self.estimator.reacquire();
             }
@@ -1279,7 +1288,12 @@ impl<T: Scalar> Drive<T> {
             self.counter = 0;
             self.speed_divider_count = 0;
             self.overload_count = 0;
-            self.pi_speed.reset();
+            // Bumpless in thrust: the load has not changed in the tens of milliseconds
+            // of the re-acquisition (zero after a catch on enable). Restarting the
+            // speed loop from zero crossed zero thrust current on the way back to the
+            // load, where the inverter compensation's signs are the sensors' noise.
+            self.pi_speed.preset(self.thrust_before_loss, T::ZERO);
+            self.thrust_before_loss = T::ZERO;
             self.omega_ref = estimate.omega_e;
             self.omega_filtered = estimate.omega_e;
             self.catching = false;
