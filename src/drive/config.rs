@@ -119,12 +119,11 @@ pub struct FaultConfig {
     pub phase_loss_filter_s: f32,
     /// Overload supervision, s (> 0): the thrust-current reference on its limit (within
     /// 2 %) in the direction the speed error asks for, continuously for this long, trips
-    /// `OVERLOAD`; so does a loss of the estimate's tracking after a tenth of it there
-    /// (the stalled or reversed mover takes the back-EMF with it, and a flying restart
-    /// would push into the same load again). Default 0.2 s: the speed reference is
-    /// ramped at `accel_limit_m_per_s2` and a positioning profile is checked against the
-    /// limit ([`DriveConfig::check_profile`]), so a healthy axis reaches the limit only
-    /// for a transient.
+    /// `OVERLOAD` rather than letting the load push the mover on (or a flying restart
+    /// push into it again). Default 0.1 s: the speed reference is ramped at
+    /// `accel_limit_m_per_s2` and a positioning profile is checked against the limit
+    /// ([`DriveConfig::check_profile`]), so a healthy axis reaches the limit only for a
+    /// transient.
     pub overload_s: f32,
 }
 

@@ -38,9 +38,8 @@ impl Faults {
     pub const COMMISSIONING: Faults = Faults(1 << 10);
     /// The axis needs more thrust than the current limit gives: the speed loop pushed
     /// on the thrust-current limit towards its reference for longer than
-    /// [`super::FaultConfig::overload_s`], or the estimate stopped tracking after it had
-    /// pushed there for a tenth of that (the mover overpowered: stopped, or pushed
-    /// back). A flying restart would only repeat the stall.
+    /// [`super::FaultConfig::overload_s`] (the mover overpowered: stopped, or pushed
+    /// back by the load).
     pub const OVERLOAD: Faults = Faults(1 << 11);
 
     /// Every fault bit with its name (as the constants are called), for logs and

@@ -180,10 +180,9 @@ struct Constants<T> {
     startup_timeout_samples: u32,
     id_ramp_step: T,
     lock_loss_samples: u32,
-    /// `FaultConfig::overload_s` and a tenth of it, in periods; the thrust-current level
-    /// (98 % of the limit, working units) that counts as on the limit.
+    /// `FaultConfig::overload_s` in periods; the thrust-current level (98 % of the
+    /// limit, working units) that counts as on the limit.
     overload_samples: u32,
-    overload_on_loss_samples: u32,
     overload_level: T,
     /// Current-control supervision: the error (A, working units) and the periods it may
     /// last with the voltage on its limit ([`FaultConfig::current_error_a`]).
@@ -422,7 +421,6 @@ impl<T: Scalar> Drive<T> {
             id_ramp_step: base.current(config.startup.current_a * ts / config.startup.id_ramp_s),
             lock_loss_samples: samples(config.faults.lock_loss_s).max(1),
             overload_samples: samples(config.faults.overload_s).max(1),
-            overload_on_loss_samples: samples(0.1 * config.faults.overload_s).max(1),
             overload_level: base.current(0.98 * config.current_limit_a),
             current_error: base.current(config.faults.current_error_a),
             current_error_samples: samples(config.faults.current_error_s).max(1),
@@ -1240,24 +1238,18 @@ impl<T: Scalar> Drive<T> {
         if estimate.tracking {
             self.counter = 0;
         } else {
-            let lost = self.counter > k.lock_loss_samples || estimate.acquiring;
-            if lost && self.overload_count >= k.overload_on_loss_samples {
-                // The estimate went with a mover the limit could not hold: a flying
-                // restart (or the low-speed mode) would push into the same load again.
-                self.trip(Faults::OVERLOAD);
-                return (estimate.theta_e, estimate.omega_e);
-            }
             self.counter = self.counter.saturating_add(1);
             // An estimator that has lost the frequency too (acquiring) has no angle to
             // ride through on: stop pushing at once. Otherwise allow `lock_loss_s`.
-            if (self.counter > k.lock_loss_samples || estimate.acquiring) && self.positioning.is_some() {
+            let lost = self.counter > k.lock_loss_samples || estimate.acquiring;
+            if lost && self.positioning.is_some() {
                 // A positioning drive has a reference to follow: back to the low-speed
                 // mode (the vector on the reference position) until the estimate,
                 // seeded again from the trajectory, tracks.
                 self.counter = 0;
                 return self.enter_low_speed(estimate);
             }
-            if self.counter > k.lock_loss_samples || estimate.acquiring {
+            if lost {
                 // Flying restart: stop pushing on an angle that is not trusted, and
                 // let the estimator find the mover again.
                 self.state = DriveState::Reacquiring;

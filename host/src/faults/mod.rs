@@ -147,7 +147,7 @@ pub fn cases() -> Vec<Case> {
             name: "load-400N",
             injection: Load(400.0),
             expected: Trip(Faults::OVERLOAD),
-            why: "beyond the 299 N at the current limit: the speed loop pushes on the limit while the mover stops, and the estimate stops tracking with it: OVERLOAD, not a flying restart into the same load",
+            why: "beyond the 299 N at the current limit: the mover stops and is pushed back while the speed loop pushes on the limit; OVERLOAD after 0.1 s there, not a flying restart into the same load",
         },
         Case {
             name: "lock-loss",
