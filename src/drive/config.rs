@@ -118,12 +118,13 @@ pub struct FaultConfig {
     /// so the time constant only averages noise and ripple (module `phase_loss`).
     pub phase_loss_filter_s: f32,
     /// Overload supervision, s (> 0): the thrust-current reference on its limit (within
-    /// 2 %) in the direction the speed error asks for, continuously for this long, trips
-    /// `OVERLOAD` rather than letting the load push the mover on (or a flying restart
-    /// push into it again). Default 0.1 s: the speed reference is ramped at
-    /// `accel_limit_m_per_s2` and a positioning profile is checked against the limit
-    /// ([`DriveConfig::check_profile`]), so a healthy axis reaches the limit only for a
-    /// transient.
+    /// 2 %) in the direction the speed error asks for, with the speed off its reference
+    /// by more than `handover_speed_tolerance` of it (of the hand-over speed near zero),
+    /// continuously for this long, trips `OVERLOAD` rather than letting the load push the
+    /// mover on (or a flying restart push into it again). Default 0.1 s: the speed
+    /// reference is ramped at `accel_limit_m_per_s2` and a positioning profile is checked
+    /// against the limit ([`DriveConfig::check_profile`]), so a healthy axis reaches the
+    /// limit only for a transient, and follows within the tolerance while it does.
     pub overload_s: f32,
 }
 

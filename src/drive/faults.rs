@@ -37,9 +37,9 @@ impl Faults {
     /// while it ran ([`super::Drive::commissioning_result`]).
     pub const COMMISSIONING: Faults = Faults(1 << 10);
     /// The axis needs more thrust than the current limit gives: the speed loop pushed
-    /// on the thrust-current limit towards its reference for longer than
-    /// [`super::FaultConfig::overload_s`] (the mover overpowered: stopped, or pushed
-    /// back by the load).
+    /// on the thrust-current limit towards its reference, the speed off it by more than
+    /// the hand-over's tolerance, for longer than [`super::FaultConfig::overload_s`] (the
+    /// mover overpowered: stopped, or pushed back by the load).
     pub const OVERLOAD: Faults = Faults(1 << 11);
 
     /// Every fault bit with its name (as the constants are called), for logs and

@@ -1225,11 +1225,16 @@ impl<T: Scalar> Drive<T> {
             if d > T::ZERO { (d - k.id_ramp_step).max(T::ZERO) } else { (d + k.id_ramp_step).min(T::ZERO) };
         let limit = k.current_limit;
         self.i_dq_ref.q = self.i_dq_ref.q.clamp_to(-limit, limit);
-        // Overload supervision: pushing on the current limit towards the reference.
+        // Overload supervision: pushing on the current limit towards the reference while
+        // the speed is off it by more than the hand-over's tolerance (of the reference,
+        // or of the hand-over speed near zero). An axis that follows its ramp or profile
+        // at the limit lags by less; a load that stops the mover or drives it back, by
+        // the whole reference.
         let q = self.i_dq_ref.q;
         let speed_error = self.omega_ref - self.omega_filtered;
-        let pushing = (q >= k.overload_level && speed_error > T::ZERO)
-            || (q <= -k.overload_level && speed_error < T::ZERO);
+        let tolerance = k.handover_tolerance * self.omega_ref.abs().max(k.handover_omega);
+        let pushing = (q >= k.overload_level && speed_error > tolerance)
+            || (q <= -k.overload_level && speed_error < -tolerance);
         self.overload_count = if pushing { self.overload_count.saturating_add(1) } else { 0 };
         if self.overload_count > k.overload_samples {
             self.trip(Faults::OVERLOAD);
