@@ -260,3 +260,39 @@ fn q24_from_f32_is_fixed_saturating_from_num_bit_for_bit() {
     }
     assert!(checked > 4_000_000);
 }
+
+#[test]
+fn q24_mul_nearest_is_within_half_an_lsb_and_unbiased() {
+    // Against the exact product (f64 holds a 48-bit product exactly): never more than
+    // half an LSB off (ties up), saturating outside the range; and, unlike `*` (which
+    // rounds down), no bias over many products: the mean error of `*` is -1/2 LSB.
+    let lsb = 2f64.powi(-24);
+    let mut n = 0u64;
+    let (mut sum_nearest, mut sum_floor) = (0.0f64, 0.0f64);
+    let mut seed = 0x2545_f491u32;
+    let (max, min) = (f64::from(i32::MAX) * lsb, -128.0);
+    for a in q24_sweep().flat_map(|a| [a, -a]) {
+        for _ in 0..4 {
+            seed = seed.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+            // Second factors spread over [-2, 2): products within the range mostly.
+            let b = Q24::from_bits((seed as i32) >> 5);
+            let x = Q24::from_bits(a);
+            let exact = f64::from(a) * lsb * (f64::from(b.to_bits()) * lsb);
+            let got = f64::from(x.mul_nearest(b).to_bits()) * lsb;
+            if exact > max {
+                assert_eq!(got, max, "{a} x {}", b.to_bits());
+            } else if exact < min {
+                assert_eq!(got, min, "{a} x {}", b.to_bits());
+            } else {
+                assert!((got - exact).abs() <= 0.5 * lsb, "{a} x {}: {got} vs {exact}", b.to_bits());
+                sum_nearest += (got - exact) / lsb;
+                sum_floor += (f64::from((x * b).to_bits()) * lsb - exact) / lsb;
+                n += 1;
+            }
+        }
+    }
+    assert!(n > 10_000, "{n} products");
+    let (mean_nearest, mean_floor) = (sum_nearest / n as f64, sum_floor / n as f64);
+    assert!(mean_nearest.abs() < 0.01, "mean error {mean_nearest} LSB");
+    assert!((mean_floor + 0.5).abs() < 0.01, "`*` mean error {mean_floor} LSB");
+}
