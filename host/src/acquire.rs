@@ -279,14 +279,15 @@ fn record(setup: &Setup, v: f64, x0_m: f64, duration_s: f64) -> Result<Vec<Row>,
 }
 
 /// Runs a fresh estimator over `rows` with `offset` added; returns the angle estimates
-/// (rad) and lock flags.
+/// (rad) and lock flags, and the first sample after its circle fit ended
+/// ([`Estimator::fitting`]; the number of rows if it never did).
 fn cold_run<T: Scalar>(
     setup: &Setup,
     base: &Base,
     rows: &[Row],
     ts: f64,
     offset: Offset,
-) -> Result<Vec<(f64, bool)>, String> {
+) -> Result<(Vec<(f64, bool)>, usize), String> {
     let mut est: Estimator<T> = Estimator::new(&setup.motor, &setup.drive.estimator, base)
         .map_err(|e| format!("estimator: {e:?}"))?;
     let (du, di) = offset.values_for(&setup.motor);
@@ -296,6 +297,7 @@ fn cold_run<T: Scalar>(
     // k is given row k - 1's voltage, and the first sample none (a recording that
     // starts mid-motion has no earlier voltage).
     let mut u_prev = [0.0f64; 2];
+    let mut fit_end = None;
     for (k, r) in rows.iter().enumerate() {
         let u = AlphaBeta::new(
             base.voltage((u_prev[0] + du[0]) as f32),
@@ -305,8 +307,11 @@ fn cold_run<T: Scalar>(
         let i = AlphaBeta::new(base.current((r.i[0] + di[0]) as f32), base.current((r.i[1] + di[1]) as f32));
         let e = est.update(u, i, dt).map_err(|e| format!("estimator fault at sample {k}: {e:?}"))?;
         out.push((e.theta_e.to_radians::<f64>(), e.locked));
+        if fit_end.is_none() && !est.fitting() {
+            fit_end = Some(k + 1);
+        }
     }
-    Ok(out)
+    Ok((out, fit_end.unwrap_or(rows.len())))
 }
 
 /// Lock time (s) of `estimates` against the truth of `samples`: the time after which
@@ -350,7 +355,7 @@ fn starts_at(setup: &Setup, v: f64, options: &Options) -> Result<Vec<Start>, Str
         let inverter_bias_deg =
             (-inverter_error_d_v / (omega_e(motor, v) * f64::from(motor.psi_f_wb))).to_degrees();
         for &offset in &options.offsets {
-            let f = cold_run::<f32>(setup, &Base::SI, &rows, dt, offset)?;
+            let (f, f_fit_end) = cold_run::<f32>(setup, &Base::SI, &rows, dt, offset)?;
             let lock = lock_time(&rows, &f, dt);
             let false_lock_samples = rows
                 .iter()
@@ -368,14 +373,17 @@ fn starts_at(setup: &Setup, v: f64, options: &Options) -> Result<Vec<Start>, Str
                     / (rows.len() - half).max(1) as f64
             });
             let (q24_deviation_deg, q24_lock_time_s) = if options.fixed_point {
-                let q = cold_run::<Q24>(setup, &pu, &rows, dt, offset)?;
+                let (q, q_fit_end) = cold_run::<Q24>(setup, &pu, &rows, dt, offset)?;
                 let q_lock = lock_time(&rows, &q, dt);
-                // From the later of the two lock times: the two arithmetics may seed a
-                // sample apart (the circle fit's test crosses its threshold a sample
-                // later in one), and before its own lock an estimator's angle is its
-                // acquisition, not its numerics; the lock times are reported apart. A
-                // Q8.24 run that never locks is measured from the f32 lock.
-                let from = lock.map(|t| (t.max(q_lock.unwrap_or(t)) / dt).round() as usize);
+                // From the later of the two lock times and the two ends of the circle
+                // fit: the two arithmetics may seed a sample apart (the circle fit's
+                // test crosses its threshold a sample later in one), and before its own
+                // lock and its seed an estimator's angle is its acquisition, not its
+                // numerics (an unseeded estimate may pass within 5 deg on its way); the
+                // lock times are reported apart. A Q8.24 run that never locks is
+                // measured from the f32 lock.
+                let fit_end = f_fit_end.max(q_fit_end);
+                let from = lock.map(|t| ((t.max(q_lock.unwrap_or(t)) / dt).round() as usize).max(fit_end));
                 let dev = from.map(|j0| {
                     f[j0.min(f.len())..]
                         .iter()

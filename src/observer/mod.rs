@@ -127,13 +127,21 @@ impl<T: Scalar> AnyObserver<T> {
         }
     }
 
-    /// Starts the observer from a known mover flux `psi_mover` (Wb) turning in the
-    /// direction of `omega_e` (rad/s) at current `i_ab` (A); see [`Dcfo::seed`].
-    pub fn seed(&mut self, psi_mover: AlphaBeta<T>, i_ab: AlphaBeta<T>, omega_e: T) {
+    /// Starts the observer from a known mover flux `psi_mover` (Wb) turning at `omega_e`
+    /// (rad/s) at current `i_ab` (A), with a DC voltage error `dc_voltage` (V) in its
+    /// inputs that the DCFO's disturbance estimate takes on at once (the others have no
+    /// state for it and ignore it); see [`Dcfo::seed`].
+    pub fn seed(
+        &mut self,
+        psi_mover: AlphaBeta<T>,
+        i_ab: AlphaBeta<T>,
+        omega_e: T,
+        dc_voltage: AlphaBeta<T>,
+    ) {
         match self {
             AnyObserver::PureIntegrator(o) => o.seed(psi_mover, i_ab),
             AnyObserver::Cfo(o) => o.seed(psi_mover, i_ab),
-            AnyObserver::Dcfo(o) => o.seed(psi_mover, i_ab, omega_e),
+            AnyObserver::Dcfo(o) => o.seed(psi_mover, i_ab, omega_e, dc_voltage),
         }
     }
 }
