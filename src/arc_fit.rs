@@ -263,8 +263,15 @@ impl<T: Scalar> ArcFit<T> {
         self.samples = 0;
         self.elapsed_rad = T::ZERO;
         self.running = true;
-        self.emf.restart();
         self.deferred = None;
+        self.emf.restart(T::ZERO);
+    }
+
+    /// Stops the back-EMF fit until the next [`ArcFit::restart`]; the chord's goes on
+    /// alone, as without it. Its circle is a circle only while the speed holds: for a
+    /// commanded acceleration (an open-loop start dragging the mover up to speed).
+    pub fn stop_dc_fit(&mut self) {
+        self.emf.running = false;
     }
 
     /// Stops the fit (the estimator was told where the mover is).
@@ -285,7 +292,7 @@ impl<T: Scalar> ArcFit<T> {
     /// the back-EMF's every sample from its spread test until one passes its checks:
     /// five divisions, a reciprocal, four arctangents).
     pub fn update(&mut self, emf_increment: AlphaBeta<T>, dt: T) -> ArcFitOutcome<T> {
-        if !self.is_running() {
+        if !self.is_running() && self.deferred.is_none() {
             return ArcFitOutcome::Pending;
         }
         self.elapsed_rad = self.elapsed_rad + self.floor * dt;
@@ -476,6 +483,8 @@ struct EmfFit<T> {
     rx: T,
     ry: T,
     samples: u32,
+    /// When the fit started, as the floor's angle since the chord's start (rad).
+    start_rad: T,
     /// The first fitted sample (scaled) and its time, as the floor's angle (rad).
     first: AlphaBeta<T>,
     first_rad: T,
@@ -522,6 +531,7 @@ impl<T: Scalar> EmfFit<T> {
             rx: T::ZERO,
             ry: T::ZERO,
             samples: 0,
+            start_rad: T::ZERO,
             first: AlphaBeta::default(),
             first_rad: T::ZERO,
             max_sq: T::from_f32(16.0),
@@ -533,7 +543,9 @@ impl<T: Scalar> EmfFit<T> {
         }
     }
 
-    fn restart(&mut self) {
+    /// Starts again at `start_rad`, the floor's angle since the chord's start (rad).
+    fn restart(&mut self, start_rad: T) {
+        self.start_rad = start_rad;
         self.emf = AlphaBeta::default();
         self.emf_slow = AlphaBeta::default();
         self.mx = T::ZERO;
@@ -582,7 +594,7 @@ impl<T: Scalar> EmfFit<T> {
             self.running = false;
             return ArcFitOutcome::GaveUp;
         }
-        if elapsed_rad < self.settle_rad {
+        if elapsed_rad - self.start_rad < self.settle_rad {
             return ArcFitOutcome::Pending;
         }
         if self.samples == 0 {
@@ -682,7 +694,7 @@ impl<T: Scalar> EmfFit<T> {
         let lead = if omega_e < T::ZERO { -quarter } else { quarter };
         let half_sample = (omega_e * dt * T::HALF).radians_to_angle();
         let lag = |cutoff: T| T::atan2(omega_e * (T::ONE - cutoff * dt), cutoff) + half_sample;
-        let theta_e = if elapsed_rad >= self.slow_settle_rad {
+        let theta_e = if elapsed_rad - self.start_rad >= self.slow_settle_rad {
             T::atan2(self.emf_slow.beta - cy, self.emf_slow.alpha - cx) - lead + lag(self.slow_cutoff)
         } else {
             angle_now - lead + lag(self.cutoff)

@@ -76,7 +76,10 @@
 //!   compensation). The FLL check is continuous for the same reason: a sign test there
 //!   put them 1.8 deg apart at 0.15 m/s.
 //! - It is dropped while the estimate is not [tracking](Estimate::tracking) and fades in
-//!   again after: a PLL that has lost the angle or disagrees with the FLL reports a
+//!   again after (from zero, while what was applied before the loss goes on fading out
+//!   beside it: resumed at the faded weight, the new reading replaced the old at once,
+//!   and a flag resuming a sample apart in f32 and Q8.24 put them 2.5 deg apart for
+//!   that sample in the paper's +2 V step; 0.1 deg now): a PLL that has lost the angle or disagrees with the FLL reports a
 //!   phase error that is not the notch's. Without that, a stuck current sensor (`dcfo
 //!   faults`) steered the drive on a compensated wrong angle for 605 ms with 27 A behind
 //!   the sensor before LOCK_LOST, instead of the 69 ms to OVER_CURRENT it takes without
@@ -409,6 +412,11 @@ pub struct Estimator<T> {
     compensation_fade_out: T,
     /// The last compensation before its weight (rad): what fades out.
     compensation_phase: T,
+    /// What was applied when tracking last stopped, still fading out once tracking has
+    /// resumed (weight, phase in rad): the new reading fades in from zero beside it.
+    compensation_fading: (T, T),
+    /// The last sample tracked (for the resumption).
+    compensation_tracking: bool,
     /// Magnet flux (Wb), for seeding.
     psi_f: T,
     /// Commanded electrical acceleration (rad/s^2, working units): the ramp the notch
@@ -486,6 +494,8 @@ impl<T: Scalar> Estimator<T> {
             compensation_fade: T::from_f32(1.0 / COMPENSATION_FADE_RAD),
             compensation_fade_out: T::from_f32(1.0 / COMPENSATION_FADE_OUT_RAD),
             compensation_phase: T::ZERO,
+            compensation_fading: (T::ZERO, T::ZERO),
+            compensation_tracking: false,
             psi_f: base.flux(motor.psi_f_wb),
             commanded_accel: T::ZERO,
             ramp_phase: T::ZERO,
@@ -512,7 +522,13 @@ impl<T: Scalar> Estimator<T> {
         let input = ObserverInput { u_ab: u_applied, i_ab: i, omega_e: notch, dt };
         let flux = self.observer.update(&input).map_err(EstimatorFault::Observer)?;
         let fitted = match (&mut self.arc_fit, flux.emf_increment_ab) {
-            (Some(fit), Some(increment)) => fit.update(increment, dt),
+            (Some(fit), Some(increment)) => {
+                // A commanded speed change: the back-EMF draws no circle (arc_fit).
+                if self.commanded_accel != T::ZERO {
+                    fit.stop_dc_fit();
+                }
+                fit.update(increment, dt)
+            }
             _ => ArcFitOutcome::Pending,
         };
         let estimate = self.track(&flux, notch, dt)?;
@@ -670,11 +686,22 @@ impl<T: Scalar> Estimator<T> {
         if !self.compensation_armed {
             return;
         }
+        if !self.compensation_tracking {
+            // Tracking again: what is still applied from before fades out on its own and
+            // the new reading fades in from zero, so the angle is continuous whichever
+            // sample the flag resumes at (f32 and fixed point may take it a sample apart).
+            self.compensation_fading = (self.compensation_weight, self.compensation_phase);
+            self.compensation_weight = T::ZERO;
+            self.compensation_tracking = true;
+        }
+        let (fading_weight, fading_phase) = self.compensation_fading;
+        let fading_weight = (fading_weight - h * self.compensation_fade_out).max(T::ZERO);
+        self.compensation_fading = (fading_weight, fading_phase);
         let phi = raw - self.compensation_bp;
         self.compensation_weight = (self.compensation_weight + h * self.compensation_fade).min(T::ONE);
         let excess = phi - phi.clamp_to(-self.phase_deadband, self.phase_deadband);
         self.compensation_phase = excess.clamp_to(-self.phase_limit, self.phase_limit);
-        let phi = self.compensation_weight * self.compensation_phase;
+        let phi = self.compensation_weight * self.compensation_phase + fading_weight * fading_phase;
         out.theta_e = out.theta_e - phi.radians_to_angle();
         out.cos_sin = CosSin::new(out.theta_e);
     }
@@ -683,9 +710,14 @@ impl<T: Scalar> Estimator<T> {
     /// [`COMPENSATION_FADE_OUT_RAD`] of electrical angle.
     fn fade_out_compensation(&mut self, out: &mut PllOutput<T>, notch: T, dt: T) {
         let h = notch.abs().max(self.agreement_floor) * dt;
+        // Both what fades since this loss of tracking and what still faded from the last.
+        let (fading_weight, fading_phase) = self.compensation_fading;
+        let fading_weight = (fading_weight - h * self.compensation_fade_out).max(T::ZERO);
+        self.compensation_fading = (fading_weight, fading_phase);
+        self.compensation_tracking = false;
         self.compensation_weight = (self.compensation_weight - h * self.compensation_fade_out).max(T::ZERO);
-        if self.compensation_weight > T::ZERO {
-            let phi = self.compensation_weight * self.compensation_phase;
+        if self.compensation_weight > T::ZERO || fading_weight > T::ZERO {
+            let phi = self.compensation_weight * self.compensation_phase + fading_weight * fading_phase;
             out.theta_e = out.theta_e - phi.radians_to_angle();
             out.cos_sin = CosSin::new(out.theta_e);
         }
@@ -697,6 +729,8 @@ impl<T: Scalar> Estimator<T> {
         self.compensation_armed = false;
         self.compensation_weight = T::ZERO;
         self.compensation_phase = T::ZERO;
+        self.compensation_fading = (T::ZERO, T::ZERO);
+        self.compensation_tracking = false;
     }
 
     /// Sets the PLL's angle (for its next sample) and speed (rad/s, working units),

@@ -23,10 +23,16 @@ fn q24_estimator_follows_the_f32_estimator_within_one_degree_on_the_same_inputs(
         let mut f: Estimator<f32> = Estimator::new(&setup.motor, &setup.drive.estimator, &Base::SI).unwrap();
         let mut q: Estimator<Q24> = Estimator::new(&setup.motor, &setup.drive.estimator, &pu).unwrap();
         let mut worst = 0.0f64;
-        // As the drive and `dcfo replay` do: sample k gets row k - 1's voltage.
+        // As the drive and `dcfo replay` do: sample k gets row k - 1's voltage and the
+        // commanded acceleration.
         let mut u = [0.0f32; 2];
         for s in &r.samples {
             let i = [s.row.i_alpha as f32, s.row.i_beta as f32];
+            // The commanded acceleration the drive's estimator used for this update (the
+            // I/f ramp and the speed ramps), as `dcfo replay` gives it.
+            let a = s.alpha_e_ref as f32;
+            f.set_commanded_acceleration(a);
+            q.set_commanded_acceleration(pu.omega(a * pu.time_s()));
             let ef = f.update(AlphaBeta::new(u[0], u[1]), AlphaBeta::new(i[0], i[1]), 1e-4).unwrap();
             let eq = q
                 .update(

@@ -1128,11 +1128,15 @@ impl<T: Scalar> Drive<T> {
         let k = &self.k;
         let target = if self.omega_target < T::ZERO { -k.handover_omega } else { k.handover_omega };
         let step = k.startup_accel_step;
+        let omega_before = self.omega_ol;
         self.omega_ol = if self.omega_ol < target {
             (self.omega_ol + step).min(target)
         } else {
             (self.omega_ol - step).max(target)
         };
+        // The ramp is commanded: the estimator knows the speed is changing (its notch
+        // feed-forward, and no DC fit on a back-EMF that draws no circle).
+        self.estimator.set_commanded_acceleration((self.omega_ol - omega_before) * k.inv_dt);
         // Damping: the vector drags the mover on a spring (stiffness K_f I pi/tau) that
         // nothing but friction damps, so the mover swings about the open-loop speed (a
         // bare paper mover between 0.1 and 0.4 m/s about 0.25 m/s) and can be where
