@@ -361,9 +361,12 @@ impl<T: Scalar> ArcFit<T> {
     /// lost angle: current spikes through `Ls di/dt`, the inverter's dead time near zero
     /// current) leaves a chord the fit does not explain.
     fn chord_frequency(&self, theta_e: Angle, omega_e: T, dc_voltage: AlphaBeta<T>) -> Option<T> {
-        let t = self.elapsed_rad.checked_div(self.floor)?;
-        let p =
-            AlphaBeta::new(self.chord.alpha - dc_voltage.alpha * t, self.chord.beta - dc_voltage.beta * t);
+        // du t = (du / floor) (floor t): time itself, hundreds of per-unit times after a
+        // tenth of a second, is beyond fixed point's range (it saturated Q8.24 on the
+        // salient motor's base at 0.1 s), the floor's angle is not.
+        let drift_x = dc_voltage.alpha.checked_div(self.floor)? * self.elapsed_rad;
+        let drift_y = dc_voltage.beta.checked_div(self.floor)? * self.elapsed_rad;
+        let p = AlphaBeta::new(self.chord.alpha - drift_x, self.chord.beta - drift_y);
         let quarter = Angle::from_radians(T::from_f32(core::f32::consts::FRAC_PI_2));
         let half_turn = quarter + quarter;
         let forward = omega_e >= T::ZERO;
@@ -378,7 +381,7 @@ impl<T: Scalar> ArcFit<T> {
         } else if !forward && turned > T::ZERO {
             turned = turned - full;
         }
-        let omega_chord = turned.checked_div(t)?;
+        let omega_chord = (turned * self.floor).checked_div(self.elapsed_rad)?;
         let ratio = omega_chord.checked_div(omega_e)?;
         if (ratio - T::ONE).abs() > T::from_f32(0.25) {
             return None;
@@ -805,10 +808,15 @@ mod tests {
         // error). Before the rounding, Q8.24 was 1.0 deg and 1.8 % off on the same data:
         // half an LSB of bias per update of each running mean.
         let limit = [0.4, 0.008, 0.08, 0.45];
+        // A base whose time unit is shorter (the salient example motor's, 1361 rad/s):
+        // a tenth of a second is 136 per-unit times there, beyond Q8.24's range, and
+        // the chord's check once saturated on it (the fit fell back to the chord's).
+        let fast_base = Base { voltage_v: 163.3, current_a: 4.243, omega_rad_s: 1360.8 };
         for drift in [[0.0; 2], [2.0, -1.0]] {
             assert_within("f64", sweep::<f64>(&Base::SI, &slow, drift), limit);
             assert_within("f32", sweep::<f32>(&Base::SI, &slow, drift), limit);
             assert_within("Q24", sweep::<Q24>(&pu, &slow, drift), limit);
+            assert_within("Q24, short time unit", sweep::<Q24>(&fast_base, &slow, drift), limit);
         }
     }
 
