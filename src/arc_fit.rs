@@ -145,8 +145,8 @@ pub const EMF_RADIUS_RANGE: (f32, f32) = (0.8, 1.25);
 pub const EMF_ANGLE_FILTER_RATIO: f32 = 4.0;
 
 /// How far the chord integrated since the start may be from what the back-EMF fit
-/// predicts for it, relative to the magnet flux (dimensionless): a quarter (see
-/// `ArcFit::chord_agrees`).
+/// predicts for it, relative to the magnet flux, and the chord's frequency from the
+/// back-EMF fit's, relative (dimensionless): a quarter (see `ArcFit::chord_frequency`).
 pub const EMF_CHORD_TOLERANCE: f32 = 0.25;
 
 /// Time the filter is given to settle before its output is fitted, in its time constants
@@ -298,7 +298,7 @@ impl<T: Scalar> ArcFit<T> {
         self.elapsed_rad = self.elapsed_rad + self.floor * dt;
         self.chord =
             AlphaBeta::new(self.chord.alpha + emf_increment.alpha, self.chord.beta + emf_increment.beta);
-        let emf = self.emf.update(emf_increment, dt, self.elapsed_rad, self.floor, self.max_elapsed_rad);
+        let emf = self.emf.update(emf_increment, dt, self.elapsed_rad, self.max_elapsed_rad);
         if let ArcFitOutcome::Found { theta_e, omega_e, dc_voltage } = emf {
             match self.chord_frequency(theta_e, omega_e, dc_voltage) {
                 Some(omega_e) => {
@@ -383,7 +383,7 @@ impl<T: Scalar> ArcFit<T> {
         }
         let omega_chord = (turned * self.floor).checked_div(self.elapsed_rad)?;
         let ratio = omega_chord.checked_div(omega_e)?;
-        if (ratio - T::ONE).abs() > T::from_f32(0.25) {
+        if (ratio - T::ONE).abs() > T::from_f32(EMF_CHORD_TOLERANCE) {
             return None;
         }
         // The chord's length against the arc's: |p|^2 against 4 psi_f^2 sin^2(w t / 2)
@@ -571,7 +571,6 @@ impl<T: Scalar> EmfFit<T> {
         emf_increment: AlphaBeta<T>,
         dt: T,
         elapsed_rad: T,
-        floor: T,
         max_elapsed_rad: T,
     ) -> ArcFitOutcome<T> {
         if !self.running {
@@ -609,6 +608,11 @@ impl<T: Scalar> EmfFit<T> {
         let mean = |m: T, x: T| m + (x - m).mul_nearest(inv_n);
         let p = AlphaBeta::new(e.alpha - self.first.alpha, e.beta - self.first.beta);
         let p_sq = p.alpha * p.alpha + p.beta * p.beta;
+        if p_sq > self.max_sq {
+            // Its cubes would leave Q8.24's range: no arc of this fit's speeds.
+            self.running = false;
+            return ArcFitOutcome::GaveUp;
+        }
         self.mx = mean(self.mx, p.alpha);
         self.my = mean(self.my, p.beta);
         self.sxx = mean(self.sxx, p.alpha * p.alpha);
@@ -629,7 +633,7 @@ impl<T: Scalar> EmfFit<T> {
         // A candidate circle; until one passes the checks the fit goes on (more of the
         // arc, less of the noise), up to the fit's time; a frequency outside its range
         // ends it.
-        let outcome = self.solve(e, dt, floor, elapsed_rad, trace, det);
+        let outcome = self.solve(e, dt, elapsed_rad, trace, det);
         if outcome != ArcFitOutcome::Pending {
             self.running = false;
         }
@@ -640,8 +644,8 @@ impl<T: Scalar> EmfFit<T> {
     /// `Found`, `Pending` when its radius does not match its frequency (try again with
     /// the next sample), `GaveUp` when the frequency is outside the fit's range or the
     /// numbers are. Bounded time: five divisions, one reciprocal, four arctangents.
-    fn solve(&self, e: AlphaBeta<T>, dt: T, floor: T, elapsed_rad: T, trace: T, det: T) -> ArcFitOutcome<T> {
-        self.candidate(e, dt, floor, elapsed_rad, trace, det).unwrap_or(ArcFitOutcome::GaveUp)
+    fn solve(&self, e: AlphaBeta<T>, dt: T, elapsed_rad: T, trace: T, det: T) -> ArcFitOutcome<T> {
+        self.candidate(e, dt, elapsed_rad, trace, det).unwrap_or(ArcFitOutcome::GaveUp)
     }
 
     /// [`EmfFit::solve`], `None` for `GaveUp`.
@@ -649,7 +653,6 @@ impl<T: Scalar> EmfFit<T> {
         &self,
         e: AlphaBeta<T>,
         dt: T,
-        floor: T,
         elapsed_rad: T,
         trace: T,
         det: T,
@@ -673,7 +676,7 @@ impl<T: Scalar> EmfFit<T> {
         let v = AlphaBeta::new(e.alpha - cx, e.beta - cy);
         let angle_now = T::atan2(v.beta, v.alpha);
         let turned: T = (angle_now - T::atan2(-py, -px)).to_radians();
-        let omega_e = (floor * turned).checked_div(elapsed_rad - self.first_rad)?;
+        let omega_e = (self.floor * turned).checked_div(elapsed_rad - self.first_rad)?;
         if omega_e.abs() < self.floor || omega_e.abs() > self.max_omega {
             return None;
         }
