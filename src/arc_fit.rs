@@ -288,9 +288,10 @@ impl<T: Scalar> ArcFit<T> {
     /// One sample: `emf_increment` is the increment of the model flux over the sample
     /// without any observer correction, `(u - Rs i) dt - Ls di` (Wb), `dt` the period
     /// (s). Bounded time: a fixed number of operations, two `f32` reciprocals, and at
-    /// most one solve of each fit (the chord's once: two divisions, two arctangents;
-    /// the back-EMF's every sample from its spread test until one passes its checks:
-    /// five divisions, a reciprocal, four arctangents).
+    /// most one solve of each fit per sample (the chord's once: two divisions, two
+    /// arctangents; the back-EMF's every sample from its spread test until one passes
+    /// its checks: about eight divisions, a reciprocal, five arctangents, a cosine and
+    /// two square roots with the chord's check, `ArcFit::chord_frequency`).
     pub fn update(&mut self, emf_increment: AlphaBeta<T>, dt: T) -> ArcFitOutcome<T> {
         if !self.is_running() && self.deferred.is_none() {
             return ArcFitOutcome::Pending;
