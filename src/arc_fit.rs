@@ -159,6 +159,11 @@ pub const EMF_FILTER_SETTLE: f32 = 5.0;
 /// errors are small beside the back-EMF (+2 V is 9 % of the paper motor's at 16 Hz).
 pub const EMF_FIT_MAX_PER_FLOOR: f32 = 8.0;
 
+/// Once a back-EMF circle first passes its checks, the fit goes on for this share of
+/// the time it has fitted so far and takes the mean of the circles that pass in it
+/// (dimensionless; see `Confirm`).
+pub const EMF_CONFIRM_SHARE: f32 = 0.125;
+
 /// What one sample of the fits gave.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum ArcFitOutcome<T> {
@@ -505,7 +510,31 @@ struct EmfFit<T> {
     /// Radius bounds squared, relative to the back-EMF the fitted frequency gives.
     min_ratio_sq: T,
     max_ratio_sq: T,
+    /// The circles that passed their checks so far, averaged ([`EMF_CONFIRM_SHARE`]).
+    confirm: Option<Confirm<T>>,
+    /// [`EMF_CONFIRM_SHARE`].
+    confirm_share: T,
     running: bool,
+}
+
+/// The back-EMF fit's circles averaged from the first that passed its checks: one
+/// circle's angle moves by about a degree from one sample to the next at 0.1 m/s (the
+/// noise the filters leave), so the first to pass is no better than its neighbours,
+/// and two arithmetics that pass a sample apart would seed angles that far apart.
+#[derive(Clone, Copy, Debug)]
+struct Confirm<T> {
+    /// The floor's angle since the chord's start at which the mean is taken (rad).
+    until_rad: T,
+    /// The first circle's angle, advanced every sample at its frequency.
+    reference: Angle,
+    /// Its frequency (rad/s).
+    reference_omega: T,
+    /// Means over the circles that passed: angle from `reference` (rad, small),
+    /// frequency (rad/s) and DC error (V).
+    offset: T,
+    omega: T,
+    dc_voltage: AlphaBeta<T>,
+    count: u32,
 }
 
 impl<T: Scalar> EmfFit<T> {
@@ -543,6 +572,8 @@ impl<T: Scalar> EmfFit<T> {
             min_trace: T::from_f32(1.0 / (EMF_FIT_MAX_PER_FLOOR * EMF_FIT_MAX_PER_FLOOR)),
             min_ratio_sq: T::from_f32(r_min * r_min),
             max_ratio_sq: T::from_f32(r_max * r_max),
+            confirm: None,
+            confirm_share: T::from_f32(EMF_CONFIRM_SHARE),
             running: true,
         }
     }
@@ -561,6 +592,7 @@ impl<T: Scalar> EmfFit<T> {
         self.rx = T::ZERO;
         self.ry = T::ZERO;
         self.samples = 0;
+        self.confirm = None;
         self.running = true;
     }
 
@@ -591,8 +623,15 @@ impl<T: Scalar> EmfFit<T> {
             slow(self.emf_slow.alpha, emf_increment.alpha),
             slow(self.emf_slow.beta, emf_increment.beta),
         );
+        if let Some(c) = self.confirm.as_mut() {
+            c.reference = c.reference + (c.reference_omega * dt).radians_to_angle();
+        }
         let e_sq = e.alpha * e.alpha + e.beta * e.beta;
         if e_sq > self.max_sq || elapsed_rad > max_elapsed_rad || !e_sq.is_valid() {
+            if let Some(found) = self.confirmed() {
+                self.running = false;
+                return found;
+            }
             // Too fast for this fit (the chord's fit takes it) or too slow to see.
             self.running = false;
             return ArcFitOutcome::GaveUp;
@@ -634,11 +673,50 @@ impl<T: Scalar> EmfFit<T> {
         // A candidate circle; until one passes the checks the fit goes on (more of the
         // arc, less of the noise), up to the fit's time; a frequency outside its range
         // ends it.
-        let outcome = self.solve(e, dt, elapsed_rad, trace, det);
+        let outcome = match self.solve(e, dt, elapsed_rad, trace, det) {
+            ArcFitOutcome::Found { theta_e, omega_e, dc_voltage } => {
+                self.average(theta_e, omega_e, dc_voltage, elapsed_rad);
+                match self.confirm {
+                    Some(c) if elapsed_rad >= c.until_rad => self.confirmed().unwrap_or(ArcFitOutcome::GaveUp),
+                    _ => ArcFitOutcome::Pending,
+                }
+            }
+            ArcFitOutcome::GaveUp => self.confirmed().unwrap_or(ArcFitOutcome::GaveUp),
+            ArcFitOutcome::Pending => ArcFitOutcome::Pending,
+        };
         if outcome != ArcFitOutcome::Pending {
             self.running = false;
         }
         outcome
+    }
+
+    /// Takes a circle that passed its checks into the mean (the first one starts it).
+    fn average(&mut self, theta_e: Angle, omega_e: T, dc_voltage: AlphaBeta<T>, elapsed_rad: T) {
+        let c = self.confirm.get_or_insert(Confirm {
+            until_rad: elapsed_rad + (elapsed_rad - self.first_rad) * self.confirm_share,
+            reference: theta_e,
+            reference_omega: omega_e,
+            offset: T::ZERO,
+            omega: omega_e,
+            dc_voltage,
+            count: 0,
+        });
+        c.count = c.count.saturating_add(1);
+        let inv_n = T::from_f32(1.0 / c.count as f32);
+        let mean = |m: T, x: T| m + (x - m).mul_nearest(inv_n);
+        c.offset = mean(c.offset, (theta_e - c.reference).to_radians());
+        c.omega = mean(c.omega, omega_e);
+        c.dc_voltage =
+            AlphaBeta::new(mean(c.dc_voltage.alpha, dc_voltage.alpha), mean(c.dc_voltage.beta, dc_voltage.beta));
+    }
+
+    /// The mean of the circles that passed, `None` before the first.
+    fn confirmed(&self) -> Option<ArcFitOutcome<T>> {
+        self.confirm.map(|c| ArcFitOutcome::Found {
+            theta_e: c.reference + c.offset.radians_to_angle(),
+            omega_e: c.omega,
+            dc_voltage: c.dc_voltage,
+        })
     }
 
     /// The circle through the points so far, checked against the motor (module docs):

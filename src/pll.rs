@@ -171,8 +171,28 @@ pub struct Pll<T> {
     lock_threshold: T,
     theta: Angle,
     integral: T,
+    /// What the integrator's updates added below its resolution, times
+    /// [`INTEGRAL_RESIDUE_SCALE`] (rad/s, working units).
+    integral_residue: T,
+    /// `sqrt(INTEGRAL_RESIDUE_SCALE)`, exact in every type.
+    residue_root: T,
+    /// `1 / INTEGRAL_RESIDUE_SCALE`, exact in every type.
+    inv_residue_scale: T,
+    /// [`INTEGRAL_RESIDUE_SCALE`].
+    residue_scale: T,
     lock_metric: T,
 }
+
+/// How finely the frequency integrator's updates are kept below its working unit's
+/// resolution (dimensionless, a power of four): the integrator carries a residue in
+/// 64ths of its least step. In Q8.24 at 0.1 m/s on the paper motor's base an update
+/// `w_p^2 dt eps` is 53 LSB times the phase error, so errors below 0.009 rad left the
+/// integrator where it was and the loop held the frequency with `kp eps` instead: the
+/// integrator, which tunes the DCFO's notch, stayed anywhere within 0.45 rad/s (2 %) of
+/// the mover's frequency (0.6 % measured, 0.35 deg of flux angle through the notch). A
+/// 64th takes that down to 0.007 rad/s. In `f32` the residue is always zero (the
+/// scaling by a power of two is exact), so the update is the plain one bit for bit.
+pub const INTEGRAL_RESIDUE_SCALE: f32 = 64.0;
 
 impl<T: Scalar> Pll<T> {
     /// A PLL for a motor of pole pitch `pole_pitch_m` (m), tuned by `config` and
@@ -212,6 +232,10 @@ impl<T: Scalar> Pll<T> {
             lock_threshold: T::from_f32(config.lock_threshold),
             theta: Angle::ZERO,
             integral: T::ZERO,
+            integral_residue: T::ZERO,
+            residue_root: T::from_f32(8.0),
+            inv_residue_scale: T::from_f32(1.0 / INTEGRAL_RESIDUE_SCALE),
+            residue_scale: T::from_f32(INTEGRAL_RESIDUE_SCALE),
             lock_metric: T::ONE,
         })
     }
@@ -262,7 +286,14 @@ impl<T: Scalar> Pll<T> {
         let wp = (self.beta * schedule_omega.abs()).clamp_to(self.min_wp, self.max_wp);
         let kp = self.two_zeta * wp;
         if tracking {
-            self.integral = (self.integral + wp * wp * dt * error).clamp_to(-self.max_omega, self.max_omega);
+            // integral += w_p^2 dt error, with what falls below the integrator's
+            // resolution carried to the next sample ([`INTEGRAL_RESIDUE_SCALE`]); each
+            // product rounded to nearest, so no bias accumulates either.
+            let scaled_wp = wp * self.residue_root;
+            let residue = self.integral_residue + (scaled_wp * scaled_wp * dt).mul_nearest(error);
+            let carry = residue.mul_nearest(self.inv_residue_scale);
+            self.integral_residue = residue - carry * self.residue_scale;
+            self.integral = (self.integral + carry).clamp_to(-self.max_omega, self.max_omega);
             let rate = (self.lock_rate * dt).min(T::ONE);
             self.lock_metric = self.lock_metric + rate * (error.abs() - self.lock_metric);
         }
@@ -284,6 +315,7 @@ impl<T: Scalar> Pll<T> {
     pub fn preset(&mut self, theta_e: Angle, omega_e: T) {
         self.theta = theta_e;
         self.integral = omega_e.clamp_to(-self.max_omega, self.max_omega);
+        self.integral_residue = T::ZERO;
         self.lock_metric = T::ONE;
     }
 
@@ -292,6 +324,7 @@ impl<T: Scalar> Pll<T> {
     /// integrator.
     pub fn set_integral(&mut self, omega_e: T) {
         self.integral = omega_e.clamp_to(-self.max_omega, self.max_omega);
+        self.integral_residue = T::ZERO;
     }
 
     /// Back to angle 0, speed 0, unlocked.
