@@ -677,7 +677,9 @@ impl<T: Scalar> EmfFit<T> {
             ArcFitOutcome::Found { theta_e, omega_e, dc_voltage } => {
                 self.average(theta_e, omega_e, dc_voltage, elapsed_rad);
                 match self.confirm {
-                    Some(c) if elapsed_rad >= c.until_rad => self.confirmed().unwrap_or(ArcFitOutcome::GaveUp),
+                    Some(c) if elapsed_rad >= c.until_rad => {
+                        self.confirmed().unwrap_or(ArcFitOutcome::GaveUp)
+                    }
                     _ => ArcFitOutcome::Pending,
                 }
             }
@@ -706,8 +708,10 @@ impl<T: Scalar> EmfFit<T> {
         let mean = |m: T, x: T| m + (x - m).mul_nearest(inv_n);
         c.offset = mean(c.offset, (theta_e - c.reference).to_radians());
         c.omega = mean(c.omega, omega_e);
-        c.dc_voltage =
-            AlphaBeta::new(mean(c.dc_voltage.alpha, dc_voltage.alpha), mean(c.dc_voltage.beta, dc_voltage.beta));
+        c.dc_voltage = AlphaBeta::new(
+            mean(c.dc_voltage.alpha, dc_voltage.alpha),
+            mean(c.dc_voltage.beta, dc_voltage.beta),
+        );
     }
 
     /// The mean of the circles that passed, `None` before the first.
@@ -885,11 +889,14 @@ mod tests {
         let pu = Base { voltage_v: 179.6, current_a: 2.97, omega_rad_s: 1122.5 };
         let slow = [3.0, 6.0, 10.0, 15.0];
         // Measured (all three types alike since the running means round to nearest):
-        // angle 0.25 / 0.33 deg, frequency (the chord's, which the angle error enters
-        // twice) 0.51 / 0.66 %, DC 0.052 / 0.064 V, 0.41 periods (without / with the DC
-        // error). Before the rounding, Q8.24 was 1.0 deg and 1.8 % off on the same data:
-        // half an LSB of bias per update of each running mean.
-        let limit = [0.4, 0.008, 0.08, 0.45];
+        // angle 0.21 / 0.28 deg, frequency (the chord's, which the angle error enters
+        // twice) 0.39 / 0.51 %, DC 0.045 / 0.054 V, 0.45 periods (without / with the DC
+        // error). The circle first passes its checks at 0.41 periods; the mean over the
+        // next eighth of the fit's time (`EMF_CONFIRM_SHARE`) took the errors down from
+        // 0.25 / 0.33 deg, 0.51 / 0.66 %, 0.052 / 0.064 V. Before the rounding, Q8.24 was
+        // 1.0 deg and 1.8 % off on the same data: half an LSB of bias per update of each
+        // running mean.
+        let limit = [0.4, 0.008, 0.08, 0.5];
         // A base whose time unit is shorter (the salient example motor's, 1361 rad/s):
         // a tenth of a second is 136 per-unit times there, beyond Q8.24's range, and
         // the chord's check once saturated on it (the fit fell back to the chord's).

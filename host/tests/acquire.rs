@@ -4,12 +4,13 @@
 //!
 //! Measured on this subset (144 starts) with the back-EMF circle fit that gives the
 //! DC error with the seed (`src/arc_fit.rs`, 2026-11-26): every start within its budget
-//! (at 0.1 m/s, 0.49 s at most of 0.6 s; before it 25 of the 48 starts there were over,
-//! the +2 V ones by 2.1 budgets in the median); no false lock; Q8.24 within 1 deg of
-//! f32 once both are locked and seeded, but for one start at -0.1 m/s (+2 V, 1.37 deg:
-//! the two types take the fit a sample apart, and the angle each then starts from stays
-//! apart while the DCFO settles). The Q8.24 floor is 1 deg; that start is the
-//! shortfall, bounded here at its measured value.
+//! (at 0.1 m/s, 0.5 s at most of 0.6 s; before the fit 25 of the 48 starts there were
+//! over, the +2 V ones by 2.1 budgets in the median); no false lock. Q8.24 within
+//! 0.27 deg of f32 once both are locked and seeded (the floor is 1 deg): 1.37
+//! before 2026-11-27, when the PLL integrator's update rounded down (0.12 rad/s of
+//! bias at 0.1 m/s, a notch 0.6 % off: 0.35 deg) and the seed was the first circle to
+//! pass its checks (the two types passed a sample apart, 1.2 deg apart; now the mean of
+//! the circles over the next eighth of the fit).
 
 use dcfo::observer::ObserverKind;
 use dcfo_host::acquire::{Offset, Options, PlantModel, sweep};
@@ -26,7 +27,6 @@ fn estimator_finds_a_moving_mover_from_its_zero_state() {
     };
     let starts = sweep(&setup, &options, |_, _| {}).unwrap();
     assert_eq!(starts.len(), 3 * 2 * 8 * 3);
-    let mut above_one_degree = 0;
     for s in &starts {
         println!(
             "{:5.2} m/s p{} {:7}: lock {:?} s, flag {:?} s, Q24 dev {:?} deg",
@@ -39,13 +39,8 @@ fn estimator_finds_a_moving_mover_from_its_zero_state() {
         );
         assert!(s.within_budget(), "{s:?}");
         assert_eq!(s.false_lock_samples, 0, "{s:?}");
-        let dev = s.q24_deviation_deg.unwrap_or(f64::INFINITY);
-        assert!(dev < 1.4, "{s:?}");
-        if dev >= 1.0 {
-            above_one_degree += 1;
-        }
+        assert!(s.q24_deviation_deg.unwrap_or(f64::INFINITY) < 1.0, "{s:?}");
     }
-    assert!(above_one_degree <= 1, "{above_one_degree} starts with Q8.24 1 deg or more from f32");
 }
 
 /// The estimator's own acquisition, without what the inputs cost: traces recorded
