@@ -76,6 +76,13 @@
 //!   in the drive's flying restart at 0.3 m/s (`dcfo faults`, lock-loss) the back-EMF
 //!   fit saw 2.2 V that was not there, and without this check the drive lost the mover.
 //!
+//! What is taken is not the first circle to pass but the mean of those that pass over
+//! the next [`EMF_CONFIRM_SHARE`] of the fit's time (each angle measured against the
+//! first one's, turned on at its frequency; the mean, which is the angle at the
+//! circles' mean time, is then turned on to the present at the chord's frequency): one
+//! circle's angle moves by about a degree from one sample to the next at 0.1 m/s, and
+//! f32 and Q8.24, passing a sample apart, seeded 1.2 deg apart.
+//!
 //! The fit is for the low speeds, where a DC error is large beside the back-EMF: up to
 //! [`EMF_FIT_MAX_PER_FLOOR`] times the notch floor (16 Hz at the default floor). Below
 //! that a chord fit is held back while the back-EMF fit runs, and taken (turned on to
@@ -92,10 +99,11 @@
 //! Measured on `dcfo acquire` (576 cold starts; 2026-11-26): **no start over budget**
 //! (51 before the back-EMF fit, and one never locked), the longest 0.49 s of a 0.6 s
 //! budget at 0.1 m/s, no false lock; the +2 V starts at 0.1 m/s took 2.1 budgets in the
-//! median before, 0.4 now. Q8.24 within 1 deg of f32 but for one start at -0.1 m/s with
-//! +2 V (1.37 deg): the two types take the fit a sample apart. The example
-//! motors: salient 62 -> 5 over budget (the rest is its steady error at low speed), low-R
-//! 13 -> 0.
+//! median before, 0.4 now. With the mean (2026-11-27): the longest 0.50 s, Q8.24 within
+//! 0.20 deg of f32 (1.37 before, in one start at -0.1 m/s with +2 V). The example
+//! motors (over budget of 576): salient 62 -> 12 (the rest is mostly its steady error at
+//! 3.3-6.7 Hz), low-R 13 -> 1 (616 ms of 600 at 3.3 Hz). The later seed leaves the
+//! drive ringing more after a flying restart (README).
 #![forbid(unsafe_code)]
 
 use crate::num::{Angle, Scalar};
@@ -294,9 +302,10 @@ impl<T: Scalar> ArcFit<T> {
     /// without any observer correction, `(u - Rs i) dt - Ls di` (Wb), `dt` the period
     /// (s). Bounded time: a fixed number of operations, two `f32` reciprocals, and at
     /// most one solve of each fit per sample (the chord's once: two divisions, two
-    /// arctangents; the back-EMF's every sample from its spread test until one passes
-    /// its checks: about eight divisions, a reciprocal, five arctangents, a cosine and
-    /// two square roots with the chord's check, `ArcFit::chord_frequency`).
+    /// arctangents; the back-EMF's every sample from its spread test until its mean is
+    /// taken ([`EMF_CONFIRM_SHARE`]): about eight divisions, a reciprocal, five
+    /// arctangents, a cosine and two square roots with the chord's check,
+    /// `ArcFit::chord_frequency`, and an `f32` reciprocal for the mean).
     pub fn update(&mut self, emf_increment: AlphaBeta<T>, dt: T) -> ArcFitOutcome<T> {
         if !self.is_running() && self.deferred.is_none() {
             return ArcFitOutcome::Pending;
@@ -310,6 +319,19 @@ impl<T: Scalar> ArcFit<T> {
                 Some(omega_e) => {
                     self.running = false;
                     self.deferred = None;
+                    // The mean angle was turned on from the circles' mean time at the
+                    // first circle's frequency; the chord's is the better one (module
+                    // docs): turn it on at that instead, (w - w_ref) (floor t) / floor.
+                    let theta_e = match self.emf.confirm {
+                        Some(c) => {
+                            let lag = self.elapsed_rad - c.centroid_rad;
+                            match ((omega_e - c.reference_omega) * lag).checked_div(self.floor) {
+                                Some(turn) => theta_e + turn.radians_to_angle(),
+                                None => theta_e,
+                            }
+                        }
+                        None => theta_e,
+                    };
                     return ArcFitOutcome::Found { theta_e, omega_e, dc_voltage };
                 }
                 // Not borne out: the back-EMF fit goes on while no chord fit is held back
@@ -534,6 +556,10 @@ struct Confirm<T> {
     offset: T,
     omega: T,
     dc_voltage: AlphaBeta<T>,
+    /// Mean time of the circles that passed, as the floor's angle since the chord's
+    /// start (rad): the mean angle is the angle then, and the reference turns on from it
+    /// at the first circle's frequency, which the chord's corrects (`ArcFit::update`).
+    centroid_rad: T,
     count: u32,
 }
 
@@ -701,6 +727,7 @@ impl<T: Scalar> EmfFit<T> {
             offset: T::ZERO,
             omega: omega_e,
             dc_voltage,
+            centroid_rad: elapsed_rad,
             count: 0,
         });
         c.count = c.count.saturating_add(1);
@@ -712,6 +739,7 @@ impl<T: Scalar> EmfFit<T> {
             mean(c.dc_voltage.alpha, dc_voltage.alpha),
             mean(c.dc_voltage.beta, dc_voltage.beta),
         );
+        c.centroid_rad = mean(c.centroid_rad, elapsed_rad);
     }
 
     /// The mean of the circles that passed, `None` before the first.
@@ -889,7 +917,7 @@ mod tests {
         let pu = Base { voltage_v: 179.6, current_a: 2.97, omega_rad_s: 1122.5 };
         let slow = [3.0, 6.0, 10.0, 15.0];
         // Measured (all three types alike since the running means round to nearest):
-        // angle 0.21 / 0.28 deg, frequency (the chord's, which the angle error enters
+        // angle 0.23 / 0.30 deg, frequency (the chord's, which the angle error enters
         // twice) 0.39 / 0.51 %, DC 0.045 / 0.054 V, 0.45 periods (without / with the DC
         // error). The circle first passes its checks at 0.41 periods; the mean over the
         // next eighth of the fit's time (`EMF_CONFIRM_SHARE`) took the errors down from

@@ -6,7 +6,7 @@
 //! DC error with the seed (`src/arc_fit.rs`, 2026-11-26): every start within its budget
 //! (at 0.1 m/s, 0.5 s at most of 0.6 s; before the fit 25 of the 48 starts there were
 //! over, the +2 V ones by 2.1 budgets in the median); no false lock. Q8.24 within
-//! 0.27 deg of f32 once both are locked and seeded (the floor is 1 deg): 1.37
+//! 0.20 deg of f32 once both are locked and seeded (the floor is 1 deg): 1.37
 //! before 2026-11-27, when the PLL integrator's update rounded down (0.12 rad/s of
 //! bias at 0.1 m/s, a notch 0.6 % off: 0.35 deg) and the seed was the first circle to
 //! pass its checks (the two types passed a sample apart, 1.2 deg apart; now the mean of

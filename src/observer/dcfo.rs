@@ -82,6 +82,12 @@
 //! the observer's own figures of the table above. The transients above the table's
 //! values are the tuning's, not the observer's.
 //!
+//! What changing the observer's structure could buy on the DC steps (an integral term
+//! in the feedback, a DC-voltage estimator on the back-EMF residual, a band-pass
+//! narrowed after a detected step) is worked out in the linear model in
+//! `docs/dc-step-analysis.md`: only the last meets both of issue 8's floors there, and
+//! it needs a DC-step detector that a mistuned notch does not fool.
+//!
 //! ## Discretisation
 //! - Integrator: the held voltage is integrated exactly, the resistive drop by the
 //!   trapezoidal rule, the feedback `(h/Ls) d` with the previous sample's `d`.
