@@ -71,6 +71,10 @@ mod firmware {
     const RUNNING_STEPS: u32 = 600;
     /// Consecutive control steps measured (one speed-loop period).
     const MEASURED_STEPS: usize = 10;
+    /// Estimator steps measured from a re-acquisition on (80 ms): at the plant's 8.3 Hz
+    /// the circle fit ends within them (`ACQUIRE` reports the step), so they include
+    /// every sample the back-EMF fit solves and the seed.
+    const ACQUIRE_STEPS: usize = 800;
     /// Stack painted below the probe's frame (bytes) and the paint pattern.
     const PAINT_BYTES: usize = 16 * 1024;
     const PAINT: u32 = 0xA5C3_5A3C;
@@ -457,9 +461,7 @@ mod firmware {
                 line,
                 "BENCH {name} empty,clarke,cos_sin,park,pi,inverse_park,svpwm,observer,pll,estimator"
             );
-            for _ in 0..MEASURED_STEPS {
-                let _ = write!(line, ",step");
-            }
+            let _ = write!(line, ",step*{MEASURED_STEPS},acquire*{ACQUIRE_STEPS}");
             line.print();
             region!(stage_empty(black_box(AlphaBeta::new(1.0, 2.0))));
             region!(stage_clarke(black_box(m.i_abc)));
@@ -485,6 +487,25 @@ mod firmware {
                 bench_end();
                 (self.out.u_applied, self.out.bridge_enabled, self.out.state) =
                     (u_applied, bridge_enabled, state);
+            }
+            // The estimator from a re-acquisition (a lock loss at speed), fed the running
+            // drive's own observer inputs: every step until and past the circle fit's end.
+            let mut acquiring = self.estimator.clone();
+            acquiring.reacquire();
+            let mut fit_end = None;
+            for k in 0..ACQUIRE_STEPS {
+                let (u, i) = (self.out.u_applied, self.out.i_observer);
+                region!(stage_estimator(black_box(&mut acquiring), black_box(u), black_box(i), dt));
+                if fit_end.is_none() && !acquiring.fitting() {
+                    fit_end = Some(k);
+                }
+                self.advance();
+                let m = self.measure();
+                self.out = self.drive.step(&m);
+            }
+            match fit_end {
+                Some(k) => println!("ACQUIRE {name} {k}"),
+                None => println!("ACQUIRE {name} none"),
             }
             println!("END {name} {}", state_name(self.out.state));
             self.advance();

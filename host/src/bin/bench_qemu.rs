@@ -37,8 +37,6 @@ use dcfo_host::qemu::{
     QemuCpu, build_qemu_example, qemu_command, qemu_example_elf, qmp_human_command, target_dir,
 };
 
-/// Control steps measured per type (`MEASURED_STEPS` in the firmware).
-const STEP_REGION: &str = "step";
 /// The baseline region.
 const EMPTY_REGION: &str = "empty";
 
@@ -74,6 +72,9 @@ struct Run {
     stack_hil: BTreeMap<String, u64>,
     /// type name -> drive state after the measured steps.
     state: BTreeMap<String, String>,
+    /// type name -> the acquiring estimator's step at which its circle fit ended (or
+    /// `none`).
+    fit_end: BTreeMap<String, String>,
 }
 
 fn main() -> ExitCode {
@@ -123,7 +124,9 @@ fn run() -> Result<()> {
     println!();
     println!("Instructions executed (QEMU exec trace, one line per instruction), less the call overhead");
     println!("of an empty stage (`empty` row, raw). `step`: one whole `Drive::step` in Running, mean");
-    println!("[min..max] of 10 consecutive steps (the speed loop runs in one of them).");
+    println!("[min..max] of 10 consecutive steps (the speed loop runs in one of them). `acquire`: one");
+    println!("estimator step from a re-acquisition on, mean [min..max] of 800 consecutive steps");
+    println!("(the circle fit's, its seed and the hand-over among them).");
     println!();
     let headers: Vec<String> = columns.iter().map(|(label, ty, _, _)| format!("{label} {ty}")).collect();
     print!("| {:<14} |", "stage");
@@ -149,9 +152,11 @@ fn run() -> Result<()> {
         let stack = run.stack.get(*ty).map_or_else(|| "?".to_owned(), |s| s.to_string());
         let state = run.state.get(*ty).map_or("?", String::as_str);
         let hil = run.stack_hil.get(*ty).map_or_else(|| "?".to_owned(), |s| s.to_string());
+        let fit_end = run.fit_end.get(*ty).map_or("?", String::as_str);
         println!(
             "{label} {ty}: drive state {state}; deepest stack of one Drive::step {stack} bytes, of the HIL \
-             receive path (decode, step, encode) {hil} bytes"
+             receive path (decode, step, encode) {hil} bytes; acquiring estimator's circle fit ended at \
+             step {fit_end}"
         );
     }
 
@@ -194,8 +199,8 @@ fn unique_names(regions: &[(String, u64)]) -> Vec<String> {
     names
 }
 
-/// One table cell: the region's count less the baseline (`empty`: raw; `step`: mean
-/// [min..max]).
+/// One table cell: the region's count less the baseline (`empty`: raw; a region measured
+/// more than once, such as `step` and `acquire`: mean [min..max]).
 fn cell(regions: &[(String, u64)], name: &str) -> String {
     let baseline = regions.iter().find(|(n, _)| n == EMPTY_REGION).map_or(0, |(_, c)| *c);
     let counts: Vec<u64> = regions
@@ -211,7 +216,7 @@ fn cell(regions: &[(String, u64)], name: &str) -> String {
             let (min, max) =
                 (many.iter().min().copied().unwrap_or(0), many.iter().max().copied().unwrap_or(0));
             let mean = sum as f64 / many.len() as f64;
-            if name == STEP_REGION { format!("{mean:.0} [{min}..{max}]") } else { format!("{mean:.0}") }
+            format!("{mean:.0} [{min}..{max}]")
         }
     }
 }
@@ -309,7 +314,18 @@ fn run_traced(board: &Board, elf: &Path) -> Result<Run> {
         let mut words = line.split_whitespace();
         match (words.next(), words.next(), words.next()) {
             (Some("BENCH"), Some(ty), Some(names)) => {
-                let names: Vec<&str> = names.split(',').collect();
+                // `name*n` is n regions of that name.
+                let mut expanded = Vec::new();
+                for entry in names.split(',') {
+                    let (name, n) = match entry.split_once('*') {
+                        Some((name, n)) => {
+                            (name, n.parse::<usize>().with_context(|| format!("BENCH line: {entry:?}"))?)
+                        }
+                        None => (entry, 1),
+                    };
+                    expanded.extend(std::iter::repeat_n(name, n));
+                }
+                let names = expanded;
                 let Some(counts) = spans.get(next..next + names.len()) else {
                     bail!("{} regions in the trace, too few for those of {ty}", spans.len());
                 };
@@ -322,6 +338,9 @@ fn run_traced(board: &Board, elf: &Path) -> Result<Run> {
             }
             (Some("STACK"), Some(ty), Some(bytes)) => {
                 run.stack.insert(ty.to_owned(), bytes.parse().context("STACK line")?);
+            }
+            (Some("ACQUIRE"), Some(ty), Some(step)) => {
+                run.fit_end.insert(ty.to_owned(), step.to_owned());
             }
             (Some("END"), Some(ty), Some(state)) => {
                 run.state.insert(ty.to_owned(), state.to_owned());
