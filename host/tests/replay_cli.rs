@@ -158,11 +158,14 @@ fn ideal_synthetic_trace_dcfo_converges_and_cfo_shows_its_phase_lead() {
     let d = replay_json(&trace, &out, "dcfo", &[]);
     eprintln!("DCFO on ideal data, 0.3 m/s, after 0.5 s: {d}");
     assert_eq!(d["samples"], 10_001);
-    // From a cold start (PLL at angle 0, speed 0) the DCFO + PLL pair is still
-    // acquiring at 0.5 s (digest §8: 0.5-1 s at 8-10 Hz; the PLL's slow pole is at
-    // -0.13 w): measured rms 5.0 deg. It must be converging: see the 1.3 s check below.
+    // From a cold start (the estimator's zero state) the circle fit seeds the estimator
+    // within about a third of a period (`dcfo::arc_fit`), so by 0.5 s it has converged:
+    // measured rms 3.2e-4 deg (2026-11-27). Before the fit the DCFO + PLL pair was still
+    // acquiring at 0.5 s (digest §8: 0.5-1 s at 8-10 Hz; the PLL's slow pole at -0.13 w),
+    // rms 5.0 deg, and this check was that it converged tenfold by 1.3 s; two figures
+    // at the numbers' floor no longer tell that.
     let rms_half_second = num(&d, "theta_err_rms_deg");
-    assert!(rms_half_second < 10.0, "{d}");
+    assert!(rms_half_second < 0.01, "{d}");
     assert!(num(&d, "v_err_rms") < 0.01, "{d}");
     let (header, rows) = read_output(&out);
     assert_eq!(header.len(), 7);
@@ -170,7 +173,7 @@ fn ideal_synthetic_trace_dcfo_converges_and_cfo_shows_its_phase_lead() {
     // Once converged it is exact: no amplitude or phase error at the fundamental.
     let d = replay_json(&trace, &out, "dcfo", &["--settle", "1.3"]);
     eprintln!("DCFO on ideal data, 0.3 m/s, after 1.3 s: {d}");
-    assert!(num(&d, "theta_err_rms_deg") < rms_half_second / 10.0, "{d}");
+    assert!(num(&d, "theta_err_rms_deg") <= rms_half_second, "{d}");
     assert!(num(&d, "theta_err_max_deg") < 0.05, "{d}");
     assert!(num(&d, "v_err_max") < 1e-3, "{d}");
     assert!(num(&d, "psi_amp_err_rms_wb") < 1e-4, "{d}");
