@@ -675,9 +675,10 @@ impl<T: Scalar> EmfFit<T> {
         let p = AlphaBeta::new(e.alpha - self.first.alpha, e.beta - self.first.beta);
         let p_sq = p.alpha * p.alpha + p.beta * p.beta;
         if p_sq > self.max_sq {
-            // Its cubes would leave Q8.24's range: no arc of this fit's speeds.
+            // Its cubes would leave Q8.24's range: no arc of this fit's speeds (the
+            // circles that passed before, if any, are taken).
             self.running = false;
-            return ArcFitOutcome::GaveUp;
+            return self.confirmed().unwrap_or(ArcFitOutcome::GaveUp);
         }
         self.mx = mean(self.mx, p.alpha);
         self.my = mean(self.my, p.beta);

@@ -174,8 +174,6 @@ pub struct Pll<T> {
     /// What the integrator's updates added below its resolution, times
     /// [`INTEGRAL_RESIDUE_SCALE`] (rad/s, working units).
     integral_residue: T,
-    /// `sqrt(INTEGRAL_RESIDUE_SCALE)`, exact in every type.
-    residue_root: T,
     /// `1 / INTEGRAL_RESIDUE_SCALE`, exact in every type.
     inv_residue_scale: T,
     /// [`INTEGRAL_RESIDUE_SCALE`].
@@ -184,14 +182,16 @@ pub struct Pll<T> {
 }
 
 /// How finely the frequency integrator's updates are kept below its working unit's
-/// resolution (dimensionless, a power of four): the integrator carries a residue in
+/// resolution (dimensionless, a power of two): the integrator carries a residue in
 /// 64ths of its least step. In Q8.24 at 0.1 m/s on the paper motor's base an update
-/// `w_p^2 dt eps` is 53 LSB times the phase error, so errors below 0.009 rad left the
-/// integrator where it was and the loop held the frequency with `kp eps` instead: the
-/// integrator, which tunes the DCFO's notch, stayed anywhere within 0.45 rad/s (2 %) of
-/// the mover's frequency (0.6 % measured, 0.35 deg of flux angle through the notch). A
-/// 64th takes that down to 0.007 rad/s. In `f32` the residue is always zero (the
-/// scaling by a power of two is exact), so the update is the plain one bit for bit.
+/// `w_p^2 dt eps` is about 650 LSB times the phase error, so errors below 0.00076 rad
+/// left the integrator where it was and the loop held the frequency with `kp eps`
+/// instead: the integrator, which tunes the DCFO's notch, stayed anywhere within
+/// 0.13 rad/s (0.6 %) of the mover's frequency, and rounded down it drifted to the
+/// edge (`dcfo acquire` at 0.1 m/s: a notch 0.6 % off, 0.35 deg of flux angle from
+/// f32's). A 64th takes that down to 0.002 rad/s. In `f32` the residue is always zero
+/// (the scaling by a power of two is exact), so the update is the plain one bit for
+/// bit.
 pub const INTEGRAL_RESIDUE_SCALE: f32 = 64.0;
 
 impl<T: Scalar> Pll<T> {
@@ -233,7 +233,6 @@ impl<T: Scalar> Pll<T> {
             theta: Angle::ZERO,
             integral: T::ZERO,
             integral_residue: T::ZERO,
-            residue_root: T::from_f32(8.0),
             inv_residue_scale: T::from_f32(1.0 / INTEGRAL_RESIDUE_SCALE),
             residue_scale: T::from_f32(INTEGRAL_RESIDUE_SCALE),
             lock_metric: T::ONE,
@@ -289,8 +288,7 @@ impl<T: Scalar> Pll<T> {
             // integral += w_p^2 dt error, with what falls below the integrator's
             // resolution carried to the next sample ([`INTEGRAL_RESIDUE_SCALE`]); each
             // product rounded to nearest, so no bias accumulates either.
-            let scaled_wp = wp * self.residue_root;
-            let residue = self.integral_residue + (scaled_wp * scaled_wp * dt).mul_nearest(error);
+            let residue = self.integral_residue + (wp * wp * dt * self.residue_scale).mul_nearest(error);
             let carry = residue.mul_nearest(self.inv_residue_scale);
             self.integral_residue = residue - carry * self.residue_scale;
             self.integral = (self.integral + carry).clamp_to(-self.max_omega, self.max_omega);

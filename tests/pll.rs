@@ -98,10 +98,10 @@ fn low_flux_coasts_and_bad_input_is_refused() {
 
 /// The frequency integrator in Q8.24 settles on the flux's frequency (it tunes the
 /// DCFO's notch, where 1 % is 0.6 deg of flux angle). Its update `w_p^2 dt eps` is about
-/// 53 LSB times the phase error at 0.1 m/s on the paper motor's base: rounded down (the
+/// 650 LSB times the phase error at 0.1 m/s on the paper motor's base: rounded down (the
 /// `fixed` crate's `*`) it was biased by half an LSB a sample, and whatever the rounding,
-/// phase errors below 0.009 rad did not move it, so the loop held the frequency with
-/// `kp eps` and left the integrator up to 2 % off. Measured: -1.2e-2 (as it was),
+/// phase errors below 0.00076 rad did not move it, so the loop held the frequency with
+/// `kp eps` and left the integrator up to 0.6 % off (`kp` 168 rad/s). Measured: -1.2e-2 (as it was),
 /// -6.0e-3 (rounded to nearest), 2e-5 to 6e-5 with the residue of
 /// `dcfo::pll::INTEGRAL_RESIDUE_SCALE`.
 #[test]
