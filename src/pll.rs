@@ -321,8 +321,10 @@ impl<T: Scalar> Pll<T> {
     /// angle and the lock detector: moves the frequency between a feed-forward and the
     /// integrator.
     pub fn set_integral(&mut self, omega_e: T) {
+        // The residue (below one LSB of the integrator) is kept: the estimator nudges the
+        // integrator with this every sample while it is outside the FLL's band, and
+        // clearing it each time would bring back the updates' dead zone.
         self.integral = omega_e.clamp_to(-self.max_omega, self.max_omega);
-        self.integral_residue = T::ZERO;
     }
 
     /// Back to angle 0, speed 0, unlocked.
