@@ -303,9 +303,10 @@ impl<T: Scalar> ArcFit<T> {
     /// (s). Bounded time: a fixed number of operations, two `f32` reciprocals, and at
     /// most one solve of each fit per sample (the chord's once: two divisions, two
     /// arctangents; the back-EMF's every sample from its spread test until its mean is
-    /// taken ([`EMF_CONFIRM_SHARE`]): about eight divisions, a reciprocal, five
-    /// arctangents, a cosine and two square roots with the chord's check,
-    /// `ArcFit::chord_frequency`, and an `f32` reciprocal for the mean).
+    /// taken ([`EMF_CONFIRM_SHARE`]): a division, two reciprocals, four arctangents and
+    /// an `f32` reciprocal for the mean; once, at its end, the chord's check
+    /// `ArcFit::chord_frequency` (four divisions, an arctangent, a cosine, two square
+    /// roots) and one division more).
     pub fn update(&mut self, emf_increment: AlphaBeta<T>, dt: T) -> ArcFitOutcome<T> {
         if !self.is_running() && self.deferred.is_none() {
             return ArcFitOutcome::Pending;
@@ -494,8 +495,15 @@ struct EmfFit<T> {
     slow_settle_rad: T,
     /// `2 / (psi_f * max_omega)` (1/V).
     scale: T,
+    /// `psi_f * max_omega / 2` (V): the scaled back-EMF back to volts by a product (the
+    /// fit's solve, every sample, does without 64-bit software divisions where the
+    /// divisor is a constant or shared).
+    unscale: T,
     /// Filter cut-off `wc` (rad/s).
     cutoff: T,
+    /// `1 / wc` and `1 / max_omega` (s/rad).
+    inv_cutoff: T,
+    inv_max_omega: T,
     /// `EMF_FILTER_SETTLE` time constants, as the angle the floor turns in them (rad).
     settle_rad: T,
     /// Highest frequency the fit is used at (rad/s).
@@ -577,7 +585,10 @@ impl<T: Scalar> EmfFit<T> {
                 EMF_FILTER_SETTLE * EMF_ANGLE_FILTER_RATIO * floor_rad_s / cutoff_rad_s,
             ),
             scale: base.voltage::<T>(0.5 * psi_f_wb * max_omega_rad_s).recip().unwrap_or(T::ZERO),
+            unscale: base.voltage(0.5 * psi_f_wb * max_omega_rad_s),
             cutoff: base.omega(cutoff_rad_s),
+            inv_cutoff: T::from_f32(1.0 / base.omega::<f32>(cutoff_rad_s)),
+            inv_max_omega: T::from_f32(1.0 / base.omega::<f32>(max_omega_rad_s)),
             settle_rad: T::from_f32(EMF_FILTER_SETTLE * floor_rad_s / cutoff_rad_s),
             max_omega: base.omega(max_omega_rad_s),
             floor: base.omega(floor_rad_s),
@@ -755,7 +766,7 @@ impl<T: Scalar> EmfFit<T> {
     /// The circle through the points so far, checked against the motor (module docs):
     /// `Found`, `Pending` when its radius does not match its frequency (try again with
     /// the next sample), `GaveUp` when the frequency is outside the fit's range or the
-    /// numbers are. Bounded time: five divisions, one reciprocal, four arctangents.
+    /// numbers are. Bounded time: one division, two reciprocals, four arctangents.
     fn solve(&self, e: AlphaBeta<T>, dt: T, elapsed_rad: T, trace: T, det: T) -> ArcFitOutcome<T> {
         self.candidate(e, dt, elapsed_rad, trace, det).unwrap_or(ArcFitOutcome::GaveUp)
     }
@@ -778,8 +789,13 @@ impl<T: Scalar> EmfFit<T> {
         let bx = (self.rx - self.mr * self.mx) * inv_trace;
         let by = (self.ry - self.mr * self.my) * inv_trace;
         let det = cxx * cyy - cxy * cxy;
-        let px = (cyy * bx - cxy * by).checked_div(det + det)?;
-        let py = (cxx * by - cxy * bx).checked_div(det + det)?;
+        // det >= the spread factor here (C is over its trace): 1 / (2 det) is below 10.
+        let inv_2det = (det + det).recip()?;
+        let px = (cyy * bx - cxy * by) * inv_2det;
+        let py = (cxx * by - cxy * bx) * inv_2det;
+        if !(px.is_valid() && py.is_valid()) {
+            return None;
+        }
         // The centre, from the first fitted sample's origin.
         let (cx, cy) = (self.first.alpha + px, self.first.beta + py);
         // The rotating part now and at the first fitted sample: the angle turned between
@@ -795,8 +811,8 @@ impl<T: Scalar> EmfFit<T> {
         // The radius the fitted frequency gives, 2 |w| psi_f |G(jw)| / (psi_f max_omega)
         // scaled, squared: 4 (w / max_omega)^2 / (1 + (w / wc)^2); compared without
         // dividing.
-        let w_rel = omega_e.checked_div(self.max_omega)?;
-        let w_cut = omega_e.checked_div(self.cutoff)?;
+        let w_rel = omega_e * self.inv_max_omega;
+        let w_cut = omega_e * self.inv_cutoff;
         let expected_sq = T::from_f32(4.0) * w_rel * w_rel;
         let radius_sq_filtered = (v.alpha * v.alpha + v.beta * v.beta) * (T::ONE + w_cut * w_cut);
         if radius_sq_filtered < self.min_ratio_sq * expected_sq
@@ -817,8 +833,10 @@ impl<T: Scalar> EmfFit<T> {
         } else {
             angle_now - lead + lag(self.cutoff)
         };
-        let ux = cx.checked_div(self.scale)?;
-        let uy = cy.checked_div(self.scale)?;
+        let (ux, uy) = (cx * self.unscale, cy * self.unscale);
+        if !(ux.is_valid() && uy.is_valid()) {
+            return None;
+        }
         Some(ArcFitOutcome::Found { theta_e, omega_e, dc_voltage: AlphaBeta::new(ux, uy) })
     }
 }
