@@ -816,6 +816,20 @@ impl<T: Scalar> EmfFit<T> {
         })
     }
 
+    /// The points' covariance `cxx`, `cxy`, `cyy` (scaled squared) and the covariance of
+    /// `|e|^2` with `e`, `bx`, `by` (scaled cubed), each over the trace of the points'
+    /// covariance, given its reciprocal `inv_trace`: what the solve and
+    /// [`EmfFit::noise_variance`] take.
+    fn moments_over_trace(&self, inv_trace: T) -> [T; 5] {
+        [
+            (self.sxx - self.mx * self.mx) * inv_trace,
+            (self.sxy - self.mx * self.my) * inv_trace,
+            (self.syy - self.my * self.my) * inv_trace,
+            (self.rx - self.mr * self.mx) * inv_trace,
+            (self.ry - self.mr * self.my) * inv_trace,
+        ]
+    }
+
     /// The variance of the noise on the fitted points, relative to the trace of their
     /// covariance (dimensionless, in `[0, 1/2)`; 0 when it cannot be told): the smallest
     /// root of Taubin's characteristic polynomial ("Noise" in the module docs), by
@@ -899,11 +913,7 @@ impl<T: Scalar> EmfFit<T> {
         // c = C^-1 b / 2 by the adjugate, with C and b over the trace (C's entries then
         // below 1, its determinant above the spread factor): in range for Q8.24.
         let inv_trace = trace.recip().filter(|_| det > T::ZERO)?;
-        let cxx = (self.sxx - self.mx * self.mx) * inv_trace;
-        let cxy = (self.sxy - self.mx * self.my) * inv_trace;
-        let cyy = (self.syy - self.my * self.my) * inv_trace;
-        let bx = (self.rx - self.mr * self.mx) * inv_trace;
-        let by = (self.ry - self.mr * self.my) * inv_trace;
+        let [cxx, cxy, cyy, bx, by] = self.moments_over_trace(inv_trace);
         // The noise's share of the points' spread, over the trace, taken out of the
         // moments ("Noise" in the module docs): what is left is the arc's.
         let x = self.noise_variance(cxx, cxy, cyy, bx, by, inv_trace);
@@ -1206,14 +1216,10 @@ mod tests {
             f.samples += 1;
             f.accumulate(p, p.alpha * p.alpha + p.beta * p.beta);
         }
-        let cxx = f.sxx - f.mx * f.mx;
-        let cxy = f.sxy - f.mx * f.my;
-        let cyy = f.syy - f.my * f.my;
-        let trace = cxx + cyy;
+        let trace = (f.sxx - f.mx * f.mx) + (f.syy - f.my * f.my);
         let inv = trace.recip().unwrap();
-        let bx = (f.rx - f.mr * f.mx) * inv;
-        let by = (f.ry - f.mr * f.my) * inv;
-        let x = f.noise_variance(cxx * inv, cxy * inv, cyy * inv, bx, by, inv);
+        let [cxx, cxy, cyy, bx, by] = f.moments_over_trace(inv);
+        let x = f.noise_variance(cxx, cxy, cyy, bx, by, inv);
         f64::from((x * trace).to_f32())
     }
 
