@@ -45,12 +45,13 @@
 //! ```text
 //! omega    += g (dtheta - omega dt)          signed frequency (rad/s)
 //! omega_n  += g (r - omega_n dt)             notch frequency, in [floor, start] (rad/s)
-//! r         = |dtheta| + m (s dtheta - |dtheta|),  s = sign(omega),  m = min(|omega| / omega_n, 1)
+//! r         = |dtheta| + m (s dtheta - |dtheta|),  s = sign(omega),  m = min(c |omega| / omega_n, 1)
 //! ```
 //!
 //! The notch's reading `r` is the rotation along the direction the signed frequency has
-//! found (`s dtheta`, linear in the noise) once that frequency is as large as the notch
-//! (`m = 1`), and `|dtheta|` while it is not (from reset, through a reversal), so that
+//! found (`s dtheta`, linear in the noise) once that frequency is a `1 / c` share of the
+//! notch (`m = 1`; `c` = [`DIRECTION_SHARE_GAIN`] = 4, below), and `|dtheta|` while it
+//! is not (from reset, through a reversal), so that
 //! the notch sweeps and follows whatever the direction; `m` moves the one into the other
 //! continuously (no threshold for f32 and fixed point to part at). Until 2026-11-26 the
 //! reading was `|dtheta|` always. At low speed the per-sample rotation is comparable to
@@ -63,6 +64,23 @@
 //! motors/salient.toml`: 85 of 576 over budget and 45 never locked before, 62 and 1
 //! after; the paper motor 52 / 0 -> 51 / 1, the low-R motor 21 -> 13; Q8.24 within
 //! 0.92 deg of f32 on the paper motor, 2.36 before; `tests/fll.rs` checks the bias).
+//!
+//! ## Noise: where the notch can stay above the mover
+//! Let the noise make the mean of `|dtheta|` `rho` times the rotation (`rho >= 1`; 1.17
+//! for noise of the rotation's size, as above). Besides `omega_n = |w|` the notch's
+//! update has an equilibrium with `m < 1` where `omega_n = (1 - m) rho |w| + m |w|`, `m
+//! = c |w| / omega_n`, i.e. `omega_n^2 - rho |w| omega_n + c (rho - 1) w^2 = 0`, which
+//! has roots when `rho^2 >= 4 c (rho - 1)`. With `c = 1` (until 2026-11-27) that is
+//! `(rho - 2)^2 >= 0`: for any `rho > 2` the notch can stay at `(rho - 1) |w|`, and the
+//! sweep from above meets that root first. Its band-pass then attenuates the flux the
+//! FLL reads, which makes the noise larger still. On a motor with `Lq I / psi_f` 1.2
+//! (30 mH, 0.1 Wb) at 3.3 Hz with a current offset the notch sat at 80-140 rad/s on a
+//! 21 rad/s mover, the angle 110-130 deg off for all of the 1.8 s window. With `c = 4`
+//! the high root exists only for `rho >= 8 + 4 sqrt(3) = 14.9`. `dcfo acquire` on that
+//! motor: 73 of 576 cold starts never locked, 31 with `c = 4` (23 to 38 with `c` from
+//! 2 to 8, the sensors' realisation); the paper motor, both example motors and a 230 V
+//! motor unchanged, `dcfo faults` all met (`tests/fll.rs` checks the notch at noise five
+//! and ten times the rotation).
 //!
 //! Below `psi_ref` a measurement is weighted down by `|x1|^2 / psi_ref^2` (the `max` in
 //! the denominator): a weak or absent flux reads as "no rotation", so the notch sweeps
@@ -144,6 +162,14 @@ pub const MAX_OMEGA_RIPPLE: f32 = 0.05;
 /// Largest recent peak deviation of `|x1|^2` from its mean, relative to the mean
 /// (dimensionless), for [`FllOutput::undisturbed`]: an offset of about `0.1 |psi|`.
 pub const MAX_FLUX_SQ_PEAK: f32 = 0.2;
+
+/// How far the signed frequency must have reached towards the notch frequency for the
+/// notch to follow the reading along its direction alone (dimensionless): the share of
+/// that reading is `min(DIRECTION_SHARE_GAIN |omega| / w_n, 1)` (module docs, "The
+/// loop"). At 1 (until 2026-11-27) a noisy flux held the notch at a multiple of the
+/// mover's frequency for good: the high equilibrium exists for any noise (module docs,
+/// "Noise"); at 4 only once the noise rectifies to 15 times the rotation.
+pub const DIRECTION_SHARE_GAIN: f32 = 4.0;
 
 /// Rate of the frequency-ripple and amplitude-peak filters per unit of notch frequency
 /// (dimensionless): a time constant of `1 / w_n`, a sixth of a period.
@@ -239,6 +265,8 @@ pub struct Fll<T> {
     settled_weight: T,
     /// Rate of the settle detector's filter relative to the trackers' rate.
     settle_rate: T,
+    /// [`DIRECTION_SHARE_GAIN`].
+    direction_share_gain: T,
     omega: T,
     notch: T,
     /// Filtered disagreement `| |omega| - notch |` (rad/s).
@@ -310,6 +338,7 @@ impl<T: Scalar> Fll<T> {
             tolerance: T::from_f32(config.settle_tolerance),
             settled_weight: T::from_f32(0.9),
             settle_rate: T::from_f32(0.25),
+            direction_share_gain: T::from_f32(DIRECTION_SHARE_GAIN),
             omega: T::ZERO,
             notch: start,
             disagreement: start,
@@ -360,9 +389,9 @@ impl<T: Scalar> Fll<T> {
         let g = (self.gain * self.notch).min(T::HALF * inv_dt);
         let omega = self.omega + g * (dtheta - self.omega * dt);
         // The notch's reading: along the signed frequency's direction as far as that
-        // frequency has reached the notch, |dtheta| otherwise (module docs).
+        // frequency has reached a quarter of the notch, |dtheta| otherwise (module docs).
         let along = if self.omega < T::ZERO { -dtheta } else { dtheta };
-        let share = match self.omega.abs().checked_div(self.notch) {
+        let share = match (self.direction_share_gain * self.omega.abs()).checked_div(self.notch) {
             Some(x) => x.min(T::ONE),
             None => T::ZERO,
         };

@@ -105,6 +105,10 @@ fn bad_settings_are_refused_by_name() {
 /// e^{-x^2/2s^2} + x (1 - 2 Phi(-x/s))`). A notch that tracked `|dtheta|` sat that far
 /// above the mover and the DCFO's angle lagged by `dw / (zeta w)`, 10 deg; the notch
 /// now tracks the reading along the signed frequency's direction, linear in the noise.
+/// At five and ten times the rotation (`rho` about 4 and 8 in the `crate::fll` docs,
+/// "Noise") the notch tracking the reading along the direction only once the signed
+/// frequency had reached the notch itself (`DIRECTION_SHARE_GAIN` 1) sat at 3 and 7 times
+/// the mover's frequency, the high equilibrium those docs derive.
 #[test]
 fn noise_on_the_increment_does_not_bias_the_notch() {
     let psi_f = 0.12;
@@ -117,7 +121,9 @@ fn noise_on_the_increment_does_not_bias_the_notch() {
         settle_tolerance: 0.1,
         settle_guard_rad: 15.0,
     };
-    for w in [21.0f64, -21.0] {
+    for (w, noise_ratio, notch_tolerance) in
+        [(21.0f64, 1.0, 0.02), (-21.0, 1.0, 0.02), (21.0, 5.0, 0.06), (-21.0, 5.0, 0.06), (21.0, 10.0, 0.25)]
+    {
         let mut fll = Fll::<f64>::new(&config, &Base::SI).unwrap();
         let mut theta = 0.4;
         let mut seed = 7u64;
@@ -130,8 +136,9 @@ fn noise_on_the_increment_does_not_bias_the_notch() {
             let (a, b) = (u(), u());
             (-2.0 * a.ln()).sqrt() * (2.0 * std::f64::consts::PI * b).cos()
         };
-        // Noise on each component of the increment with the per-sample rotation's size.
-        let sigma = psi_f * w.abs() * dt;
+        // Noise on each component of the increment, `noise_ratio` times the per-sample
+        // rotation's size.
+        let sigma = noise_ratio * psi_f * w.abs() * dt;
         let mut notch_sum = 0.0;
         let mut omega_sum = 0.0;
         let n = 200_000;
@@ -153,7 +160,22 @@ fn noise_on_the_increment_does_not_bias_the_notch() {
         // The signed frequency is unbiased (linear in the noise); the notch within 2 % of
         // the mover (measured: equal to |omega|, 0.7 % below w at +21 rad/s). Tracking
         // |dtheta| instead it sat 16.4 % above (24.45 rad/s), as the formula says.
-        assert!((omega - w).abs() < 0.01 * w.abs(), "w {w}: omega {omega}");
-        assert!((notch - w.abs()).abs() < 0.02 * w.abs(), "w {w}: notch {notch}");
+        // At five and ten times the rotation (measured, notch: 20.09 and 20.48 rad/s at
+        // noise 5, 24.7 at noise 10; 62.5, 62.2 and 127.9 with DIRECTION_SHARE_GAIN 1, the
+        // high root (rho - 1) |w| at rho 4.0 and 7.1) two second-order effects remain:
+        // the trackers' rate is scaled with the notch, which moves with the same noise
+        // as the estimate it scales, so the signed frequency settles low by about its
+        // variance over |w| (19.0 and 16.5 rad/s); and at ten times the signed
+        // frequency's own noise crosses a quarter of the notch now and then, letting some
+        // of |dtheta| back in. Neither is the fault asserted here.
+        println!("w {w}, noise {noise_ratio} x the rotation: omega {omega:.3}, notch {notch:.3}");
+        // The high equilibrium of the crate::fll docs ("Noise") would be at (rho - 1) |w|.
+        assert!(
+            (notch - w.abs()).abs() < notch_tolerance * w.abs(),
+            "w {w}, noise {noise_ratio}: notch {notch}"
+        );
+        if noise_ratio == 1.0 {
+            assert!((omega - w).abs() < 0.01 * w.abs(), "w {w}: omega {omega}");
+        }
     }
 }
