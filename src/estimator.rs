@@ -67,8 +67,11 @@
 //!   that out and passes the slower error of a speed change.
 //! - A dead band ([`NOTCH_PHASE_DEADBAND_RAD`]) leaves the steady ripple alone, and a
 //!   limit ([`NOTCH_PHASE_COMPENSATION_LIMIT_RAD`]) bounds what a wrong frequency can do.
-//! - It is armed by the first [`Estimate::locked`] after the PLL takes the notch and
-//!   fades in over one period ([`COMPENSATION_FADE_RAD`]): right after acquisition the
+//! - It is armed in proportion to the travel with [`Estimate::locked`] set since the
+//!   PLL took the notch, fully after one period ([`COMPENSATION_ARM_RAD`]; until
+//!   2026-11-27 at once by the first locked sample, which a flag set for a single sample
+//!   in Q8.24 and not in f32 armed in one of them only), and fades in over one period of
+//!   tracking ([`COMPENSATION_FADE_RAD`]): right after acquisition the
 //!   PLL's error is its own convergence, not a speed change (applied at once, 418 of 576
 //!   cold starts missed their budget instead of 292), and a fade rather than a switch
 //!   keeps Q8.24 with f32 where the two arm a few samples apart (before the FLL check:
@@ -205,6 +208,16 @@ pub const COMPENSATION_FLL_SHARE: f32 = 0.25;
 /// Electrical angle over which the compensation fades in once the estimate is first
 /// locked (rad): one period.
 pub const COMPENSATION_FADE_RAD: f32 = 2.0 * core::f32::consts::PI;
+
+/// Electrical angle (rad) of travel with [`Estimate::locked`] set over which the
+/// compensation is armed, in proportion: one period. Armed at once by the first locked
+/// sample (before 2026-11-27), a flag set for one sample in Q8.24 and not in f32 on the
+/// same inputs (the paper's doubled-resistance scenario, 0.2 s before f32 locked) let
+/// the compensation fade in for one of them only: 2.1 deg apart. Armed once the flag
+/// had held a quarter period (set in all, or without a break), the two still parted
+/// where the flag flickers (1.2 and 2.6 deg at 3.3 Hz on the salient example motor).
+/// In proportion, a sample's flag moves the compensation by `w dt / 2 pi` of itself.
+pub const COMPENSATION_ARM_RAD: f32 = 2.0 * core::f32::consts::PI;
 
 /// Electrical angle over which the compensation fades out once the estimate stops
 /// tracking (rad): a quarter period. At once (before 2026-11-26), a tracking flag that
@@ -400,11 +413,14 @@ pub struct Estimator<T> {
     compensation_bp: T,
     /// That notch's quadrature state (rad).
     compensation_q: T,
-    /// The estimate has been [locked](Estimate::locked) since the PLL took the notch:
-    /// the compensation is applied from then on.
-    compensation_armed: bool,
-    /// Share of the compensation applied (dimensionless, 0 to 1): it fades in over
-    /// [`COMPENSATION_FADE_RAD`] of travel once armed.
+    /// Share of the compensation armed (dimensionless, 0 to 1): the electrical angle
+    /// travelled while [`Estimate::locked`] since the PLL took the notch, over
+    /// [`COMPENSATION_ARM_RAD`].
+    compensation_armed: T,
+    /// `1 /` [`COMPENSATION_ARM_RAD`] (1/rad).
+    compensation_arm_rate: T,
+    /// Share of the compensation applied, times the share armed (dimensionless, 0 to
+    /// 1): it fades in over [`COMPENSATION_FADE_RAD`] of travel while tracking.
     compensation_weight: T,
     /// `1 /` [`COMPENSATION_FADE_RAD`] (1/rad).
     compensation_fade: T,
@@ -489,7 +505,8 @@ impl<T: Scalar> Estimator<T> {
             compensation_notch_k: T::from_f32(2.0 * COMPENSATION_NOTCH_DAMPING),
             compensation_bp: T::ZERO,
             compensation_q: T::ZERO,
-            compensation_armed: false,
+            compensation_armed: T::ZERO,
+            compensation_arm_rate: T::from_f32(1.0 / COMPENSATION_ARM_RAD),
             compensation_weight: T::ZERO,
             compensation_fade: T::from_f32(1.0 / COMPENSATION_FADE_RAD),
             compensation_fade_out: T::from_f32(1.0 / COMPENSATION_FADE_OUT_RAD),
@@ -648,7 +665,12 @@ impl<T: Scalar> Estimator<T> {
                 self.fade_out_compensation(&mut out, notch, dt);
             }
             let locked = out.locked && agree && f.settled && calm;
-            self.compensation_armed |= locked;
+            // Armed in proportion to the travel while locked: a flag set for a sample in
+            // one arithmetic and not the other arms them a sample's share apart.
+            if locked {
+                self.compensation_armed =
+                    (self.compensation_armed + notch.abs() * dt * self.compensation_arm_rate).min(T::ONE);
+            }
             (out, locked, out.locked && agree)
         };
         Ok(Estimate::from_parts(&out, flux, locked, tracking, acquiring))
@@ -657,7 +679,7 @@ impl<T: Scalar> Estimator<T> {
     /// Turns the output angle back by the phase the notch's mistuning gives the flux
     /// (module docs, "Phase compensation"): `(notch - omega_hat) / (zeta |notch|)` while
     /// the FLL's frequency says the notch is off the same way, its fundamental notched
-    /// out, less a dead band, limited, faded in once armed.
+    /// out, less a dead band, limited, faded in and armed in proportion.
     fn compensate_notch_phase(&mut self, out: &mut PllOutput<T>, notch: T, fll_omega: T, dt: T) {
         let w = notch.abs().max(self.agreement_floor);
         let phase = |omega: T| match (notch - omega).checked_div(w) {
@@ -676,21 +698,18 @@ impl<T: Scalar> Estimator<T> {
             from_pll.max(confirmed.min(T::ZERO))
         };
         // Notch at the fundamental (a SOGI, semi-implicit Euler, stable for w dt < 2; w dt
-        // is at most 0.13 at the PLL's speed limit and 10 kHz). It runs while tracking,
-        // armed or not.
+        // is at most 0.13 at the PLL's speed limit and 10 kHz). It runs while tracking.
         let h = w * dt;
         self.compensation_bp = (self.compensation_bp
             + h * (self.compensation_notch_k * (raw - self.compensation_bp) - self.compensation_q))
             .clamp_to(-T::TWO, T::TWO);
         self.compensation_q = (self.compensation_q + h * self.compensation_bp).clamp_to(-T::TWO, T::TWO);
-        if !self.compensation_armed {
-            return;
-        }
         if !self.compensation_tracking {
             // Tracking again: what is still applied from before fades out on its own and
             // the new reading fades in from zero, so the angle is continuous whichever
             // sample the flag resumes at (f32 and fixed point may take it a sample apart).
-            self.compensation_fading = (self.compensation_weight, self.compensation_phase);
+            self.compensation_fading =
+                (self.compensation_weight * self.compensation_armed, self.compensation_phase);
             self.compensation_weight = T::ZERO;
             self.compensation_tracking = true;
         }
@@ -701,7 +720,8 @@ impl<T: Scalar> Estimator<T> {
         self.compensation_weight = (self.compensation_weight + h * self.compensation_fade).min(T::ONE);
         let excess = phi - phi.clamp_to(-self.phase_deadband, self.phase_deadband);
         self.compensation_phase = excess.clamp_to(-self.phase_limit, self.phase_limit);
-        let phi = self.compensation_weight * self.compensation_phase + fading_weight * fading_phase;
+        let phi = self.compensation_armed * self.compensation_weight * self.compensation_phase
+            + fading_weight * fading_phase;
         out.theta_e = out.theta_e - phi.radians_to_angle();
         out.cos_sin = CosSin::new(out.theta_e);
     }
@@ -717,7 +737,8 @@ impl<T: Scalar> Estimator<T> {
         self.compensation_tracking = false;
         self.compensation_weight = (self.compensation_weight - h * self.compensation_fade_out).max(T::ZERO);
         if self.compensation_weight > T::ZERO || fading_weight > T::ZERO {
-            let phi = self.compensation_weight * self.compensation_phase + fading_weight * fading_phase;
+            let phi = self.compensation_armed * self.compensation_weight * self.compensation_phase
+                + fading_weight * fading_phase;
             out.theta_e = out.theta_e - phi.radians_to_angle();
             out.cos_sin = CosSin::new(out.theta_e);
         }
@@ -726,7 +747,7 @@ impl<T: Scalar> Estimator<T> {
     fn clear_compensation(&mut self) {
         self.compensation_bp = T::ZERO;
         self.compensation_q = T::ZERO;
-        self.compensation_armed = false;
+        self.compensation_armed = T::ZERO;
         self.compensation_weight = T::ZERO;
         self.compensation_phase = T::ZERO;
         self.compensation_fading = (T::ZERO, T::ZERO);
