@@ -570,6 +570,7 @@ impl<T: Scalar> Estimator<T> {
             let out = self.pll.update(flux.psi_ab, dt).map_err(EstimatorFault::Pll)?;
             return Ok(Estimate::from_parts(&out, flux, out.locked, out.locked, false));
         };
+        fll.set_steering(self.fll_steers);
         let f = fll.update(flux.psi_ab, increment, dt);
         // Drift of the disturbance estimate: while the observer is still moving its DC
         // state (after a DC step in its inputs) its angle is off although the loops agree.

@@ -80,7 +80,10 @@
 //! motor: 73 of 576 cold starts never locked, 31 with `c = 4` (23 to 38 with `c` from
 //! 2 to 8, the sensors' realisation); the paper motor, both example motors and a 230 V
 //! motor unchanged, `dcfo faults` all met (`tests/fll.rs` checks the notch at noise five
-//! and ten times the rotation).
+//! and ten times the rotation). `c = 4` applies while the FLL steers the DCFO's notch
+//! ([`Fll::set_steering`]): once the PLL does, the FLL's notch only scales its trackers'
+//! rate and its settle check, and there `c = 1` kept the paper's doubled-resistance
+//! scenario at 7.9 deg (median over eight event phases) where `c = 4` took it to 11.1.
 //!
 //! Below `psi_ref` a measurement is weighted down by `|x1|^2 / psi_ref^2` (the `max` in
 //! the denominator): a weak or absent flux reads as "no rotation", so the notch sweeps
@@ -164,11 +167,12 @@ pub const MAX_OMEGA_RIPPLE: f32 = 0.05;
 pub const MAX_FLUX_SQ_PEAK: f32 = 0.2;
 
 /// How far the signed frequency must have reached towards the notch frequency for the
-/// notch to follow the reading along its direction alone (dimensionless): the share of
-/// that reading is `min(DIRECTION_SHARE_GAIN |omega| / w_n, 1)` (module docs, "The
-/// loop"). At 1 (until 2026-11-27) a noisy flux held the notch at a multiple of the
-/// mover's frequency for good: the high equilibrium exists for any noise (module docs,
-/// "Noise"); at 4 only once the noise rectifies to 15 times the rotation.
+/// notch to follow the reading along its direction alone, while the FLL steers the
+/// DCFO's notch ([`Fll::set_steering`]; dimensionless): the share of that reading is
+/// `min(DIRECTION_SHARE_GAIN |omega| / w_n, 1)` (module docs, "The loop"). At 1 (until
+/// 2026-11-27) a noisy flux held the notch at a multiple of the mover's frequency for
+/// good: the high equilibrium exists for any noise (module docs, "Noise"); at 4 only
+/// once the noise rectifies to 15 times the rotation. While the PLL steers, 1.
 pub const DIRECTION_SHARE_GAIN: f32 = 4.0;
 
 /// Rate of the frequency-ripple and amplitude-peak filters per unit of notch frequency
@@ -265,8 +269,10 @@ pub struct Fll<T> {
     settled_weight: T,
     /// Rate of the settle detector's filter relative to the trackers' rate.
     settle_rate: T,
-    /// [`DIRECTION_SHARE_GAIN`].
+    /// [`DIRECTION_SHARE_GAIN`] while steering, 1 otherwise ([`Fll::set_steering`]).
     direction_share_gain: T,
+    /// [`DIRECTION_SHARE_GAIN`].
+    steering_share_gain: T,
     omega: T,
     notch: T,
     /// Filtered disagreement `| |omega| - notch |` (rad/s).
@@ -339,6 +345,7 @@ impl<T: Scalar> Fll<T> {
             settled_weight: T::from_f32(0.9),
             settle_rate: T::from_f32(0.25),
             direction_share_gain: T::from_f32(DIRECTION_SHARE_GAIN),
+            steering_share_gain: T::from_f32(DIRECTION_SHARE_GAIN),
             omega: T::ZERO,
             notch: start,
             disagreement: start,
@@ -473,6 +480,18 @@ impl<T: Scalar> Fll<T> {
     /// the speed.
     pub fn omega_mean(&self) -> T {
         self.omega_mean
+    }
+
+    /// Whether the FLL's notch frequency is what the DCFO's notch is tuned to (`true`,
+    /// the default: acquisition, [`crate::estimator::NotchTuning::Fll`]) or only a
+    /// reference for another loop's (`false`: the PLL steers). While steering, the notch
+    /// follows the signed frequency's direction from a quarter of the notch on
+    /// ([`DIRECTION_SHARE_GAIN`]), so that noise cannot hold it (and the DCFO's
+    /// band-pass) at a multiple of the mover's frequency; otherwise from the notch itself,
+    /// as before 2026-11-27: over the paper's scenarios at eight event phases the
+    /// doubled-resistance one took 7.9 deg (median) so against 11.1 with the quarter.
+    pub fn set_steering(&mut self, steering: bool) {
+        self.direction_share_gain = if steering { self.steering_share_gain } else { T::ONE };
     }
 
     /// The signed frequency estimate (rad/s).
