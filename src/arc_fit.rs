@@ -110,17 +110,6 @@
 //! a DC error of 60 % of the back-EMF at 3 Hz the angle is within 1.1 deg and the DC
 //! within 2 % of the back-EMF (the plain fit: 12.8 deg, 22 %).
 //!
-//! With noise of several times the back-EMF per sample, the first circles that pass the
-//! spread test come from a few samples of arc, and some turn faster than the fit's
-//! range. Such a candidate used to end the fit (a mover that fast is the chord fit's),
-//! and the chord's fit, bent by any DC error, was taken instead. A candidate above the
-//! range whose circle is smaller than the smallest a mover at the range's top draws
-//! ([`EMF_RADIUS_RANGE`]) is now read as noise, and the fit goes on (2026-11-27; on
-//! noisy arcs with twice the noise above: 2.96 deg and 0.19 V against 56.5 deg and
-//! 2.2 V; `dcfo acquire` on a motor with `Lq I / psi_f` 1.2 and 30 mH: 192 of 576 cold
-//! starts over budget -> 150, never locked 31 -> 22; the paper motor, both example
-//! motors, `motors/salient_high_l.toml` and a 230 V motor unchanged).
-//!
 //! In fixed point the running means are updated with a product rounded to nearest
 //! ([`Scalar::mul_nearest`]): the `fixed` crate's product rounds down, and over a
 //! thousand updates that half-LSB bias moved the back-EMF circle's centre enough to
@@ -757,7 +746,7 @@ impl<T: Scalar> EmfFit<T> {
         }
         // A candidate circle; until one passes the checks the fit goes on (more of the
         // arc, less of the noise), up to the fit's time; a frequency outside its range
-        // ends it, unless it is above the range on a circle too small for it (noise).
+        // ends it.
         let outcome = match self.solve(e, dt, elapsed_rad, trace, det) {
             ArcFitOutcome::Found { theta_e, omega_e, dc_voltage } => {
                 self.average(theta_e, omega_e, dc_voltage, elapsed_rad);
@@ -904,24 +893,12 @@ impl<T: Scalar> EmfFit<T> {
     }
 
     /// The circle through the points so far, checked against the motor (module docs):
-    /// `Found`, `Pending` when its radius does not match its frequency or its frequency
-    /// is above the fit's range on a circle smaller than such a mover draws (try again
-    /// with the next sample), `GaveUp` when the frequency is otherwise outside the fit's
-    /// range or the numbers are. Bounded time: one division, six reciprocals (four of them the noise's
+    /// `Found`, `Pending` when its radius does not match its frequency (try again with
+    /// the next sample), `GaveUp` when the frequency is outside the fit's range or the
+    /// numbers are. Bounded time: one division, six reciprocals (four of them the noise's
     /// Newton steps), four arctangents.
     fn solve(&self, e: AlphaBeta<T>, dt: T, elapsed_rad: T, trace: T, det: T) -> ArcFitOutcome<T> {
         self.candidate(e, dt, elapsed_rad, trace, det).unwrap_or(ArcFitOutcome::GaveUp)
-    }
-
-    /// `true` when the rotating part `v` of the (scaled) back-EMF is smaller than the
-    /// smallest circle [`EMF_RADIUS_RANGE`] accepts for a mover at the fit's highest
-    /// frequency, through the filter: `|v|^2 < r_min^2 4 / (1 + (max_omega / wc)^2)`
-    /// (the expected radius squared is `4 (w / max_omega)^2 / (1 + (w / wc)^2)`, which
-    /// grows with `w`).
-    fn smaller_than_at_max_omega(&self, v: AlphaBeta<T>) -> bool {
-        let w_cut = self.max_omega * self.inv_cutoff;
-        let radius_sq_filtered = (v.alpha * v.alpha + v.beta * v.beta) * (T::ONE + w_cut * w_cut);
-        radius_sq_filtered < self.min_ratio_sq * T::from_f32(4.0)
     }
 
     /// [`EmfFit::solve`], `None` for `GaveUp`.
@@ -966,11 +943,6 @@ impl<T: Scalar> EmfFit<T> {
         let angle_now = T::atan2(v.beta, v.alpha);
         let turned: T = (angle_now - T::atan2(-py, -px)).to_radians();
         let omega_e = (self.floor * turned).checked_div(elapsed_rad - self.first_rad)?;
-        if omega_e.abs() > self.max_omega && self.smaller_than_at_max_omega(v) {
-            // The circle is smaller than a mover this fast draws: the frequency is the
-            // noise's (a few samples of arc), not the mover's. More of the arc is needed.
-            return Some(ArcFitOutcome::Pending);
-        }
         if omega_e.abs() < self.floor || omega_e.abs() > self.max_omega {
             return None;
         }
@@ -1326,31 +1298,6 @@ mod tests {
             assert_eq!(found, 160, "{name}");
             assert!(
                 worst[0] < 2.0 && worst[1] < 0.1,
-                "{name}: angle {:.2} deg, DC {:.3} V",
-                worst[0],
-                worst[1]
-            );
-        }
-    }
-
-    #[test]
-    fn a_noisy_candidate_too_fast_for_its_circle_does_not_end_the_fit() {
-        // As above with twice the noise (the back-EMF of one sample carries three times
-        // its own size): the first circles that pass the spread test come from a few
-        // samples of arc and some turn faster than the fit's range. Such a candidate ended
-        // the back-EMF fit; the chord's fit was then taken, bent by the 60 % DC error:
-        // worst 56.5 deg and 2.24 V (160 fits, f32 and Q8.24 alike). A candidate whose
-        // circle is smaller than a mover that fast draws is now noise, and the fit goes
-        // on: measured 2.96 deg and 0.193 V. (At three times the noise both lose: 133 deg.)
-        let pu = Base { voltage_v: 179.6, current_a: 2.97, omega_rad_s: 1122.5 };
-        let drift = [2.0, -1.0];
-        for (name, (worst, found)) in [
-            ("f32", noisy_sweep::<f32>(&Base::SI, drift, 6.4e-4)),
-            ("Q24", noisy_sweep::<Q24>(&pu, drift, 6.4e-4)),
-        ] {
-            assert_eq!(found, 160, "{name}");
-            assert!(
-                worst[0] < 4.5 && worst[1] < 0.3,
                 "{name}: angle {:.2} deg, DC {:.3} V",
                 worst[0],
                 worst[1]
