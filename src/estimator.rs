@@ -205,8 +205,9 @@ pub const NOTCH_PHASE_COMPENSATION_LIMIT_RAD: f32 = 0.3;
 /// 1/4 keeps every ride-through within its 5 deg and the load step at 7.0.
 pub const COMPENSATION_FLL_SHARE: f32 = 0.25;
 
-/// Electrical angle over which the compensation fades in once the estimate is first
-/// locked (rad): one period.
+/// Electrical angle over which the compensation fades in while the estimate tracks
+/// (rad): one period. What is applied is that share times the share armed
+/// ([`COMPENSATION_ARM_RAD`]).
 pub const COMPENSATION_FADE_RAD: f32 = 2.0 * core::f32::consts::PI;
 
 /// Electrical angle (rad) of travel with [`Estimate::locked`] set over which the
@@ -419,8 +420,9 @@ pub struct Estimator<T> {
     compensation_armed: T,
     /// `1 /` [`COMPENSATION_ARM_RAD`] (1/rad).
     compensation_arm_rate: T,
-    /// Share of the compensation applied, times the share armed (dimensionless, 0 to
-    /// 1): it fades in over [`COMPENSATION_FADE_RAD`] of travel while tracking.
+    /// Share of the compensation faded in (dimensionless, 0 to 1): it fades in over
+    /// [`COMPENSATION_FADE_RAD`] of travel while tracking; what is applied is this share
+    /// times the share armed.
     compensation_weight: T,
     /// `1 /` [`COMPENSATION_FADE_RAD`] (1/rad).
     compensation_fade: T,

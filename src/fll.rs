@@ -78,7 +78,7 @@
 //! 21 rad/s mover, the angle 110-130 deg off for all of the 1.8 s window. With `c = 4`
 //! the high root exists only for `rho >= 8 + 4 sqrt(3) = 14.9`. `dcfo acquire` on that
 //! motor: 73 of 576 cold starts never locked, 31 with `c = 4` (23 to 38 with `c` from
-//! 2 to 8, the sensors' realisation); the paper motor, both example motors and a 230 V
+//! 2 to 8, the sensors' realisation; 30 with the steering switch below); the paper motor, both example motors and a 230 V
 //! motor unchanged, `dcfo faults` all met (`tests/fll.rs` checks the notch at noise five
 //! and ten times the rotation). `c = 4` applies while the FLL steers the DCFO's notch
 //! ([`Fll::set_steering`]): once the PLL does, the FLL's notch only scales its trackers'
