@@ -41,7 +41,7 @@
 //! (from the equations above with the notch at the true `w`; the true flux passes
 //! untouched). `e` rises, peaks about half a period after the step and decays through
 //! the slowest pole. The largest angle error the step can cause, over the phase at which it
-//! comes, is `asin(max |e| / psi_f)`: no loop after the observer takes it back. For the
+//! comes, is `asin(max |e| / psi_f)`: no loop on the angle alone takes it back. For the
 //! paper's cases at 10 Hz (`tests/observer_analysis.rs` checks the discrete observer
 //! against this closed form within 1 % of the peak):
 //!
@@ -84,9 +84,36 @@
 //!
 //! What changing the observer's structure could buy on the DC steps (an integral term
 //! in the feedback, a DC-voltage estimator on the back-EMF residual, a band-pass
-//! narrowed after a detected step) is worked out in the linear model in
-//! `docs/dc-step-analysis.md`: only the last meets both of issue 8's floors there, and
-//! it needs a DC-step detector that a mistuned notch does not fool.
+//! narrowed after a detected step, a feedback on the flux magnitude) is worked out in the
+//! linear model in `docs/dc-step-analysis.md`. The last is built (below, "The magnitude
+//! feedback"), with the angle correction it makes possible in [`crate::estimator`].
+//!
+//! ## The magnitude feedback (armed by the estimator)
+//! A DC offset `delta` left in `psi_hat` shows in its magnitude at once, `|psi_hat| =
+//! |psi| + Re(delta e^{-j theta})` to first order, while a mover turning at a steady
+//! speed keeps `|psi|` constant. Armed ([`Dcfo::set_magnitude_feedback`]), the
+//! integrator is also fed
+//!
+//! ```text
+//! -p w (|psi_hat|^2 - m) / (2 m) psi_hat,     m' = a w (|psi_hat|^2 - m)
+//! ```
+//!
+//! the radial deviation from the magnitude's slow mean `m` (no square root: the squared
+//! magnitude's deviation over `2 m` is the relative one to first order), with `p = 1`,
+//! `a = 0.1` ([`DcfoConfig::magnitude_gain`], [`DcfoConfig::magnitude_mean_rate`]). For
+//! a salient motor the magnitude is that of the active flux, `psi_f + (Ld - Lq) i_d`, so
+//! `2 (Ld - Lq) i . psi_hat` is taken off `|psi_hat|^2` first. On the offset the
+//! feedback acts like a leak of rate `p w / 2` averaged over a turn (what is radial now
+//! was across the flux a quarter period ago); on the true flux it does nothing, so the
+//! band-pass keeps its unity gain and zero phase at `w`, and a notch off the mover turns
+//! the phase as before (the feedback only sees a magnitude that changes). The mean
+//! follows a notch's changing gain and the magnet's temperature; the flux's magnitude
+//! itself is not taken from the motor file. In the continuous-time model
+//! (`docs/dc_step_analysis.py`, section 5) the paper's steps at the worst of 16 phases go
+//! from 17.1 to 11.7 deg (+2 V) and 8.5 to 5.7 deg (+0.2 A), and the discrete observer
+//! agrees within 0.05 deg (`tests/observer_analysis.rs`). Unarmed (after [`Dcfo::new`]),
+//! the observer is the paper's; the estimator arms it once its loops have tracked the
+//! mover for a period, since while acquiring the magnitude is the acquisition's.
 //!
 //! ## Discretisation
 //! - Integrator: the held voltage is integrated exactly, the resistive drop by the
@@ -118,14 +145,29 @@ pub struct DcfoConfig {
     /// Lowest notch frequency (rad/s, > 0). Below it the notch stays at the floor: the
     /// observer has no information at standstill (digest §3).
     pub omega_floor_rad_s: f32,
+    /// Gain `p` of the radial feedback (dimensionless, >= 0; 0 is the paper's DCFO):
+    /// the integrator is fed `-p w (|psi_hat| - rho) / rho` along `psi_hat`, `rho` the
+    /// flux magnitude's slow mean (module docs, "The magnitude feedback"). Applied only
+    /// in the share [`Dcfo::set_magnitude_feedback`] arms; off until then.
+    pub magnitude_gain: f32,
+    /// Rate `a` of the magnitude's mean `rho` (dimensionless, > 0, at most 1): it follows
+    /// `|psi_hat|` with the time constant `1 / (a w)`.
+    pub magnitude_mean_rate: f32,
 }
 
 impl Default for DcfoConfig {
     /// `zeta = 1.0`, `h = -0.2 Ls w` (see the module docs), notch floor `2 pi * 2 Hz`
     /// (12.6 rad/s; 0.06 m/s on the paper motor, below the 0.1 m/s where back-EMF methods
-    /// lose the angle).
+    /// lose the angle), radial feedback `p = 1` with its mean at `a = 0.1` (module docs,
+    /// "The magnitude feedback").
     fn default() -> Self {
-        DcfoConfig { zeta: 1.0, h_per_ls_omega: -0.2, omega_floor_rad_s: 4.0 * core::f32::consts::PI }
+        DcfoConfig {
+            zeta: 1.0,
+            h_per_ls_omega: -0.2,
+            omega_floor_rad_s: 4.0 * core::f32::consts::PI,
+            magnitude_gain: 1.0,
+            magnitude_mean_rate: 0.1,
+        }
     }
 }
 
@@ -139,6 +181,9 @@ pub enum DcfoConfigError {
     BadDamping,
     /// `omega_floor_rad_s` is not a valid positive number.
     BadFloor,
+    /// `magnitude_gain` is negative or not a number, or `magnitude_mean_rate` is not in
+    /// `(0, 1]`.
+    BadMagnitudeFeedback,
 }
 
 /// Largest `w dt / 2` the observer uses (see the module docs).
@@ -167,6 +212,17 @@ pub struct Dcfo<T> {
     /// Disturbance estimate `d = psi_i - psi_hat` (Wb).
     d: AlphaBeta<T>,
     faulted: bool,
+    /// Radial feedback gain `p` (dimensionless).
+    magnitude_gain: T,
+    /// Rate `a` of the magnitude's mean (dimensionless).
+    magnitude_mean_rate: T,
+    /// Share of the radial feedback applied (dimensionless, 0 to 1; 0 after `new`).
+    magnitude_weight: T,
+    /// Slow mean of `|psi_hat|^2 - 2 (Ld - Lq) i . psi_hat` (Wb^2); zero until the first
+    /// non-zero flux after a reset or a seed, which starts it.
+    flux_square_mean: T,
+    /// The current of the last sample (A), the one `x1` was estimated with.
+    current_prev: AlphaBeta<T>,
 }
 
 impl<T: Scalar> Dcfo<T> {
@@ -182,12 +238,23 @@ impl<T: Scalar> Dcfo<T> {
         if !positive(config.omega_floor_rad_s) {
             return Err(DcfoConfigError::BadFloor);
         }
-        Ok(Self::with_gains(
+        let rate = config.magnitude_mean_rate;
+        if !(config.magnitude_gain >= 0.0
+            && config.magnitude_gain.is_finite()
+            && positive(rate)
+            && rate <= 1.0)
+        {
+            return Err(DcfoConfigError::BadMagnitudeFeedback);
+        }
+        let mut o = Self::with_gains(
             motor,
             T::from_f32(2.0 * config.zeta),
             T::from_f32(config.h_per_ls_omega),
             base.omega(config.omega_floor_rad_s),
-        ))
+        );
+        o.magnitude_gain = T::from_f32(config.magnitude_gain);
+        o.magnitude_mean_rate = T::from_f32(rate);
+        Ok(o)
     }
 
     /// No checks: also builds the unstable `h >= 0` observers the stability tests need.
@@ -205,7 +272,50 @@ impl<T: Scalar> Dcfo<T> {
             x2: AlphaBeta::default(),
             d: AlphaBeta::default(),
             faulted: false,
+            magnitude_gain: T::ZERO,
+            magnitude_mean_rate: T::ONE,
+            magnitude_weight: T::ZERO,
+            flux_square_mean: T::ZERO,
+            current_prev: AlphaBeta::default(),
         }
+    }
+
+    /// Arms the radial feedback (module docs, "The magnitude feedback") in the share
+    /// `weight` (dimensionless, clamped to `[0, 1]`; 0, the state after [`Dcfo::new`], is
+    /// the paper's DCFO). The estimator arms it once its loops have tracked the mover for
+    /// a period ([`crate::estimator`]); a non-finite weight is ignored.
+    pub fn set_magnitude_feedback(&mut self, weight: T) {
+        if weight.is_valid() {
+            self.magnitude_weight = weight.clamp_to(T::ZERO, T::ONE);
+        }
+    }
+
+    /// The radial feedback for this sample (Wb, added to the integrator) from the last
+    /// flux estimate, and the magnitude's mean moved on by one sample of `w_dt` (rad).
+    fn magnitude_feedback(&mut self, w_dt: T) -> AlphaBeta<T> {
+        let psi = self.x1;
+        // The magnet's part of the squared active flux: |psi|^2 = psi_f^2 + 2 (Ld - Lq)
+        // i_d |psi| to first order, and i_d |psi| = i . psi.
+        let i = self.current_prev;
+        let along = i.alpha * psi.alpha + i.beta * psi.beta;
+        let square = psi.alpha * psi.alpha + psi.beta * psi.beta
+            - (self.model.motor.saliency + self.model.motor.saliency) * along;
+        let mean = self.flux_square_mean;
+        if mean <= T::ZERO {
+            // Started by the first flux after a reset or a seed.
+            self.flux_square_mean = square;
+            return AlphaBeta::default();
+        }
+        self.flux_square_mean = mean + (self.magnitude_mean_rate * w_dt).min(T::ONE) * (square - mean);
+        if self.magnitude_weight <= T::ZERO {
+            return AlphaBeta::default();
+        }
+        // (|psi|^2 - rho^2) / (2 rho^2) = (|psi| - rho) / rho to first order: no root.
+        let Some(deviation) = (square - mean).checked_div(mean + mean) else {
+            return AlphaBeta::default();
+        };
+        let g = self.magnitude_gain * self.magnitude_weight * w_dt * deviation.clamp_to(-T::ONE, T::ONE);
+        AlphaBeta::new(-g * psi.alpha, -g * psi.beta)
     }
 
     /// The integrator state `psi_i` of the last sample (Wb), before the notch: bounded
@@ -248,6 +358,8 @@ impl<T: Scalar> Dcfo<T> {
         self.model.set_previous_current(i_ab);
         self.psi_i_prev = psi_i;
         self.x1 = psi_mover;
+        self.flux_square_mean = T::ZERO;
+        self.current_prev = i_ab;
         // x2' = |w| x1: for x1 = psi (cos th, sin th) with th turning at w, x2 is
         // sign(w) psi (sin th, -cos th); plus 2 zeta d for the DC input.
         let (qa, qb) = if omega_e < T::ZERO {
@@ -311,9 +423,10 @@ impl<T: Scalar> FluxObserver<T> for Dcfo<T> {
         let g_dt = self.h_per_ls_omega * w * input.dt; // (h/Ls) dt, negative
 
         let de = self.model.emf_increment(input);
+        let radial = self.magnitude_feedback(w * input.dt);
         let z = AlphaBeta {
-            alpha: self.z.alpha + de.alpha + g_dt * self.d.alpha,
-            beta: self.z.beta + de.beta + g_dt * self.d.beta,
+            alpha: self.z.alpha + de.alpha + g_dt * self.d.alpha + radial.alpha,
+            beta: self.z.beta + de.beta + g_dt * self.d.beta + radial.beta,
         };
         let psi_i = self.model.mover_flux(z, input.i_ab);
         let (x1a, x2a) = sogi.advance(self.x1.alpha, self.x2.alpha, self.psi_i_prev.alpha, psi_i.alpha);
@@ -327,14 +440,17 @@ impl<T: Scalar> FluxObserver<T> for Dcfo<T> {
         }
         let increment =
             AlphaBeta::new(psi_i.alpha - self.psi_i_prev.alpha, psi_i.beta - self.psi_i_prev.beta);
-        // The same without the feedback this sample added: (u - Rs i) dt - Ls di.
-        let emf_increment =
-            AlphaBeta::new(increment.alpha - g_dt * self.d.alpha, increment.beta - g_dt * self.d.beta);
+        // The same without the feedbacks this sample added: (u - Rs i) dt - Ls di.
+        let emf_increment = AlphaBeta::new(
+            increment.alpha - g_dt * self.d.alpha - radial.alpha,
+            increment.beta - g_dt * self.d.beta - radial.beta,
+        );
         self.z = z;
         self.psi_i_prev = psi_i;
         self.x1 = x1;
         self.x2 = x2;
         self.d = d;
+        self.current_prev = input.i_ab;
         Ok(FluxEstimate {
             psi_ab: x1,
             disturbance_ab: Some(d),
@@ -351,6 +467,8 @@ impl<T: Scalar> FluxObserver<T> for Dcfo<T> {
         self.x2 = AlphaBeta::default();
         self.d = AlphaBeta::default();
         self.faulted = false;
+        self.flux_square_mean = T::ZERO;
+        self.current_prev = AlphaBeta::default();
     }
 }
 

@@ -146,6 +146,16 @@ impl<T: Scalar> AnyObserver<T> {
     }
 }
 
+impl<T: Scalar> AnyObserver<T> {
+    /// Arms the DCFO's radial feedback in the share `weight` (dimensionless, 0 to 1;
+    /// [`Dcfo::set_magnitude_feedback`]); the other observers have none.
+    pub fn set_magnitude_feedback(&mut self, weight: T) {
+        if let AnyObserver::Dcfo(o) = self {
+            o.set_magnitude_feedback(weight);
+        }
+    }
+}
+
 impl<T: Scalar> FluxObserver<T> for AnyObserver<T> {
     fn update(&mut self, input: &ObserverInput<T>) -> Result<FluxEstimate<T>, ObserverFault> {
         match self {

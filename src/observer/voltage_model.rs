@@ -15,12 +15,18 @@ pub struct ObserverMotor<T> {
     /// Inductance used to remove the inductive flux (H): `Lq`, so that a salient motor
     /// gives the active flux.
     pub ls: T,
+    /// Saliency `Ld - Lq` (H): the active flux's magnitude is `psi_f + (Ld - Lq) i_d`.
+    pub saliency: T,
 }
 
 impl<T: Scalar> ObserverMotor<T> {
-    /// Takes `Rs` and `Lq` from `motor`, converted with `base`.
+    /// Takes `Rs`, `Lq` and `Ld - Lq` from `motor`, converted with `base`.
     pub fn new(motor: &MotorParams, base: &Base) -> Self {
-        ObserverMotor { rs: base.resistance(motor.rs_ohm), ls: base.inductance(motor.lq_h) }
+        ObserverMotor {
+            rs: base.resistance(motor.rs_ohm),
+            ls: base.inductance(motor.lq_h),
+            saliency: base.inductance(motor.ld_h - motor.lq_h),
+        }
     }
 }
 

@@ -175,11 +175,11 @@ pub fn measure_response(filter: &FluxFilter, f_hz: f64, dt_s: f64) -> Result<(f6
     let motor = MotorParams::paper();
     let (mut observer, omega_e): (Box<dyn FluxObserver<f64>>, f64) = match *filter {
         FluxFilter::Dcfo { omega0_rad_s, zeta, h_ohm, ls_h } => {
-            let m = ObserverMotor { rs: 0.0, ls: ls_h };
+            let m = ObserverMotor { rs: 0.0, ls: ls_h, saliency: 0.0 };
             let cfg = DcfoConfig {
                 zeta: zeta as f32,
                 h_per_ls_omega: (h_ohm / (ls_h * omega0_rad_s)) as f32,
-                omega_floor_rad_s: DcfoConfig::default().omega_floor_rad_s,
+                ..DcfoConfig::default()
             };
             let o = Dcfo::<f64>::new(m, &cfg, &base).map_err(|e| refuse(format!("DCFO: {e:?}")))?;
             (Box::new(o), omega0_rad_s)
