@@ -69,13 +69,14 @@ fn run(w: f64, du: f32, di: f32) -> AfterStep {
 }
 
 #[test]
-fn a_2_volt_step_never_leaves_the_flag_set_on_a_wrong_angle() {
+fn a_4_volt_step_never_leaves_the_flag_set_on_a_wrong_angle() {
     let w = std::f64::consts::PI * 0.3 / 0.015; // 0.3 m/s, 10 Hz
-    let a = run(w, 2.0, 0.0);
-    println!("+2 V: {a:?}");
+    let a = run(w, 4.0, 0.0);
+    println!("+4 V: {a:?}");
     // The step is a real disturbance (the observer's own transient, module docs of
-    // `observer::dcfo`, about 1.5 dU / w of flux or 17 deg, and the notch's: 25 deg
-    // measured) ...
+    // `observer::dcfo`, about 1.5 dU / w of flux, less what the DC offset's angle
+    // correction takes back, `estimator`; the paper's +2 V now stays within 10.5 deg
+    // here, below the 15 deg line, so twice that) ...
     assert!(a.max_err_deg > 15.0, "{a:?}");
     // ... which the flag reports, and recovers from.
     assert_eq!(a.false_locks, 0, "{a:?}");
