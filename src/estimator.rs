@@ -275,16 +275,18 @@ pub const COMPENSATION_NOTCH_DAMPING: f32 = 0.3;
 
 /// Share of the DC offset's angle, read from the rate of the flux magnitude, that the
 /// angle output is turned back by (dimensionless; module docs, "The DC offset's angle").
-/// In the linear model (`docs/dc_step_analysis.py`) 0.5 to 1 give the same +2 V figure;
-/// in the closed-loop drive (the paper scenarios at eight event phases each) 1.0 let
-/// the +2 V step reach 23.9 deg at one phase (12.3 median), 0.7 keeps it at 14.7 (11.8).
+/// In the linear model (`docs/dc_step_analysis.py`, section 5) 0.7 and 1.0 give 6.2 and
+/// 6.9 deg on the +2 V step; in the closed-loop drive (the paper scenarios at eight event
+/// phases each, measured before the band-pass and the arming, dead band 0.02) 1.0 let
+/// it reach 23.9 deg at one phase (12.3 median), 0.7 kept it at 14.5 (10.9).
 pub const OFFSET_PHASE_SHARE: f32 = 0.7;
 
 /// Part of the DC offset's angle reading left uncorrected (rad): the rate of the flux
 /// magnitude also carries the inverter's harmonics and the sensors' noise, which the
-/// reading turns into angle noise, most at low speed. 0.02 kept 12 of the 48 cold starts
-/// at 0.1 m/s from locking within their budget (`dcfo acquire`, paper motor), 0.03 none
-/// over and 0.04 none; the +2 V step's median over eight phases 10.9, 11.8 and 12.1 deg.
+/// reading turns into angle noise, most at low speed. Without the band-pass, 0.02 kept
+/// 12 of the 48 cold starts at 0.1 m/s from locking within their budget (`dcfo acquire`,
+/// paper motor) and 0.04 none. With it, 0.015 and 0.03 keep none over; Q8.24 0.84 and
+/// 0.67 deg off f32 there, the +2 V step 12.0 and 12.5 deg median over eight phases.
 pub const OFFSET_PHASE_DEADBAND_RAD: f32 = 0.03;
 
 /// Largest DC offset's angle correction (rad): that of an offset of 0.3 of the flux.
