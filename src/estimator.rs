@@ -298,6 +298,15 @@ pub const OFFSET_PHASE_LIMIT_RAD: f32 = 0.3;
 /// band-pass costs the +2 V step nothing (6.3 deg at the worst phase with and without).
 pub const OFFSET_BANDPASS_DAMPING: f32 = 1.0;
 
+/// One sample of a band-pass at the fundamental (a SOGI, semi-implicit Euler, stable for
+/// `h = w dt < 2`): `(output, quadrature)` after `input`, with gain `k` (twice the
+/// damping), both states held within `+-limit` (rad).
+fn band_pass_step<T: Scalar>((bp, q): (T, T), input: T, k: T, h: T, limit: T) -> (T, T) {
+    let bp = (bp + h * (k * (input - bp) - q)).clamp_to(-limit, limit);
+    let q = (q + h * bp).clamp_to(-limit, limit);
+    (bp, q)
+}
+
 /// `|v|` within 12 % (`max + min / 2`, no square root): for thresholds.
 fn approx_norm<T: Scalar>(v: AlphaBeta<T>) -> T {
     let (a, b) = (v.alpha.abs(), v.beta.abs());
@@ -815,10 +824,13 @@ impl<T: Scalar> Estimator<T> {
         // Notch at the fundamental (a SOGI, semi-implicit Euler, stable for w dt < 2; w dt
         // is at most 0.13 at the PLL's speed limit and 10 kHz). It runs while tracking.
         let h = w * dt;
-        self.compensation_bp = (self.compensation_bp
-            + h * (self.compensation_notch_k * (raw - self.compensation_bp) - self.compensation_q))
-            .clamp_to(-T::TWO, T::TWO);
-        self.compensation_q = (self.compensation_q + h * self.compensation_bp).clamp_to(-T::TWO, T::TWO);
+        (self.compensation_bp, self.compensation_q) = band_pass_step(
+            (self.compensation_bp, self.compensation_q),
+            raw,
+            self.compensation_notch_k,
+            h,
+            T::TWO,
+        );
         if !self.compensation_tracking {
             // Tracking again: what is still applied from before fades out on its own and
             // the new reading fades in from zero, so the angle is continuous whichever
@@ -859,12 +871,10 @@ impl<T: Scalar> Estimator<T> {
             Some(rate) => rate.clamp_to(-self.offset_limit, self.offset_limit),
             None => T::ZERO,
         };
-        // Band-pass at the fundamental (a SOGI, semi-implicit Euler, stable for w dt < 2).
+        // Band-pass at the fundamental.
         let h = notch.abs().max(self.agreement_floor) * dt;
-        self.offset_bp = (self.offset_bp
-            + h * (self.offset_bandpass_k * (rate - self.offset_bp) - self.offset_q))
-            .clamp_to(-T::ONE, T::ONE);
-        self.offset_q = (self.offset_q + h * self.offset_bp).clamp_to(-T::ONE, T::ONE);
+        (self.offset_bp, self.offset_q) =
+            band_pass_step((self.offset_bp, self.offset_q), rate, self.offset_bandpass_k, h, T::ONE);
         let phase = self.offset_bp;
         let excess = phase - phase.clamp_to(-self.offset_deadband, self.offset_deadband);
         self.offset_share * self.compensation_armed * excess
