@@ -221,8 +221,6 @@ pub struct Dcfo<T> {
     /// Slow mean of `|psi_hat|^2 - 2 (Ld - Lq) i . psi_hat` (Wb^2); zero until the first
     /// non-zero flux after a reset or a seed, which starts it.
     flux_square_mean: T,
-    /// The current of the last sample (A), the one `x1` was estimated with.
-    current_prev: AlphaBeta<T>,
 }
 
 impl<T: Scalar> Dcfo<T> {
@@ -276,7 +274,6 @@ impl<T: Scalar> Dcfo<T> {
             magnitude_mean_rate: T::ONE,
             magnitude_weight: T::ZERO,
             flux_square_mean: T::ZERO,
-            current_prev: AlphaBeta::default(),
         }
     }
 
@@ -296,7 +293,9 @@ impl<T: Scalar> Dcfo<T> {
         let psi = self.x1;
         // The magnet's part of the squared active flux: |psi|^2 = psi_f^2 + 2 (Ld - Lq)
         // i_d |psi| to first order, and i_d |psi| = i . psi.
-        let i = self.current_prev;
+        // The current `x1` was estimated with: the voltage model's previous one (this is
+        // called before the model takes the present sample's).
+        let i = self.model.previous_current();
         let along = i.alpha * psi.alpha + i.beta * psi.beta;
         let square = psi.alpha * psi.alpha + psi.beta * psi.beta
             - (self.model.motor.saliency + self.model.motor.saliency) * along;
@@ -359,7 +358,6 @@ impl<T: Scalar> Dcfo<T> {
         self.psi_i_prev = psi_i;
         self.x1 = psi_mover;
         self.flux_square_mean = T::ZERO;
-        self.current_prev = i_ab;
         // x2' = |w| x1: for x1 = psi (cos th, sin th) with th turning at w, x2 is
         // sign(w) psi (sin th, -cos th); plus 2 zeta d for the DC input.
         let (qa, qb) = if omega_e < T::ZERO {
@@ -422,8 +420,8 @@ impl<T: Scalar> FluxObserver<T> for Dcfo<T> {
         let sogi = SogiStep { a, ka, keep: T::ONE - ka - a2, inv };
         let g_dt = self.h_per_ls_omega * w * input.dt; // (h/Ls) dt, negative
 
-        let de = self.model.emf_increment(input);
         let radial = self.magnitude_feedback(w * input.dt);
+        let de = self.model.emf_increment(input);
         let z = AlphaBeta {
             alpha: self.z.alpha + de.alpha + g_dt * self.d.alpha + radial.alpha,
             beta: self.z.beta + de.beta + g_dt * self.d.beta + radial.beta,
@@ -450,7 +448,6 @@ impl<T: Scalar> FluxObserver<T> for Dcfo<T> {
         self.x1 = x1;
         self.x2 = x2;
         self.d = d;
-        self.current_prev = input.i_ab;
         Ok(FluxEstimate {
             psi_ab: x1,
             disturbance_ab: Some(d),
@@ -468,7 +465,6 @@ impl<T: Scalar> FluxObserver<T> for Dcfo<T> {
         self.d = AlphaBeta::default();
         self.faulted = false;
         self.flux_square_mean = T::ZERO;
-        self.current_prev = AlphaBeta::default();
     }
 }
 

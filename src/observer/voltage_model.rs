@@ -69,6 +69,11 @@ impl<T: Scalar> VoltageModel<T> {
         self.i_prev = None;
     }
 
+    /// The previous sample's current (A; zero after a reset, before the first sample).
+    pub(super) fn previous_current(&self) -> AlphaBeta<T> {
+        self.i_prev.unwrap_or_default()
+    }
+
     /// Takes `i` (A) as the previous sample's current (no start-up special case next).
     pub(super) fn set_previous_current(&mut self, i: AlphaBeta<T>) {
         self.i_prev = Some(i);
