@@ -19,7 +19,8 @@
 //!               + its lag on the ramp the drive commands (set_commanded_acceleration),
 //!               the integrator held within zeta * NOTCH_PHASE_BUDGET_RAD (7 %) of a
 //!               settled FLL's frequency (20 % while only its frequency has settled),
-//!               while the flux amplitude is undisturbed
+//!               while the flux amplitude is undisturbed, as far as no DC
+//!               offset is read in the flux ("The DC offset's angle")
 //! ```
 //! The FLL reads the frequency from the flux whatever the notch's tuning, so it finds
 //! a moving mover from the zero state (the paper's loop, notch at its floor, never
@@ -118,7 +119,26 @@
 //!   (through a band-pass at `w` that passes the offset's ripple and not the inverter's
 //!   `6 w` harmonics, less [`OFFSET_PHASE_DEADBAND_RAD`], within
 //!   [`OFFSET_PHASE_LIMIT_RAD`]). An open path: the PLL and the notch see the flux as
-//!   before. It is kept while the loops disagree, since a DC step is what makes them.
+//!   before. It is kept while the loops disagree, since a DC step is what makes them;
+//! - the FLL is trusted only as far as no offset is read: its band on the notch and its
+//!   confirmation of the notch's phase compensation are scaled by a trust that is full
+//!   while the reading's held peak stays within [`FLL_TRUST_OFFSET_RAD`] (or within
+//!   [`FLL_TRUST_LEVEL_MULTIPLE`] of the reading's own recent level, if that is more:
+//!   a drive whose speed keeps swinging reads the swing all the time, a DC step rises
+//!   above it) and none as much again beyond. The FLL reads its frequency from the back-EMF's increment
+//!   across the flux estimate: a DC step puts the uncancelled DC voltage into the one
+//!   and the offset into the other, and both ripple the reading at `w` by about the
+//!   offset's share of the flux (+2 V at 10 Hz: 20 %). The band then pulled the
+//!   PLL-tuned notch after that ripple: 14.5 % off the mover after the step on ideal
+//!   inputs, 10.2 % with the trust (the rest is the PLL integrator's own response to the
+//!   step's angle transient), and the compensation, confirmed by the same ripple, turned
+//!   the angle the wrong way (by 7.7 deg at one phase of the paper's +2 V step). The
+//!   FLL's own detector, the flux amplitude's held peak
+//!   ([`crate::fll::FllOutput::flux_undisturbed`]), sees an offset from about a tenth of
+//!   the flux; the band-passed reading from a few hundredths. A speed
+//!   change on a flux without offset (the 40 N load step: a third of the speed lost in
+//!   90 ms) leaves the magnitude alone and the trust full, so the band still bounds the
+//!   notch's lag there (`a_dc_offset_withdraws_the_flls_trust_and_a_speed_change_keeps_it`).
 //!
 //! A salient motor's active flux grows with the current along it, `(Ld - Lq) i_d`:
 //! both readings take that out (`|psi| (Ld - Lq) d i_d = (Ld - Lq) d(i . psi)` to
@@ -132,11 +152,28 @@
 //! (`paper_phases`, median / max, before -> after): +2 V 17.8 / 23.3 -> 12.5 / 15.3 deg,
 //! +0.2 A 10.6 / 12.1 -> 5.3 / 9.9, R = 2 Rs 7.9 / 9.9 -> 4.3 / 5.8, 40 N load step
 //! 6.5 / 6.7 -> 5.6 / 5.7, speed step 3.0 / 3.3 -> 2.9 / 3.1, steady 0.73 / 0.88 ->
-//! 0.62 / 0.75, reset at speed 1.6 / 5.3 -> 1.3 / 3.3. The +2 V step's remaining error
-//! is the PLL-tuned notch, which the step's angle transient drags (the speed estimate
-//! 15 % low for a quarter period). Feeding the PLL the corrected flux instead (a closed
-//! loop through the notch) gave 11.2 / 12.4 deg there but put Q8.24 1.5 deg off f32 at
-//! 0.1 m/s in `dcfo acquire`; the output path keeps it within 0.7 deg.
+//! 0.62 / 0.75, reset at speed 1.6 / 5.3 -> 1.3 / 3.3 (before the FLL's trust). Feeding
+//! the PLL the corrected flux instead (a closed loop through the notch) gave 11.2 / 12.4
+//! deg on the +2 V step but put Q8.24 1.5 deg off f32 at 0.1 m/s in `dcfo acquire`; the
+//! output path kept it within 0.7 deg.
+//!
+//! The FLL's trust then (2026-11-27, median / max over eight phases, before -> after):
+//! +2 V 12.5 / 15.3 -> 9.5 / 10.5 deg (`dcfo paper` 11.9 -> 9.7), +0.2 A 5.3 / 9.9 ->
+//! 4.8 / 5.8, R = 2 Rs 4.3 / 5.8 -> 3.9 / 4.6; the speed step (2.9 / 3.1), the load
+//! step (5.6 / 5.7), steady (0.62 / 0.75) and the reset at speed (1.3 / 3.3 -> 1.4 /
+//! 3.1) as they were. `dcfo acquire`: none over budget as before, Q8.24 within 0.25 deg
+//! of f32 (0.67); on the 20 mm-pitch example motors 0.59 and 0.73 deg (1.22, 0.68). What is
+//! left of the +2 V step is the PLL integrator following the step's angle transient.
+//! Tried with the trust and not kept: the integrator fed the PLL's error less the
+//! offset's reading (+2 V 7.4-10.2 deg by phase at 0.7 of it, 10.2 at the paper's
+//! instant against 9.7; 8.0-12.1 at all of it), or through a notch at
+//! `w` (8.8 / 9.9, but the speed step 2.9 -> 3.5 deg and 4 cold starts over budget), or
+//! held while an offset is read (13.9 at one phase); the trust from the amplitude of the
+//! band-pass's two states instead of its held peak (the quadrature state integrates a
+//! speed change: the load step 5.6 -> 8.3 deg), or also from the drift of the
+//! observer's DC estimate (the load step lost: its notch leaks into that drift); the
+//! FLL's band widened by the reading, and its confirmation narrowed, instead of the
+//! trust (+2 V 11.0-11.5 / 12.8-13.5 deg).
 //!
 //! ## Cold starts: the circle fit ([`crate::arc_fit`])
 //! From reset and on [`Estimator::reacquire`] the integrated back-EMF's arc is fitted
@@ -297,6 +334,38 @@ pub const OFFSET_PHASE_LIMIT_RAD: f32 = 0.3;
 /// harmonics ripple the magnitude at `6 w` (passed at 0.32). In the linear model the
 /// band-pass costs the +2 V step nothing (6.3 deg at the worst phase with and without).
 pub const OFFSET_BANDPASS_DAMPING: f32 = 1.0;
+
+/// The DC offset's angle reading (rad, its band-passed value's recent peak) up to which
+/// the FLL's frequency is trusted in full, for the notch's band and the phase
+/// compensation's confirmation, on a drive whose reading is quiet; the trust falls
+/// linearly to zero over as much again, at the reading's dead band
+/// [`OFFSET_PHASE_DEADBAND_RAD`] (module docs, "The DC offset's angle"). Over the
+/// paper's scenarios at eight event phases each (median / max), 0.01, 0.015 and 0.02
+/// gave the +2 V step 9.2 / 10.3, 9.5 / 10.4 and 10.3 / 12.8 deg, the 40 N load step
+/// 5.7 / 5.7 each; 0.03 gave 11.2 / 13.2.
+pub const FLL_TRUST_OFFSET_RAD: f32 = 0.5 * OFFSET_PHASE_DEADBAND_RAD;
+
+/// Multiple of the offset reading's own recent level (the mean of its magnitude over
+/// about eight periods, [`OFFSET_READING_MEAN_RATE_PER_RAD`]) above which the FLL's trust
+/// starts to fall, where that is above [`FLL_TRUST_OFFSET_RAD`] (dimensionless): a DC
+/// step raises the reading above where it was, a drive whose speed keeps swinging
+/// reads that swing all the time. On the paper motor without payload
+/// (`scenarios/bare-mover.toml`: its speed loop rings through the 0.4 -> 0.8 m/s step,
+/// and the flux magnitude with it) the drive kept 5.6 deg with the trust from the level
+/// (2 and 3 alike, 5.6 before the trust), 15.5 without it.
+pub const FLL_TRUST_LEVEL_MULTIPLE: f32 = 2.0;
+
+/// Rate of the offset reading's mean magnitude per radian of electrical travel
+/// (dimensionless): about eight periods. 0.05 moved the +0.2 A step's median over eight
+/// event phases 4.7 -> 4.8 deg and its worst 5.3 -> 5.6.
+pub const OFFSET_READING_MEAN_RATE_PER_RAD: f32 = 0.02;
+
+/// Decay of the offset reading's held peak per radian of electrical travel
+/// (dimensionless): the band-passed reading of an offset crosses zero twice a period,
+/// and a hold decaying at half the fundamental keeps 0.46 of a peak over the quarter
+/// period to the next. 0.25 and 1.0 gave the +2 V step 9.5 / 10.4 and 9.9 / 12.2 deg
+/// (median / max over eight event phases).
+pub const OFFSET_PEAK_DECAY_PER_RAD: f32 = 0.5;
 
 /// One sample of a band-pass at the fundamental (a SOGI, semi-implicit Euler, stable for
 /// `h = w dt < 2`): `(output, quadrature)` after `input`, with gain `k` (twice the
@@ -553,6 +622,19 @@ pub struct Estimator<T> {
     /// The band-pass's output (rad) and quadrature state (rad).
     offset_bp: T,
     offset_q: T,
+    /// Held peak of `|offset_bp|` (rad), decaying at [`OFFSET_PEAK_DECAY_PER_RAD`].
+    offset_peak: T,
+    /// [`OFFSET_PEAK_DECAY_PER_RAD`].
+    offset_peak_decay: T,
+    /// [`FLL_TRUST_OFFSET_RAD`] (rad) and its reciprocal (1/rad).
+    fll_trust_offset: T,
+    inv_fll_trust_offset: T,
+    /// Mean of `|offset_bp|` (rad), at [`OFFSET_READING_MEAN_RATE_PER_RAD`].
+    offset_level: T,
+    /// [`OFFSET_READING_MEAN_RATE_PER_RAD`].
+    offset_level_rate: T,
+    /// [`FLL_TRUST_LEVEL_MULTIPLE`].
+    fll_trust_level_multiple: T,
 }
 
 impl<T: Scalar> Estimator<T> {
@@ -627,6 +709,13 @@ impl<T: Scalar> Estimator<T> {
             offset_bandpass_k: T::from_f32(2.0 * OFFSET_BANDPASS_DAMPING),
             offset_bp: T::ZERO,
             offset_q: T::ZERO,
+            offset_peak: T::ZERO,
+            offset_peak_decay: T::from_f32(OFFSET_PEAK_DECAY_PER_RAD),
+            fll_trust_offset: T::from_f32(FLL_TRUST_OFFSET_RAD),
+            inv_fll_trust_offset: T::from_f32(1.0 / FLL_TRUST_OFFSET_RAD),
+            offset_level: T::ZERO,
+            offset_level_rate: T::from_f32(OFFSET_READING_MEAN_RATE_PER_RAD),
+            fll_trust_level_multiple: T::from_f32(FLL_TRUST_LEVEL_MULTIPLE),
         })
     }
 
@@ -750,7 +839,10 @@ impl<T: Scalar> Estimator<T> {
             // FLL's tracking rate. The correction is continuous in the disagreement (no decision
             // near a threshold, so f32 and fixed point stay together), and it is withheld
             // while the flux amplitude is disturbed (a DC step being removed: the FLL
-            // then reads the offset as a ripple at `w`).
+            // then reads the offset as a ripple at `w`), and only as far as the FLL is
+            // trusted (the DC offset's angle reading, module docs).
+            let offset = self.offset_phase(flux.psi_ab, psi_prev, along - along_prev, notch, dt);
+            let fll_trust = self.fll_trust(notch, dt);
             if f.frequency_settled && f.flux_undisturbed {
                 let reference = f.omega_e.abs().max(self.agreement_floor);
                 let tolerance = if f.settled { self.notch_band } else { self.agreement_tolerance };
@@ -760,7 +852,7 @@ impl<T: Scalar> Estimator<T> {
                     // The excess is taken out at the FLL's own tracking rate, 4 w (a time
                     // constant of a quarter radian of travel), not in one step: the
                     // integrator is the speed estimate, which must not jump.
-                    let rate = (self.correction_rate * reference * dt).min(T::ONE);
+                    let rate = (self.correction_rate * reference * dt).min(T::ONE) * fll_trust;
                     let outside = excess - excess.clamp_to(-band, band);
                     self.pll.set_integral(self.pll.omega_integral() - rate * outside);
                 }
@@ -773,7 +865,7 @@ impl<T: Scalar> Estimator<T> {
                 <= self.agreement_tolerance * reference;
             let mut out = out;
             if out.locked && agree {
-                self.compensate_notch_phase(&mut out, notch, f.omega_e, dt);
+                self.compensate_notch_phase(&mut out, notch, f.omega_e, fll_trust, dt);
             } else {
                 // Not tracking: nothing new to compensate. What was applied fades out over
                 // a quarter period rather than at once (a flag that flips for a sample in
@@ -783,7 +875,6 @@ impl<T: Scalar> Estimator<T> {
             }
             // The DC offset's angle, armed with the notch's phase compensation but kept
             // while not tracking: a DC step is what makes the loops disagree.
-            let offset = self.offset_phase(flux.psi_ab, psi_prev, along - along_prev, notch, dt);
             if offset != T::ZERO {
                 out.theta_e = out.theta_e - offset.radians_to_angle();
                 out.cos_sin = CosSin::new(out.theta_e);
@@ -802,9 +893,17 @@ impl<T: Scalar> Estimator<T> {
 
     /// Turns the output angle back by the phase the notch's mistuning gives the flux
     /// (module docs, "Phase compensation"): `(notch - omega_hat) / (zeta |notch|)` while
-    /// the FLL's frequency says the notch is off the same way, its fundamental notched
-    /// out, less a dead band, limited, faded in and armed in proportion.
-    fn compensate_notch_phase(&mut self, out: &mut PllOutput<T>, notch: T, fll_omega: T, dt: T) {
+    /// the FLL's frequency says the notch is off the same way (as far as the FLL is
+    /// trusted, `fll_trust` in 0..1), its fundamental notched out, less a dead band,
+    /// limited, faded in and armed in proportion.
+    fn compensate_notch_phase(
+        &mut self,
+        out: &mut PllOutput<T>,
+        notch: T,
+        fll_omega: T,
+        fll_trust: T,
+        dt: T,
+    ) {
         let w = notch.abs().max(self.agreement_floor);
         let phase = |omega: T| match (notch - omega).checked_div(w) {
             Some(x) => (x * self.inv_zeta).clamp_to(-T::ONE, T::ONE),
@@ -815,7 +914,7 @@ impl<T: Scalar> Estimator<T> {
         // so f32 and fixed point do not part at a threshold) as the FLL's goes to zero
         // or the other way.
         let (from_pll, from_fll) = (phase(out.omega_e), phase(fll_omega));
-        let confirmed = from_fll * self.fll_confirmation;
+        let confirmed = from_fll * self.fll_confirmation * fll_trust;
         let raw = if from_pll > T::ZERO {
             from_pll.min(confirmed.max(T::ZERO))
         } else {
@@ -865,7 +964,11 @@ impl<T: Scalar> Estimator<T> {
         // |psi| d|psi| = psi . dpsi, less what the current along the flux makes of a
         // salient motor's active flux: |psi| (Ld - Lq) d i_d = (Ld - Lq) d(i . psi) to
         // first order in i_d.
-        let radial = da * psi.alpha + db * psi.beta - self.saliency * d_along;
+        // The increment is taken against the sample's midpoint, (psi + psi_prev) / 2, which
+        // makes it the change of |psi|^2 / 2 exactly (against psi alone a steady rotation
+        // would read w dt / 2).
+        let mid = AlphaBeta::new(psi.alpha - da * T::HALF, psi.beta - db * T::HALF);
+        let radial = da * mid.alpha + db * mid.beta - self.saliency * d_along;
         let square = psi.alpha * psi.alpha + psi.beta * psi.beta;
         let rate = match radial.checked_div(square * notch * dt) {
             Some(rate) => rate.clamp_to(-self.offset_limit, self.offset_limit),
@@ -878,6 +981,25 @@ impl<T: Scalar> Estimator<T> {
         let phase = self.offset_bp;
         let excess = phase - phase.clamp_to(-self.offset_deadband, self.offset_deadband);
         self.offset_share * self.compensation_armed * excess
+    }
+
+    /// How far the FLL's frequency is trusted (0..1) while a DC offset is read in the flux
+    /// (module docs, "The DC offset's angle"): in full while the held peak of the
+    /// band-passed offset reading stays within [`FLL_TRUST_OFFSET_RAD`] or within
+    /// [`FLL_TRUST_LEVEL_MULTIPLE`] times the reading's own mean magnitude, whichever is
+    /// larger, falling linearly to none over [`FLL_TRUST_OFFSET_RAD`] beyond. The peak
+    /// decays at [`OFFSET_PEAK_DECAY_PER_RAD`] and the mean follows at
+    /// [`OFFSET_READING_MEAN_RATE_PER_RAD`] of the travel at the notch frequency `notch`
+    /// (rad/s) over `dt` (s).
+    fn fll_trust(&mut self, notch: T, dt: T) -> T {
+        let travel = notch.abs().max(self.agreement_floor) * dt;
+        let magnitude = self.offset_bp.abs();
+        let decay = (self.offset_peak_decay * travel).min(T::ONE);
+        self.offset_peak = magnitude.max(self.offset_peak - decay * self.offset_peak);
+        let rate = (self.offset_level_rate * travel).min(T::ONE);
+        self.offset_level = self.offset_level + rate * (magnitude - self.offset_level);
+        let threshold = self.fll_trust_offset.max(self.fll_trust_level_multiple * self.offset_level);
+        (T::ONE - (self.offset_peak - threshold) * self.inv_fll_trust_offset).clamp_to(T::ZERO, T::ONE)
     }
 
     /// While not tracking: the last compensation, its weight falling to zero over
@@ -901,6 +1023,8 @@ impl<T: Scalar> Estimator<T> {
     fn clear_compensation(&mut self) {
         self.offset_bp = T::ZERO;
         self.offset_q = T::ZERO;
+        self.offset_peak = T::ZERO;
+        self.offset_level = T::ZERO;
         self.compensation_bp = T::ZERO;
         self.compensation_q = T::ZERO;
         self.compensation_armed = T::ZERO;
@@ -1159,5 +1283,98 @@ mod tests {
         };
         assert!(run(true) < 1e-3, "compensated: {}", run(true));
         assert!(run(false) > 0.01, "uncompensated: {}", run(false));
+    }
+
+    /// The FLL's trust follows the DC offset's angle reading: withdrawn while an offset
+    /// of a tenth of the flux turns with it (from half a period, as the band-pass builds
+    /// up, over the period after; the DCFO's slowest pole, `0.26 w`, removes a step's
+    /// offset with a time constant of 0.6 of a period), kept through a speed
+    /// change like the paper's 40 N load step (a third of the speed lost in about 90 ms)
+    /// on a flux without one. An offset that stays becomes the reading's level, and the
+    /// trust comes back within a few seconds.
+    #[test]
+    fn a_dc_offset_withdraws_the_flls_trust_and_a_speed_change_keeps_it() {
+        let motor = MotorParams::paper();
+        let psi_f = motor.psi_f_wb as f64;
+        let w0 = 2.0 * core::f64::consts::PI * 10.0;
+        // The lowest and highest trust from `from` to `to` seconds, and the last.
+        let run = |offset: f64, drop: f64, (from, to): (f64, f64)| {
+            let mut e = armed(&motor);
+            let (mut th, mut prev) = (0.0f64, AlphaBeta::new(psi_f + offset, 0.0));
+            let (mut range, mut last) = ((1.0f64, 0.0f64), 0.0);
+            for n in 1..(to / DT) as usize {
+                let t = n as f64 * DT;
+                let w = w0 * (1.0 - drop * (1.0 - (-t / 0.03).exp()));
+                th += w * DT;
+                let psi = AlphaBeta::new(psi_f * th.cos() + offset, psi_f * th.sin());
+                e.offset_phase(psi, prev, 0.0, w, DT);
+                last = e.fll_trust(w, DT);
+                prev = psi;
+                if t > from {
+                    range = (range.0.min(last), range.1.max(last));
+                }
+            }
+            (range, last)
+        };
+        assert_eq!(run(0.1 * psi_f, 0.0, (0.05, 0.15)).0, (0.0, 0.0), "offset: trust kept");
+        assert_eq!(run(0.0, 0.35, (0.0, 0.3)).0, (1.0, 1.0), "speed change: trust withdrawn");
+        assert_eq!(run(0.0, 0.0, (0.0, 0.3)).0, (1.0, 1.0), "steady: trust withdrawn");
+        assert_eq!(run(0.1 * psi_f, 0.0, (0.05, 5.0)).1, 1.0, "lasting offset: trust never back");
+    }
+
+    /// The paper motor at 10 Hz on ideal inputs, locked and armed, then a +2 V step on
+    /// `u_alpha` at 16 phases of a period: the largest deviation of the notch frequency
+    /// from the mover's and the largest angle error over 0.3 s after it, with the FLL's
+    /// trust as built or, with `trusting`, the FLL trusted whatever the offset.
+    fn dc_step_on_ideal_inputs(trusting: bool) -> (f64, f64) {
+        let motor = MotorParams::paper();
+        let config = EstimatorConfig::for_motor(&motor, ObserverKind::Dcfo);
+        let (r, l, psi_f) = (motor.rs_ohm as f64, motor.ld_h as f64, motor.psi_f_wb as f64);
+        let w = 2.0 * core::f64::consts::PI * 10.0;
+        let i_q = 0.5;
+        let (mut notch_worst, mut angle_worst) = (0.0f64, 0.0f64);
+        for phase in 0..16 {
+            let mut e = Estimator::<f64>::new(&motor, &config, &Base::SI).unwrap();
+            if trusting {
+                e.inv_fll_trust_offset = 0.0;
+            }
+            let t_step = 1.5 + phase as f64 / 16.0 * 0.1;
+            for n in 0..((t_step + 0.3) / DT) as usize {
+                let t = n as f64 * DT;
+                let (s, c) = (w * t).sin_cos();
+                // i = j i_q e^{j w t}; u = R i + L di/dt + j w psi_f e^{j w t}.
+                let i = AlphaBeta::new(-i_q * s, i_q * c);
+                let du = if t >= t_step { 2.0 } else { 0.0 };
+                let u = AlphaBeta::new(
+                    r * i.alpha - l * i_q * w * c - w * psi_f * s + du,
+                    r * i.beta - l * i_q * w * s + w * psi_f * c,
+                );
+                let est = e.update(u, i, DT).unwrap();
+                if t >= t_step {
+                    let err = (est.theta_e.to_radians::<f64>() - w * t + core::f64::consts::PI)
+                        .rem_euclid(2.0 * core::f64::consts::PI)
+                        - core::f64::consts::PI;
+                    angle_worst = angle_worst.max(err.abs().to_degrees());
+                    notch_worst = notch_worst.max((e.notch_omega() / w - 1.0).abs());
+                } else if t > 1.4 {
+                    assert!(est.locked && !est.acquiring, "not locked before the step");
+                }
+            }
+        }
+        (notch_worst, angle_worst)
+    }
+
+    /// While a DC step's offset turns in the flux, the FLL reads it as a ripple at `w`
+    /// (the [`crate::fll`] docs) and its band would drag the notch; trusted only as far as
+    /// the offset reading allows, it leaves the notch to the PLL's integrator. Measured:
+    /// the notch at most 0.102 of the mover's frequency off (0.145 trusting the FLL), the
+    /// angle 9.60 deg (12.42); the rest of the notch's excursion is the PLL integrator's
+    /// response to the offset's angle. The angle is held to the issue's +2 V floor (10 deg).
+    #[test]
+    fn a_dc_step_does_not_drag_the_notch_through_the_fll() {
+        let (notch, angle) = dc_step_on_ideal_inputs(false);
+        let (notch_trusting, angle_trusting) = dc_step_on_ideal_inputs(true);
+        assert!(notch < 0.8 * notch_trusting, "notch {notch} ({notch_trusting} trusting)");
+        assert!(angle < angle_trusting && angle <= 10.0, "{angle} deg ({angle_trusting} trusting)");
     }
 }

@@ -89,7 +89,14 @@ fn dc_step(r: &ScenarioResult, cfo_offset_expected_wb: f64) {
 
 #[test]
 fn dc_2_volts_on_u_alpha() {
-    dc_step(scenario("dc-u"), 2.0 / WC);
+    let r = scenario("dc-u");
+    dc_step(r, 2.0 / WC);
+    // Issue floor <= 10 deg. Measured 9.72 (9.5 median, 10.5 worst over eight event
+    // phases, `paper_phases`): the offset's angle read from the flux magnitude turns the
+    // output back, and the FLL, which reads the offset as a ripple, is trusted to bound
+    // the notch only while no offset is read (estimator module docs, "The DC offset's
+    // angle"); 11.9 before the trust, 15.5 before the magnitude reading.
+    assert!(r.dcfo.theta_err_max_deg <= 10.0, "{}", r.dcfo.theta_err_max_deg);
 }
 
 #[test]
@@ -97,7 +104,10 @@ fn dc_0_2_amperes_on_i_beta() {
     let m = MotorParams::paper();
     // LPF of -Rs * 0.2 A, plus the -Ls * 0.2 A of the inductive correction.
     let expected = m.rs_ohm as f64 * 0.2 / WC + m.lq_h as f64 * 0.2;
-    dc_step(scenario("dc-i"), expected);
+    let r = scenario("dc-i");
+    dc_step(r, expected);
+    // Issue floor <= 6 deg. Measured 4.29 (4.8 median, 5.8 worst over eight event phases).
+    assert!(r.dcfo.theta_err_max_deg <= 6.0, "{}", r.dcfo.theta_err_max_deg);
 }
 
 #[test]
