@@ -48,6 +48,9 @@ pub struct Summary {
     pub v_err_max: Option<f64>,
     /// RMS of the flux amplitude error `|psi_hat| - psi_f_wb`, Wb.
     pub psi_amp_err_rms_wb: f64,
+    /// Samples claiming lock with the angle more than 15 electrical degrees off
+    /// ([`crate::trace::FALSE_LOCK_ERROR_RAD`]); `None` without ground-truth `theta`.
+    pub false_lock_samples: Option<usize>,
 }
 
 /// Why a summary could not be computed.
@@ -142,6 +145,7 @@ impl Summary {
         let start = t_first + settle_s - 1e-6 * trace.sample_period_s();
         let psi_f = f64::from(motor.psi_f_wb);
         let (mut theta, mut v, mut psi) = (Stat::default(), Stat::default(), Stat::default());
+        let mut false_locks: Option<usize> = None;
         for (index, (row, est)) in rows.iter().zip(estimates).enumerate() {
             if row.t < start {
                 continue;
@@ -162,6 +166,9 @@ impl Summary {
             if let Some(e) = est.v_err(row) {
                 v.add(e);
             }
+            if let Some(false_lock) = est.false_lock(row) {
+                *false_locks.get_or_insert(0) += usize::from(false_lock);
+            }
             psi.add(est.psi_amplitude() - psi_f);
         }
         let Some(psi_amp_err_rms_wb) = psi.rms() else {
@@ -175,6 +182,7 @@ impl Summary {
             v_err_rms: v.rms(),
             v_err_max: v.max(),
             psi_amp_err_rms_wb,
+            false_lock_samples: false_locks,
         })
     }
 
@@ -215,7 +223,11 @@ impl fmt::Display for Summary {
             pair(self.theta_err_rms_deg, self.theta_err_max_deg, "deg", "theta")
         )?;
         writeln!(f, "  speed error:  {}", pair(self.v_err_rms, self.v_err_max, "m/s", "v"))?;
-        write!(f, "  flux amplitude error:  rms {} Wb", sig4(self.psi_amp_err_rms_wb))
+        writeln!(f, "  flux amplitude error:  rms {} Wb", sig4(self.psi_amp_err_rms_wb))?;
+        match self.false_lock_samples {
+            Some(n) => write!(f, "  false-lock samples (locked, > 15 deg off):  {n}"),
+            None => write!(f, "  false-lock samples:  n/a (trace has no `theta` column)"),
+        }
     }
 }
 
@@ -267,6 +279,7 @@ mod tests {
                     v_hat: r.v.unwrap_or(0.0) - dv(r.t),
                     psi_alpha_hat: amp * theta_hat.cos(),
                     psi_beta_hat: amp * theta_hat.sin(),
+                    locked: true,
                 }
             })
             .collect()
@@ -344,7 +357,7 @@ mod tests {
         );
         let json: serde_json::Value = serde_json::from_str(&s.to_json()).unwrap();
         let obj = json.as_object().unwrap();
-        for key in ["theta_err_rms_deg", "theta_err_max_deg", "v_err_rms", "v_err_max"] {
+        for key in ["theta_err_rms_deg", "theta_err_max_deg", "v_err_rms", "v_err_max", "false_lock_samples"] {
             assert!(obj[key].is_null(), "{key}");
         }
         assert_eq!(obj["samples"], 10);
@@ -372,14 +385,36 @@ mod tests {
             "v_err_rms",
             "v_err_max",
             "psi_amp_err_rms_wb",
+            "false_lock_samples",
         ] {
             assert!(json[key].is_number(), "{key}: {json}");
         }
+        assert_eq!(json["false_lock_samples"], 0);
         assert!(!s.to_json().contains('\n'));
         let text = s.to_string();
         assert!(text.contains("rms 0.05730 deg"), "{text}");
         assert!(text.contains("max 0.002000 m/s"), "{text}");
-        assert_eq!(text.lines().count(), 4);
+        assert_eq!(text.lines().count(), 5);
+    }
+
+    #[test]
+    fn false_locks_are_locked_samples_more_than_15_degrees_off() {
+        // The error steps 14 -> 16 deg at t = 2.5 s (sample 500); the estimate claims lock
+        // on odd samples only: 250 of the 500 samples after the step are false locks, and
+        // the settle window (from 2.2 s) does not change that.
+        let tr = trace(1000, |_| Some(1.0), |_| Some(0.3));
+        let mut est = estimates(&tr, |t| if t < 2.5 - 1e-9 { 14f64 } else { 16.0 }.to_radians(), |_| 0.0, 0.16);
+        for (k, e) in est.iter_mut().enumerate() {
+            e.locked = k % 2 == 1;
+        }
+        for settle in [0.0, 0.2] {
+            let s = Summary::compute(&tr, &est, &motor(), settle).unwrap();
+            assert_eq!(s.false_lock_samples, Some(250), "settle {settle}");
+        }
+        // Without ground-truth angle there is nothing to judge.
+        let tr = trace(10, |_| None, |_| Some(0.3));
+        let s = Summary::compute(&tr, &estimates(&tr, |_| 0.0, |_| 0.0, 0.16), &motor(), 0.0).unwrap();
+        assert_eq!(s.false_lock_samples, None);
     }
 
     #[test]

@@ -214,6 +214,25 @@ pub struct MotionConfig {
     pub hfi: Option<HfiConfig>,
 }
 
+/// The bus voltage the fault limits of `drive` centre on, V.
+fn nominal_bus_v(drive: &DriveConfig) -> f32 {
+    0.5 * (drive.faults.bus_min_v / 0.6 + drive.faults.bus_max_v / 1.3)
+}
+
+/// The back-EMF floor of `motor` in `drive`, m/s: the speed at which the back-EMF `w
+/// psi_f` equals the inverter's voltage error before compensation (`dead_time / Ts *
+/// V_bus + drop`, at the bus the fault limits centre on), or four times the DCFO's notch
+/// floor, whichever is higher. Below it a back-EMF estimate rests entirely on the
+/// compensation's accuracy; above it the estimator is expected to hold the angle. The
+/// positioning drive's low-speed threshold.
+pub fn back_emf_floor_m_per_s(motor: &MotorParams, drive: &DriveConfig) -> f32 {
+    let voltage_error_v = drive
+        .dead_time_compensation
+        .map_or(0.0, |c| c.dead_time_s / drive.control_period_s * nominal_bus_v(drive) + c.device_drop_v);
+    let omega = (voltage_error_v / motor.psi_f_wb).max(4.0 * drive.estimator.dcfo.omega_floor_rad_s);
+    omega / (core::f32::consts::PI / motor.pole_pitch_m)
+}
+
 impl MotionConfig {
     /// Defaults for `motor` driven with `drive` (its current limit, mass and inverter
     /// compensation) over `limits`:
@@ -241,19 +260,14 @@ impl MotionConfig {
     /// - HFI ([`HfiConfig::for_motor`]) for a salient motor (`L_q / L_d >= 1.15`),
     ///   tuned for the control period and the nominal bus; none otherwise.
     pub fn for_drive(motor: &MotorParams, drive: &DriveConfig, limits: ProfileLimits) -> Self {
-        let omega_per_speed = core::f32::consts::PI / motor.pole_pitch_m;
-        let bus_v = 0.5 * (drive.faults.bus_min_v / 0.6 + drive.faults.bus_max_v / 1.3);
-        let voltage_error_v = drive
-            .dead_time_compensation
-            .map_or(0.0, |c| c.dead_time_s / drive.control_period_s * bus_v + c.device_drop_v);
-        let omega_ls = (voltage_error_v / motor.psi_f_wb).max(4.0 * drive.estimator.dcfo.omega_floor_rad_s);
+        let bus_v = nominal_bus_v(drive);
         let rated_peak = motor.rated_current_a * core::f32::consts::SQRT_2;
         let accel_current =
             drive.moving_mass_kg * limits.max_accel_m_per_s2 / motor.thrust_constant_n_per_a();
         let low_speed_current_a = drive.current_limit_a;
         MotionConfig {
             limits,
-            low_speed_m_per_s: omega_ls / omega_per_speed,
+            low_speed_m_per_s: back_emf_floor_m_per_s(motor, drive),
             low_speed_exit_ratio: 1.25,
             low_speed_current_a,
             exit_current_a: (2.0 * accel_current).max(0.5 * rated_peak).min(low_speed_current_a),

@@ -64,6 +64,7 @@ pub use commissioning::{
 pub use config::{
     CompensationSigns, DeadTimeCompensation, DriveConfig, DriveConfigError, FaultConfig, MotionConfig,
     PAPER_AXIS_BUS_V, PAPER_AXIS_PAYLOAD_KG, STROKE_AXIS_LIMITS, STROKE_AXIS_STROKE_M, StartupConfig,
+    back_emf_floor_m_per_s,
 };
 pub use faults::Faults;
 use phase_loss::PhaseLoss;

@@ -1,0 +1,313 @@
+//! `dcfo track`: the estimator alone on recordings of motion it must follow: reversals
+//! through zero speed and sharp speed steps.
+//!
+//! Each profile is recorded once per motor by the sensored recorder of
+//! [`crate::recorder`] (a load machine imposes the speed, an encoder drive pushes the
+//! thrust current the profile needs, on the realistic inverter and sensors), then
+//! replayed through a fresh estimator (zero state, not told the speed or the
+//! acceleration), in f32 and in Q8.24 per-unit. The profiles are the paper motor's,
+//! scaled to the motor by its pole pitch (the same electrical frequencies) and limited
+//! to the acceleration its rated thrust gives the axis:
+//!
+//! | profile | speeds (paper motor, m/s) | what it asks |
+//! |---|---|---|
+//! | `reversal` | 0.3 -> 1.0 -> -0.6, 20 ms prefilter | a fast reversal |
+//! | `stroke` | +-0.4 back and forth at 3 m/s^2 | slow reversals, long near zero |
+//! | `step` | 0.24 -> 0.45 -> 0.3, 20 ms prefilter | the paper's step, sharp |
+//! | `step-wide` | 0.4 -> 1.0 -> 0.4, 20 ms prefilter | a wide, sharp step |
+//!
+//! Figures, per profile and number type:
+//! - **re-lock after a reversal**: after each passage through zero speed, the electrical
+//!   travel (in periods) from the instant `|v|` reaches the back-EMF floor until the angle
+//!   is within [`RELOCK_DEG`] and stays there while `|v|` stays above the floor (issue
+//!   floor: 2 periods). The floor is the motor's, [`dcfo::drive::back_emf_floor_m_per_s`].
+//! - **transient error**: the largest angle error while the speed changes by more than
+//!   a tenth of a period's worth per period, and for 50 ms after, above the floor, once
+//!   the estimator has locked the first time (issue floor: 8 deg).
+//! - **false-lock samples**: the `locked` flag set with the angle more than
+//!   [`crate::acquire::FALSE_LOCK_DEG`] off (floor: 0).
+
+use serde::Serialize;
+
+use dcfo::motor::MotorParams;
+use dcfo::num::Q24;
+use dcfo::units::Base;
+
+use crate::acquire::{FALSE_LOCK_DEG, recording_load_n};
+use crate::recorder::{PrefilteredSteps, Row, SampledProfile, record, replay};
+use crate::sim::Setup;
+use crate::sim::scenarios::PaperScale;
+use crate::trace::wrap_angle;
+
+/// After a reversal the angle must be within this of the truth, electrical degrees.
+pub const RELOCK_DEG: f64 = 10.0;
+/// Prefilter of the speed steps, s.
+pub const PREFILTER_S: f64 = 0.02;
+
+/// One profile: a name and its steps on the paper motor.
+#[derive(Clone, Debug)]
+pub struct Profile {
+    /// Name.
+    pub name: &'static str,
+    /// Speed at the start, m/s (paper motor).
+    pub initial_m_per_s: f64,
+    /// `(time s, speed m/s)` (paper motor).
+    pub steps: Vec<(f64, f64)>,
+    /// Acceleration limit on the paper axis, m/s^2 (`None`: the motor's rated thrust on
+    /// the axis).
+    pub accel_m_per_s2: Option<f64>,
+    /// Length, s.
+    pub duration_s: f64,
+}
+
+/// The profiles of the module docs.
+pub fn profiles() -> Vec<Profile> {
+    vec![
+        Profile {
+            name: "reversal",
+            initial_m_per_s: 0.3,
+            steps: vec![(0.6, 1.0), (1.4, -0.6)],
+            accel_m_per_s2: None,
+            duration_s: 2.6,
+        },
+        Profile {
+            name: "stroke",
+            initial_m_per_s: 0.4,
+            steps: vec![(0.6, -0.4), (1.4, 0.4), (2.2, -0.4)],
+            accel_m_per_s2: Some(3.0),
+            duration_s: 3.0,
+        },
+        Profile {
+            name: "step",
+            initial_m_per_s: 0.24,
+            steps: vec![(0.8, 0.45), (1.4, 0.3)],
+            accel_m_per_s2: None,
+            duration_s: 2.0,
+        },
+        Profile {
+            name: "step-wide",
+            initial_m_per_s: 0.4,
+            steps: vec![(0.6, 1.0), (1.2, 0.4)],
+            accel_m_per_s2: None,
+            duration_s: 1.8,
+        },
+    ]
+}
+
+/// The figures of one profile in one number type.
+#[derive(Clone, Debug, Serialize)]
+pub struct Figures {
+    /// Profile name.
+    pub profile: String,
+    /// `f32` or `q24`.
+    pub numeric: &'static str,
+    /// Reversals in the recording.
+    pub reversals: usize,
+    /// Largest re-lock travel after a reversal, electrical periods (`None`: some reversal
+    /// never re-locked within its segment).
+    pub relock_periods_max: Option<f64>,
+    /// Largest angle error while the speed changes (and 50 ms after), degrees.
+    pub transient_err_max_deg: f64,
+    /// Largest angle error above the floor outside transients and re-locks, degrees.
+    pub steady_err_max_deg: f64,
+    /// When the estimator first locked, s (`None`: never).
+    pub first_lock_s: Option<f64>,
+    /// Samples with `locked` set and the angle more than 15 deg off.
+    pub false_lock_samples: usize,
+    /// The back-EMF floor used, m/s.
+    pub floor_m_per_s: f64,
+}
+
+/// Scores one replay against its recording (module docs).
+fn score(
+    motor: &MotorParams,
+    rows: &[Row],
+    accel: &[(f64, f64)],
+    est: &[(f64, bool)],
+    ts: f64,
+    floor: f64,
+) -> (usize, Option<f64>, f64, f64, Option<f64>, usize) {
+    let err: Vec<f64> = rows.iter().zip(est).map(|(r, e)| wrap_angle(r.theta - e.0).to_degrees()).collect();
+    let false_locks = rows.iter().zip(est).zip(&err).filter(|((_, e), x)| e.1 && x.abs() > FALSE_LOCK_DEG).count();
+    let first_lock = est.iter().position(|e| e.1);
+    let w_per_v = std::f64::consts::PI / f64::from(motor.pole_pitch_m);
+    // Segments above the floor, between passages below it.
+    let mut segments: Vec<(usize, usize)> = Vec::new();
+    let mut start = None;
+    for (k, r) in rows.iter().enumerate() {
+        match (r.v.abs() >= floor, start) {
+            (true, None) => start = Some(k),
+            (false, Some(s)) => {
+                segments.push((s, k));
+                start = None;
+            }
+            _ => {}
+        }
+    }
+    if let Some(s) = start {
+        segments.push((s, rows.len()));
+    }
+    // Re-lock after each reversal: segments that follow a sign change.
+    let mut reversals = 0;
+    let mut relock_max: Option<f64> = Some(0.0);
+    for w in segments.windows(2) {
+        let (prev, seg) = (w[0], w[1]);
+        if rows[prev.0].v.signum() == rows[seg.0].v.signum() {
+            continue;
+        }
+        reversals += 1;
+        let last_bad = (seg.0..seg.1).rev().find(|&k| err[k].abs() > RELOCK_DEG);
+        let periods = match last_bad {
+            None => Some(0.0),
+            Some(k) if k + 1 < seg.1 => {
+                let travel: f64 = rows[seg.0..=k].iter().map(|r| r.v.abs() * w_per_v * ts).sum();
+                Some(travel / (2.0 * std::f64::consts::PI))
+            }
+            Some(_) => None,
+        };
+        relock_max = match (relock_max, periods) {
+            (Some(a), Some(b)) => Some(a.max(b)),
+            _ => None,
+        };
+    }
+    // Transients: the speed changing by more than a tenth of a period's worth of
+    // frequency per period, and 50 ms after.
+    let settle = (0.05 / ts).round() as usize;
+    let mut in_transient = vec![false; rows.len()];
+    let mut last_accel = None;
+    for (k, &(v, a)) in accel.iter().enumerate().take(rows.len()) {
+        let w = v.abs() * w_per_v;
+        if a.abs() * w_per_v > 0.1 * w * w / (2.0 * std::f64::consts::PI) {
+            last_accel = Some(k);
+        }
+        in_transient[k] = last_accel.is_some_and(|j| k <= j + settle);
+    }
+    let from = first_lock.unwrap_or(rows.len());
+    // Samples after a reversal's re-lock window are not transients of the step kind.
+    let mut in_relock = vec![false; rows.len()];
+    for w in segments.windows(2) {
+        if rows[w[0].0].v.signum() != rows[w[1].0].v.signum() {
+            let seg = w[1];
+            let end = (seg.0..seg.1).rev().find(|&k| err[k].abs() > RELOCK_DEG).map_or(seg.0, |k| k + 1);
+            for f in in_relock.iter_mut().take(end).skip(seg.0) {
+                *f = true;
+            }
+        }
+    }
+    let above = |k: usize| rows[k].v.abs() >= floor && k >= from && !in_relock[k];
+    let transient_max =
+        (0..rows.len()).filter(|&k| above(k) && in_transient[k]).map(|k| err[k].abs()).fold(0.0, f64::max);
+    let steady_max =
+        (0..rows.len()).filter(|&k| above(k) && !in_transient[k]).map(|k| err[k].abs()).fold(0.0, f64::max);
+    (reversals, relock_max, transient_max, steady_max, first_lock.map(|k| k as f64 * ts), false_locks)
+}
+
+/// Records `profile` on `setup`'s axis and scores the estimator on it, f32 and Q8.24.
+pub fn run_profile(setup: &Setup, profile: &Profile) -> Result<Vec<Figures>, String> {
+    let motor = &setup.motor;
+    let scale = PaperScale::for_motor(motor);
+    let ts = setup.plant.inverter.pwm_period_s;
+    let mass = setup.plant.plant.mass_kg;
+    let rated = crate::plant::rated_thrust_n(motor);
+    let accel = profile.accel_m_per_s2.map_or(rated / mass, |a| a * scale.speed);
+    let steps = PrefilteredSteps {
+        initial_m_per_s: profile.initial_m_per_s * scale.speed,
+        steps: profile.steps.iter().map(|&(t, v)| (t, v * scale.speed)).collect(),
+        prefilter_s: PREFILTER_S,
+        accel_limit_m_per_s2: accel,
+    };
+    let sampled = SampledProfile { samples: steps.sampled(ts, profile.duration_s), dt_s: ts };
+    let rows = record(setup, &sampled, 0.0, recording_load_n(motor), profile.duration_s)?;
+    let floor = f64::from(dcfo::drive::back_emf_floor_m_per_s(motor, &setup.drive));
+    let mut out = Vec::new();
+    for (numeric, est) in [
+        ("f32", replay::<f32>(setup, &Base::SI, &rows, ts, [0.0; 2], [0.0; 2])?),
+        ("q24", replay::<Q24>(setup, &Base::for_motor(motor), &rows, ts, [0.0; 2], [0.0; 2])?),
+    ] {
+        let (reversals, relock, transient, steady, first_lock, false_locks) =
+            score(motor, &rows, &sampled.samples, &est, ts, floor);
+        out.push(Figures {
+            profile: profile.name.to_string(),
+            numeric,
+            reversals,
+            relock_periods_max: relock,
+            transient_err_max_deg: transient,
+            steady_err_max_deg: steady,
+            first_lock_s: first_lock,
+            false_lock_samples: false_locks,
+            floor_m_per_s: floor,
+        });
+    }
+    Ok(out)
+}
+
+/// The axis a profile is recorded on: `motor` on the realistic inverter and sensors
+/// ([`Setup::for_motor`]) carrying the paper axis's mass per rated thrust.
+pub fn setup_for(motor: &MotorParams) -> Setup {
+    let observer = dcfo::observer::ObserverKind::Dcfo;
+    let mut setup = Setup::for_motor(motor, observer);
+    let payload = PaperScale::for_motor(motor).payload_kg;
+    setup.plant.plant.mass_kg += payload;
+    setup.drive.moving_mass_kg += payload as f32;
+    setup
+}
+
+/// Every profile on `setup`, in parallel.
+pub fn run_all(setup: &Setup) -> Result<Vec<Figures>, String> {
+    let profiles = profiles();
+    let results: Vec<Result<Vec<Figures>, String>> = std::thread::scope(|scope| {
+        let handles: Vec<_> = profiles.iter().map(|p| scope.spawn(|| run_profile(setup, p))).collect();
+        handles.into_iter().map(|h| h.join().unwrap_or_else(|_| Err("a profile thread panicked".into()))).collect()
+    });
+    let mut all = Vec::new();
+    for r in results {
+        all.extend(r?);
+    }
+    Ok(all)
+}
+
+/// The figures as a table.
+pub fn table(figures: &[Figures]) -> String {
+    let mut s = String::from(
+        "profile    type  reversals  re-lock max [periods]  transient max [deg]  steady max [deg]  first lock [s]  false locks\n",
+    );
+    let opt = |x: Option<f64>, p: usize| x.map_or("never".to_string(), |v| format!("{v:.p$}"));
+    for f in figures {
+        s += &format!(
+            "{:<10} {:<5} {:>9}  {:>21}  {:>19.1}  {:>16.1}  {:>14}  {:>11}\n",
+            f.profile,
+            f.numeric,
+            f.reversals,
+            if f.reversals == 0 { "-".to_string() } else { opt(f.relock_periods_max, 2) },
+            f.transient_err_max_deg,
+            f.steady_err_max_deg,
+            opt(f.first_lock_s, 3),
+            f.false_lock_samples
+        );
+    }
+    s
+}
+
+/// `dcfo track`: every profile on `motor` (default: the paper motor), the table (or one
+/// JSON object) on stdout.
+///
+/// # Errors
+/// The motor could not be loaded, or a recording or a replay failed.
+pub fn run_command(motor: Option<&str>, json: bool) -> anyhow::Result<()> {
+    let (params, name) = match motor {
+        None => (MotorParams::paper(), "paper".to_string()),
+        Some(arg) => {
+            let file = crate::motor_file::load_motor(arg)?;
+            (file.params, file.name)
+        }
+    };
+    let setup = setup_for(&params);
+    let figures = run_all(&setup).map_err(|e| anyhow::anyhow!(e))?;
+    if json {
+        println!("{}", serde_json::json!({ "motor": name, "profiles": figures }));
+    } else {
+        println!("motor: {name}");
+        print!("{}", table(&figures));
+    }
+    Ok(())
+}
