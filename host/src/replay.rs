@@ -28,7 +28,10 @@
 //! Output row `k` is the estimate at `t_k`: `theta_hat` = the estimate's angle in
 //! radians (in `[-pi, pi)`), `v_hat` its speed (m/s), `psi_*_hat` its mover flux
 //! (Wb), each in SI as `f64` ([`CaptureFormat::to_si`]: exact for `f32`, and for Q8.24
-//! a value that converts back to the same bits).
+//! a value that converts back to the same bits), and `locked` the estimator's claim
+//! that the angle is valid (`Estimate::locked` of `dcfo::estimator`, 1 or 0). With
+//! ground truth the summary counts the false-lock samples: locked with the angle more
+//! than 15 electrical degrees off.
 //!
 //! A value that does not fit the number type (|x| above 3.4e38 for `f32`; 128 working
 //! units for Q8.24, e.g. 23 kV on the paper motor) and an estimator fault stop the
@@ -228,6 +231,7 @@ fn replay_in<T: CaptureScalar>(
             v_hat: si(e.speed_m_per_s, Quantity::Speed),
             psi_alpha_hat: si(e.psi_ab.alpha, Quantity::Flux),
             psi_beta_hat: si(e.psi_ab.beta, Quantity::Flux),
+            locked: e.locked,
         });
         // This row's voltage acts during the period that ends at the next sample.
         u_applied = AlphaBeta::new(u_alpha, u_beta);

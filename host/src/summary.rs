@@ -357,7 +357,8 @@ mod tests {
         );
         let json: serde_json::Value = serde_json::from_str(&s.to_json()).unwrap();
         let obj = json.as_object().unwrap();
-        for key in ["theta_err_rms_deg", "theta_err_max_deg", "v_err_rms", "v_err_max", "false_lock_samples"] {
+        for key in ["theta_err_rms_deg", "theta_err_max_deg", "v_err_rms", "v_err_max", "false_lock_samples"]
+        {
             assert!(obj[key].is_null(), "{key}");
         }
         assert_eq!(obj["samples"], 10);
@@ -403,7 +404,8 @@ mod tests {
         // on odd samples only: 250 of the 500 samples after the step are false locks, and
         // the settle window (from 2.2 s) does not change that.
         let tr = trace(1000, |_| Some(1.0), |_| Some(0.3));
-        let mut est = estimates(&tr, |t| if t < 2.5 - 1e-9 { 14f64 } else { 16.0 }.to_radians(), |_| 0.0, 0.16);
+        let mut est =
+            estimates(&tr, |t| if t < 2.5 - 1e-9 { 14f64 } else { 16.0 }.to_radians(), |_| 0.0, 0.16);
         for (k, e) in est.iter_mut().enumerate() {
             e.locked = k % 2 == 1;
         }

@@ -57,7 +57,7 @@
 //! reading a written file gives back the same bits.
 //!
 //! - [`OutputTraceWriter`] (and the one-call [`write_output_trace`]) writes a replay
-//!   result, one row per input row: `t,theta_hat,v_hat,psi_alpha_hat,psi_beta_hat`,
+//!   result, one row per input row: `t,theta_hat,v_hat,psi_alpha_hat,psi_beta_hat,locked`,
 //!   then `theta_err` only if the input had `theta`, and `v_err` only if it had `v`.
 //!   Each error column exists exactly when its ground truth does, so a column is never
 //!   filled with placeholders and a reader can tell "no ground truth" from "zero
@@ -99,7 +99,7 @@ pub const T_STEP_ABS_TOL_S: f64 = 2e-6;
 pub const COMMANDED_ACCEL_COLUMN: &str = "alpha_e_ref";
 
 /// Header of an output trace before the optional error columns.
-pub const OUTPUT_COLUMNS: [&str; 5] = ["t", "theta_hat", "v_hat", "psi_alpha_hat", "psi_beta_hat"];
+pub const OUTPUT_COLUMNS: [&str; 6] = ["t", "theta_hat", "v_hat", "psi_alpha_hat", "psi_beta_hat", "locked"];
 
 /// Wraps an angle (rad) to the half-open interval (-pi, pi].
 ///
@@ -779,9 +779,21 @@ pub struct Estimate {
     pub psi_alpha_hat: f64,
     /// Estimated mover flux, beta axis, Wb.
     pub psi_beta_hat: f64,
+    /// The estimator's claim that the angle is valid (written as 1 or 0).
+    pub locked: bool,
 }
 
+/// Angle error (rad) above which a locked sample is a false lock (15 electrical degrees,
+/// the output format's definition, `docs/trace-format.md`).
+pub const FALSE_LOCK_ERROR_RAD: f64 = 15.0 * std::f64::consts::PI / 180.0;
+
 impl Estimate {
+    /// `true` when the estimate claims lock while its angle is more than
+    /// [`FALSE_LOCK_ERROR_RAD`] off; `None` without ground-truth `theta`.
+    pub fn false_lock(&self, truth: &TraceRow) -> Option<bool> {
+        self.theta_err(truth).map(|e| self.locked && e.abs() > FALSE_LOCK_ERROR_RAD)
+    }
+
     /// Angle error `theta - theta_hat` wrapped to (-pi, pi], rad; `None` without
     /// ground-truth `theta`.
     pub fn theta_err(&self, truth: &TraceRow) -> Option<f64> {
@@ -913,6 +925,7 @@ impl<'a> OutputTraceWriter<'a> {
         {
             push_number(&mut line, value);
         }
+        push_number(&mut line, if estimate.locked { 1.0 } else { 0.0 });
         for value in [estimate.theta_err(row), estimate.v_err(row)].into_iter().flatten() {
             push_number(&mut line, value);
         }
@@ -1401,6 +1414,7 @@ mod tests {
             v_hat: 0.1 + 0.2 * k as f64,
             psi_alpha_hat: 0.16 / 3.0,
             psi_beta_hat: -1e-300,
+            locked: k % 2 == 1,
         }
     }
 
@@ -1414,7 +1428,7 @@ mod tests {
         let (header, rows) = read_csv(&path);
         assert_eq!(
             header,
-            ["t", "theta_hat", "v_hat", "psi_alpha_hat", "psi_beta_hat", "theta_err", "v_err"]
+            ["t", "theta_hat", "v_hat", "psi_alpha_hat", "psi_beta_hat", "locked", "theta_err", "v_err"]
         );
         assert_eq!(rows.len(), 4);
         for (k, r) in rows.iter().enumerate() {
@@ -1425,9 +1439,10 @@ mod tests {
             assert_eq!(r[2].to_bits(), e.v_hat.to_bits());
             assert_eq!(r[3].to_bits(), e.psi_alpha_hat.to_bits());
             assert_eq!(r[4].to_bits(), e.psi_beta_hat.to_bits());
+            assert_eq!(r[5], if k % 2 == 1 { 1.0 } else { 0.0 });
             // 3.1 - (-3.1) = 6.2 rad wraps to 6.2 - 2 pi.
-            assert!((r[5] - (6.2 - 2.0 * PI)).abs() < 1e-12, "{}", r[5]);
-            assert_eq!(r[6], 0.3 - e.v_hat);
+            assert!((r[6] - (6.2 - 2.0 * PI)).abs() < 1e-12, "{}", r[6]);
+            assert_eq!(r[7], 0.3 - e.v_hat);
         }
         assert_eq!(dir_entries(dir.path()), ["out.csv"]);
     }

@@ -50,6 +50,7 @@ fn example_trace_replays_end_to_end() {
                     v_hat: 0.3,
                     psi_alpha_hat: psi_f * th.cos(),
                     psi_beta_hat: psi_f * th.sin(),
+                    locked: true,
                 }
             })
             .collect();
@@ -57,7 +58,11 @@ fn example_trace_replays_end_to_end() {
         let out = dir.path().join("out.csv");
         write_output_trace(&out, &tr, &est).unwrap();
         let text = std::fs::read_to_string(&out).unwrap();
-        assert!(text.starts_with("t,theta_hat,v_hat,psi_alpha_hat,psi_beta_hat,theta_err,v_err\n"));
+        assert!(text.starts_with("t,theta_hat,v_hat,psi_alpha_hat,psi_beta_hat,locked,theta_err,v_err\n"));
+        assert_eq!(
+            Summary::compute(&tr, &est, &MotorParams::paper(), 1e-3).unwrap().false_lock_samples,
+            Some(0)
+        );
         assert_eq!(text.lines().count(), 21);
         // The trace is 1.9 ms long: settle the first millisecond instead of 0.5 s.
         assert!(Summary::compute(&tr, &est, &MotorParams::paper(), DEFAULT_SETTLE_S).is_err());

@@ -67,9 +67,15 @@ fn example_trace_replays_with_the_documented_columns() {
     let v = replay_json(&data("example_trace.csv"), &out, "dcfo", &["--settle", "0"]);
     assert_eq!(v["samples"], 20);
     let (header, rows) = read_output(&out);
-    assert_eq!(header, ["t", "theta_hat", "v_hat", "psi_alpha_hat", "psi_beta_hat", "theta_err", "v_err"]);
+    assert_eq!(
+        header,
+        ["t", "theta_hat", "v_hat", "psi_alpha_hat", "psi_beta_hat", "locked", "theta_err", "v_err"]
+    );
     assert_eq!(rows.len(), 20);
-    assert!(rows.iter().all(|r| r.len() == 7 && r.iter().all(|x| x.is_finite())));
+    assert!(rows.iter().all(|r| r.len() == 8 && r.iter().all(|x| x.is_finite())));
+    // 1.9 ms from a cold start: the estimator cannot claim lock yet.
+    assert!(rows.iter().all(|r| r[5] == 0.0));
+    assert_eq!(v["false_lock_samples"], 0);
     assert_eq!(rows[0][0], 0.0);
     assert!((rows[19][0] - 0.0019).abs() < 1e-12);
 
@@ -167,9 +173,12 @@ fn ideal_synthetic_trace_dcfo_converges_and_cfo_shows_its_phase_lead() {
     let rms_half_second = num(&d, "theta_err_rms_deg");
     assert!(rms_half_second < 0.01, "{d}");
     assert!(num(&d, "v_err_rms") < 0.01, "{d}");
+    assert_eq!(d["false_lock_samples"], 0, "{d}");
     let (header, rows) = read_output(&out);
-    assert_eq!(header.len(), 7);
+    assert_eq!(header.len(), 8);
     assert_eq!(rows.len(), 15_001);
+    // Locked once converged: the last second is all locked.
+    assert!(rows[5_001..].iter().all(|r| r[5] == 1.0));
     // Once converged it is exact: no amplitude or phase error at the fundamental.
     let d = replay_json(&trace, &out, "dcfo", &["--settle", "1.3"]);
     eprintln!("DCFO on ideal data, 0.3 m/s, after 1.3 s: {d}");

@@ -89,6 +89,7 @@ pub fn trace_of(run: &Run) -> Result<(InputTrace, Vec<Estimate>)> {
             v_hat: s.v_hat,
             psi_alpha_hat: s.psi_hat[0],
             psi_beta_hat: s.psi_hat[1],
+            locked: s.locked.unwrap_or(false),
         })
         .collect();
     Ok((trace, estimates))
