@@ -62,6 +62,10 @@ pub enum Command {
     /// Acquisition benchmark: cold starts of the estimator on a mover already moving,
     /// 12 speeds x 2 directions x 8 positions x 3 input offsets, f32 and Q8.24.
     Acquire(AcquireArgs),
+    /// Tracking benchmark: the estimator alone on recordings of reversals through zero
+    /// speed and sharp speed steps, f32 and Q8.24: re-lock after each reversal, error
+    /// through the steps, false locks.
+    Track(TrackArgs),
     /// Positioning over a 0.3 m stroke: back-and-forth moves through zero speed with
     /// the low-speed mode at every reversal, position estimate against the truth.
     Stroke(StrokeArgs),
@@ -333,6 +337,19 @@ pub struct AcquireArgs {
     /// `acquire.png` / `acquire.svg` (lock time against speed).
     #[arg(long, value_name = "DIR", default_value = "out/acquire")]
     pub out: PathBuf,
+}
+
+/// Arguments of `dcfo track`.
+#[derive(Debug, Clone, Args)]
+pub struct TrackArgs {
+    /// Print exactly one JSON object (every profile's figures) on stdout.
+    #[arg(long)]
+    pub json: bool,
+    /// The motor (a preset name or a motor file); default: the paper motor. The profiles
+    /// are scaled to it (speeds by its pole pitch, accelerations by its rated thrust on
+    /// the axis).
+    #[arg(long, value_name = "FILE|PRESET")]
+    pub motor: Option<String>,
 }
 
 /// Arguments of `dcfo motor-image`.
@@ -639,6 +656,10 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                 motor: a.motor,
                 out: a.out,
             })?;
+            Ok(ExitCode::SUCCESS)
+        }
+        Command::Track(a) => {
+            crate::track::run_command(a.motor.as_deref(), a.json)?;
             Ok(ExitCode::SUCCESS)
         }
         Command::Stroke(a) => {

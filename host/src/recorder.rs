@@ -14,8 +14,8 @@
 
 use dcfo::drive::{COMPENSATION_REFERENCE_FROM_BANDS, CompensationSigns};
 use dcfo::estimator::Estimator;
-use dcfo::num::Scalar;
 use dcfo::motor::MotorParams;
+use dcfo::num::Scalar;
 use dcfo::pi::Pi;
 use dcfo::svpwm::svpwm;
 use dcfo::transforms::{AlphaBeta, CosSin, Dq, inverse_clarke, inverse_park, park};
@@ -81,7 +81,8 @@ impl PrefilteredSteps {
             let t = k as f64 * dt_s;
             let target =
                 self.steps.iter().rev().find(|(ts, _)| *ts <= t).map(|s| s.1).unwrap_or(self.initial_m_per_s);
-            let a = ((target - v) / self.prefilter_s).clamp(-self.accel_limit_m_per_s2, self.accel_limit_m_per_s2);
+            let a = ((target - v) / self.prefilter_s)
+                .clamp(-self.accel_limit_m_per_s2, self.accel_limit_m_per_s2);
             out.push((v, a));
             v += a * dt_s;
         }
@@ -162,14 +163,17 @@ pub fn record(
                 let from = f64::from(COMPENSATION_REFERENCE_FROM_BANDS);
                 let w = match setup.drive.compensation_signs {
                     CompensationSigns::Measured => 0.0,
-                    CompensationSigns::ReferenceAboveNoise => ((iq_ref.abs() / band - from) / from).clamp(0.0, 1.0),
+                    CompensationSigns::ReferenceAboveNoise => {
+                        ((iq_ref.abs() / band - from) / from).clamp(0.0, 1.0)
+                    }
                 };
                 let i_sign = Dq::new(i_dq.d * (1.0 - w), i_dq.q + w * (iq_ref - i_dq.q));
                 model.compensation(u_ab, reading.vdc_v, inverse_clarke(inverse_park(i_sign, &cs_apply)))
             }
             None => AlphaBeta::new(0.0, 0.0),
         };
-        let m = svpwm(AlphaBeta::new(u_ab.alpha + c.alpha, u_ab.beta + c.beta), reading.vdc_v).map_err(|e| err(&e))?;
+        let m = svpwm(AlphaBeta::new(u_ab.alpha + c.alpha, u_ab.beta + c.beta), reading.vdc_v)
+            .map_err(|e| err(&e))?;
         if k >= skip {
             rows.push(Row { u: u_pending, u_actual: [0.0; 2], i: [i_ab.alpha, i_ab.beta], theta, v });
         }
@@ -214,7 +218,10 @@ pub fn replay<T: Scalar>(
     let mut out = Vec::with_capacity(rows.len());
     let mut u_prev = [0.0f64; 2];
     for (k, r) in rows.iter().enumerate() {
-        let u = AlphaBeta::new(base.voltage((u_prev[0] + du[0]) as f32), base.voltage((u_prev[1] + du[1]) as f32));
+        let u = AlphaBeta::new(
+            base.voltage((u_prev[0] + du[0]) as f32),
+            base.voltage((u_prev[1] + du[1]) as f32),
+        );
         u_prev = r.u;
         let i = AlphaBeta::new(base.current((r.i[0] + di[0]) as f32), base.current((r.i[1] + di[1]) as f32));
         let e = est.update(u, i, dt).map_err(|e| format!("estimator fault at sample {k}: {e:?}"))?;

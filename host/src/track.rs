@@ -128,7 +128,8 @@ fn score(
     floor: f64,
 ) -> (usize, Option<f64>, f64, f64, Option<f64>, usize) {
     let err: Vec<f64> = rows.iter().zip(est).map(|(r, e)| wrap_angle(r.theta - e.0).to_degrees()).collect();
-    let false_locks = rows.iter().zip(est).zip(&err).filter(|((_, e), x)| e.1 && x.abs() > FALSE_LOCK_DEG).count();
+    let false_locks =
+        rows.iter().zip(est).zip(&err).filter(|((_, e), x)| e.1 && x.abs() > FALSE_LOCK_DEG).count();
     let first_lock = est.iter().position(|e| e.1);
     let w_per_v = std::f64::consts::PI / f64::from(motor.pole_pitch_m);
     // Segments above the floor, between passages below it.
@@ -257,7 +258,10 @@ pub fn run_all(setup: &Setup) -> Result<Vec<Figures>, String> {
     let profiles = profiles();
     let results: Vec<Result<Vec<Figures>, String>> = std::thread::scope(|scope| {
         let handles: Vec<_> = profiles.iter().map(|p| scope.spawn(|| run_profile(setup, p))).collect();
-        handles.into_iter().map(|h| h.join().unwrap_or_else(|_| Err("a profile thread panicked".into()))).collect()
+        handles
+            .into_iter()
+            .map(|h| h.join().unwrap_or_else(|_| Err("a profile thread panicked".into())))
+            .collect()
     });
     let mut all = Vec::new();
     for r in results {
