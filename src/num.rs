@@ -76,6 +76,15 @@ pub trait Scalar:
     fn mul_nearest(self, rhs: Self) -> Self {
         self * rhs
     }
+    /// `self * k` for a factor of magnitude at most one (`|k| <= 1`: a cosine, a sine, a
+    /// constant below one), where the product cannot leave the range (`|self k| <=
+    /// |self|`): the same value as `self * k`, and for [`Q24`] one `SMULL` and a shift
+    /// with no saturation check. The caller proves `|k| <= 1`; a larger `k` gives a
+    /// wrong (wrapped) fixed-point result, never a panic (host builds with debug
+    /// assertions check the bound).
+    fn mul_unit(self, k: Self) -> Self {
+        self * k
+    }
     /// `self` limited to `[lo, hi]`; returns `lo` if `lo > hi` would otherwise apply.
     fn clamp_to(self, lo: Self, hi: Self) -> Self {
         self.min(hi).max(lo)
@@ -368,8 +377,13 @@ impl Sub for Q24 {
 }
 impl Mul for Q24 {
     type Output = Q24;
+    /// The product rounded down (towards -inf), saturated: the same result as the `fixed`
+    /// crate's `saturating_mul` for every pair of operands (tested), which forms a wider
+    /// product and spends four multiplications on it; this is one `SMULL`, the shift and
+    /// a range check on the high word.
+    #[inline]
     fn mul(self, rhs: Q24) -> Q24 {
-        Q24(self.0.saturating_mul(rhs.0))
+        Q24::from_bits(q24_mul_saturating(self.to_bits(), rhs.to_bits()))
     }
 }
 impl Neg for Q24 {
@@ -394,6 +408,29 @@ fn f32_inv_sqrt(x: f32) -> f32 {
         r = r * (1.5 - half_x * r * r);
     }
     r
+}
+
+/// `(a * b) >> 24` of two Q24 bit patterns, rounded down and saturated to `i32`: one
+/// `SMULL` (32 x 32 -> 64 bits), the shift, and a check that bits 55 to 63 of the product
+/// (those the shift leaves above bit 31) are all copies of its sign.
+#[inline(always)]
+fn q24_mul_saturating(a: i32, b: i32) -> i32 {
+    let product = i64::from(a) * i64::from(b);
+    let high = (product >> 32) as i32;
+    let shifted = (product >> 24) as i32;
+    if high >> 23 == shifted >> 31 {
+        shifted
+    } else {
+        // The product's sign: i32::MAX when positive, i32::MIN when negative.
+        (high >> 31) ^ i32::MAX
+    }
+}
+
+/// `(a * b) >> 24` of two Q24 bit patterns whose product is in range (`|b| <= 2^24`,
+/// i.e. a factor of magnitude at most one): one `SMULL` and the shift, no check.
+#[inline(always)]
+fn q24_mul_in_range(a: i32, b: i32) -> i32 {
+    ((i64::from(a) * i64::from(b)) >> 24) as i32
 }
 
 /// `(a * b) >> 24` of two Q24 bit patterns, in 64 bits (one `SMULL` on Cortex-M3).
@@ -515,6 +552,11 @@ impl Scalar for Q24 {
     }
     fn abs(self) -> Q24 {
         Q24(self.0.saturating_abs())
+    }
+    #[inline]
+    fn mul_unit(self, k: Q24) -> Q24 {
+        debug_assert!(k.to_bits().unsigned_abs() <= 1 << 24, "mul_unit: |k| > 1");
+        Q24::from_bits(q24_mul_in_range(self.to_bits(), k.to_bits()))
     }
     fn mul_nearest(self, rhs: Q24) -> Q24 {
         let product = i64::from(self.0.to_bits()) * i64::from(rhs.0.to_bits());
