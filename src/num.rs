@@ -93,7 +93,8 @@ pub trait Scalar:
     /// 4e-7 relative; [`Q24`] within 1 LSB (2^-24).
     fn sqrt(self) -> Self;
     /// `self / rhs`, or `None` when `rhs` is zero or the quotient is not representable
-    /// (infinite, NaN, or outside the fixed-point range).
+    /// (infinite, NaN, or outside the fixed-point range). [`Q24`] rounds towards zero;
+    /// on Cortex-M3 two hardware divisions and a few corrections.
     fn checked_div(self, rhs: Self) -> Option<Self>;
     /// `1 / self`, or `None` when `self` is zero or the result is not representable.
     /// Accuracy: floats correctly rounded (one division); [`Q24`] within 4 LSB
@@ -433,6 +434,71 @@ fn q24_mul_in_range(a: i32, b: i32) -> i32 {
     ((i64::from(a) * i64::from(b)) >> 24) as i32
 }
 
+/// `(a << 24) / b` of two Q24 bit patterns, rounded towards zero; `None` for `b = 0` or
+/// a quotient outside `i32`: the same result as the `fixed` crate's `checked_div` for
+/// every pair of operands (tested), which divides 64 by 64 bits in software (a library
+/// routine of about 150 instructions on Cortex-M3). Here the magnitudes divide 56 by
+/// 32 bits with two of the core's 32-bit hardware divisions ([`div_u64_by_u32`]).
+#[inline]
+fn q24_div(a: i32, b: i32) -> Option<i32> {
+    if b == 0 {
+        return None;
+    }
+    let n = u64::from(a.unsigned_abs()) << 24;
+    let d = b.unsigned_abs();
+    // A quotient of 2^32 or more: (n >> 32) >= d.
+    let (high, low) = ((n >> 32) as u32, n as u32);
+    if high >= d {
+        return None;
+    }
+    let q = div_u64_by_u32(high, low, d);
+    if (a < 0) != (b < 0) {
+        // -q down to i32::MIN (q = 2^31).
+        (q <= 1 << 31).then(|| (q as i32).wrapping_neg())
+    } else {
+        i32::try_from(q).ok()
+    }
+}
+
+/// `(high * 2^32 + low) / d` for `high < d` (so the quotient fits 32 bits), rounded down:
+/// long division in two 16-bit digits on the normalised divisor, each digit from one
+/// 32-bit hardware division and corrected at most twice (H. S. Warren, *Hacker's
+/// Delight*, 2nd ed., section 9-4, `divlu`). Bounded: no loop runs more than twice.
+#[inline]
+fn div_u64_by_u32(high: u32, low: u32, d: u32) -> u32 {
+    const BASE: u32 = 1 << 16;
+    const MASK: u32 = BASE - 1;
+    // Normalise: the divisor's top bit set (d > high >= 0, so d > 0).
+    let shift = d.leading_zeros();
+    let v = d << shift;
+    let (v1, v0) = (v >> 16, v & MASK);
+    let n32 = if shift == 0 { high } else { (high << shift) | (low >> (32 - shift)) };
+    let n10 = low << shift;
+    let (n1, n0) = (n10 >> 16, n10 & MASK);
+    // The first digit: n32 / v1 is at most two too large.
+    let mut q1 = n32 / v1;
+    let mut rhat = n32 - q1 * v1;
+    while q1 >= BASE || q1 * v0 > (rhat << 16) + n1 {
+        q1 -= 1;
+        rhat += v1;
+        if rhat >= BASE {
+            break;
+        }
+    }
+    let n21 = (n32 << 16).wrapping_add(n1).wrapping_sub(q1.wrapping_mul(v));
+    // The second digit, likewise.
+    let mut q0 = n21 / v1;
+    let mut rhat = n21 - q0 * v1;
+    while q0 >= BASE || q0 * v0 > (rhat << 16) + n0 {
+        q0 -= 1;
+        rhat += v1;
+        if rhat >= BASE {
+            break;
+        }
+    }
+    (q1 << 16) | q0
+}
+
 /// `(a * b) >> 24` of two Q24 bit patterns, in 64 bits (one `SMULL` on Cortex-M3).
 #[inline(always)]
 fn q24_mul_wide(a: i64, b: i64) -> i64 {
@@ -572,7 +638,7 @@ impl Scalar for Q24 {
         }
     }
     fn checked_div(self, rhs: Q24) -> Option<Q24> {
-        self.0.checked_div(rhs.0).map(Q24)
+        q24_div(self.to_bits(), rhs.to_bits()).map(Q24::from_bits)
     }
     fn recip(self) -> Option<Q24> {
         let x = self.to_bits();

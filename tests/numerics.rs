@@ -365,3 +365,44 @@ fn q24_mul_unit_equals_the_saturating_product_for_factors_up_to_one() {
     assert_eq!(3.0f32.mul_unit(-0.5), -1.5);
     assert_eq!(3.0f64.mul_unit(0.25), 0.75);
 }
+
+#[test]
+fn q24_division_is_fixed_checked_div_bit_for_bit() {
+    // Q24's checked_div divides 56 by 32 bits with two hardware divisions; it must equal
+    // the `fixed` crate's checked division (64-bit, rounded towards zero, None on zero or
+    // overflow) for every operand pair: the sweep against pseudo-random divisors of every
+    // magnitude, both signs, the extremes, and divisors at the edge of overflow.
+    use fixed::types::I8F24;
+    let mut seed = 0x0bad_5eedu32;
+    let (mut n, mut none) = (0u64, 0u64);
+    let mut check = |a: i32, b: i32| {
+        let want = I8F24::from_bits(a).checked_div(I8F24::from_bits(b)).map(I8F24::to_bits);
+        let got = Q24::from_bits(a).checked_div(Q24::from_bits(b)).map(Q24::to_bits);
+        assert_eq!(got, want, "{a} / {b}");
+        n += 1;
+        none += u64::from(want.is_none());
+    };
+    let operands: Vec<i32> =
+        q24_sweep().flat_map(|a| [a, -a]).chain([0, i32::MIN, i32::MIN + 1, -1]).collect();
+    for &a in &operands {
+        for shift in 0..32 {
+            seed = seed.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+            let b = (seed as i32) >> shift;
+            check(a, b);
+            check(b, a);
+        }
+        for b in [0, 1, -1, 2, 1 << 24, -(1 << 24), i32::MAX, i32::MIN, i32::MIN + 1] {
+            check(a, b);
+        }
+        // Divisors around |a| 2^24 / 2^31, where the quotient leaves the range.
+        let edge = (i64::from(a.unsigned_abs()) << 24) >> 31;
+        for d in -2..=2 {
+            if let Ok(b) = i32::try_from(edge + d) {
+                check(a, b);
+                check(a, b.wrapping_neg());
+            }
+        }
+    }
+    assert!(n > 2_000_000, "{n} divisions");
+    assert!(none > 50_000, "{none} refused divisions");
+}
