@@ -56,15 +56,16 @@ mod firmware {
     use dcfo::link::board::CaptureChunk;
     use dcfo::units::Base;
     use dcfo_firmware::board::b_g431b_esc1::{
-        self as esc1, CONTROL_IRQ, DEFAULT_DEAD_TIME_NS, DEFAULT_PWM_HZ, Esc1Config, Esc1PowerStage,
-        Esc1Sensors, StatusLed, stop,
+        self as esc1, CONTROL_IRQ, ClockSource, DEFAULT_DEAD_TIME_NS, DEFAULT_PWM_HZ, Esc1Config,
+        Esc1PowerStage, Esc1Sensors, StatusLed, stop,
     };
     use dcfo_firmware::board::{Bridge, PhaseSensors, PowerStage};
     use dcfo_firmware::board_link::BoardLinkServer;
     use dcfo_firmware::control::{ControlLoop, Setpoints};
     use dcfo_firmware::image_drive::{Inverter, drive_config};
     use dcfo_firmware::runtime::{
-        BoardLinkState, DriveOnBoard, Slot, StallCheck, install, slot, start_systick,
+        BoardLinkState, CaptureCell, DriveOnBoard, Slot, StallCheck, capture_cell, install, slot,
+        start_systick,
     };
     use dcfo_firmware::stack;
     use embedded_hal::digital::OutputPin;
@@ -91,10 +92,11 @@ mod firmware {
     const PRIORITY_STALL_CHECK: u8 = 0x80;
 
     /// What the control interrupt owns: the drive on the board's sensors and power stage.
-    static CONTROL: Slot<DriveOnBoard<f32, Bridge<Esc1Sensors, Esc1PowerStage>>> = slot();
+    static CONTROL: Slot<&'static mut DriveOnBoard<f32, Bridge<Esc1Sensors, Esc1PowerStage>>> = slot();
     /// The capture and the last step's status, filled by the control interrupt, read by
     /// the thread (both in critical sections); constant-initialised in place.
-    static LINK: BoardLinkState<CAPTURE_SAMPLES> = BoardLinkState::new();
+    static CAPTURE: CaptureCell<CAPTURE_SAMPLES> = capture_cell();
+    static LINK: BoardLinkState<CAPTURE_SAMPLES> = BoardLinkState::new(&CAPTURE);
     static SETPOINTS: Setpoints = Setpoints::new();
     /// Control periods run (the thread's time base) and the stall check on them.
     static STALL: StallCheck = StallCheck::new(STALL_CHECKS);
@@ -111,12 +113,17 @@ mod firmware {
         let config = Esc1Config { baud: BAUD, ..Esc1Config::default() };
         let board = esc1::init(dp, &config);
         let (mut uart, mut led) = (board.uart, board.led);
-        defmt::info!("B-G431B-ESC1 up, clock {}", defmt::Debug2Format(&board.clock_source));
+        // Named here rather than through `Debug2Format`: that would link core::fmt (4.9 KB).
+        let clock = match board.clock_source {
+            ClockSource::Hsi16 => "HSI16",
+            ClockSource::Hse8MHz => "HSE 8 MHz",
+        };
+        defmt::info!("B-G431B-ESC1 up, clock {}", clock);
         defmt::info!("stack: {} bytes, MPU guard {}", stack::bounds().1 - stack::bounds().0, guarded);
 
         let image = match esc1::motor_image() {
             Ok(image) => image,
-            Err(e) => halt(&mut led, defmt::Display2Format(&e)),
+            Err(e) => halt(&mut led, e),
         };
         // The drive of the image (`image_drive::drive_config`, as every drive image):
         // positioning on the image's axis, or a speed drive without one; the inverter
@@ -172,8 +179,12 @@ mod firmware {
         defmt::info!("current offsets (counts): {}", sensors.current_offsets());
         defmt::info!("bus at rest: {} V", sensors.sample().vdc_v);
 
-        let control =
-            DriveOnBoard { control: ControlLoop::new(drive, u16::MAX), board: Bridge { sensors, power } };
+        // The drive in a static of its own, in .bss (`Slot`); `None` only if this ran twice.
+        let control = cortex_m::singleton!(
+            : DriveOnBoard<f32, Bridge<Esc1Sensors, Esc1PowerStage>> =
+                DriveOnBoard { control: ControlLoop::new(drive, u16::MAX), board: Bridge { sensors, power } }
+        );
+        let Some(control) = control else { halt(&mut led, "control state taken twice") };
         if !install(&CONTROL, control) {
             halt(&mut led, "control state busy at start-up");
         }

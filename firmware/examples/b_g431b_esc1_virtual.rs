@@ -46,7 +46,9 @@ mod firmware {
     use dcfo_firmware::board_link::BoardLinkServer;
     use dcfo_firmware::control::{ControlLoop, Setpoints};
     use dcfo_firmware::image_drive::{Inverter, drive_config, virtual_axis};
-    use dcfo_firmware::runtime::{BoardLinkState, DriveOnBoard, Slot, install, slot, start_systick};
+    use dcfo_firmware::runtime::{
+        BoardLinkState, CaptureCell, DriveOnBoard, Slot, capture_cell, install, slot, start_systick,
+    };
     use dcfo_firmware::stack;
     use embedded_io::Write as _;
     use stm32g4::stm32g431 as pac;
@@ -60,9 +62,10 @@ mod firmware {
     const PRIORITY_CONTROL: u8 = 0x00;
 
     /// What the control interrupt owns.
-    static CONTROL: Slot<DriveOnBoard<f32, VirtualBoard>> = slot();
+    static CONTROL: Slot<&'static mut DriveOnBoard<f32, VirtualBoard>> = slot();
     /// The capture and the last step's status.
-    static LINK: BoardLinkState<CAPTURE_SAMPLES> = BoardLinkState::new();
+    static CAPTURE: CaptureCell<CAPTURE_SAMPLES> = capture_cell();
+    static LINK: BoardLinkState<CAPTURE_SAMPLES> = BoardLinkState::new(&CAPTURE);
     static SETPOINTS: Setpoints = Setpoints::new();
 
     #[entry]
@@ -96,10 +99,14 @@ mod firmware {
         let Ok(virtual_motor) = VirtualMotor::new(&image.motor, &virtual_axis(&image, period_s)) else {
             stop("virtual motor settings refused")
         };
-        let control = DriveOnBoard {
-            control: ControlLoop::new(drive, u16::MAX),
-            board: VirtualBoard::new(virtual_motor),
-        };
+        // The drive in a static of its own, in .bss (`Slot`); `None` only if this ran twice.
+        let control = cortex_m::singleton!(
+            : DriveOnBoard<f32, VirtualBoard> = DriveOnBoard {
+                control: ControlLoop::new(drive, u16::MAX),
+                board: VirtualBoard::new(virtual_motor),
+            }
+        );
+        let Some(control) = control else { stop("control state taken twice") };
         if !install(&CONTROL, control) {
             stop("control state busy at start-up");
         }

@@ -62,7 +62,9 @@ mod firmware {
     use dcfo_firmware::board_link::BoardLinkServer;
     use dcfo_firmware::control::{ControlLoop, Setpoints};
     use dcfo_firmware::image_drive::{Inverter, drive_config, motor_image_from_hex, virtual_axis};
-    use dcfo_firmware::runtime::{BoardLinkState, DriveOnBoard, Slot, install, slot, start_systick};
+    use dcfo_firmware::runtime::{
+        BoardLinkState, CaptureCell, DriveOnBoard, Slot, capture_cell, install, slot, start_systick,
+    };
     use dcfo_firmware::stack;
     use embedded_io::Write as _;
 
@@ -89,10 +91,11 @@ mod firmware {
     const PRIORITY_CONTROL: u8 = 0x00;
 
     /// What the control interrupt owns.
-    static CONTROL: Slot<DriveOnBoard<Work, VirtualBoard>> = slot();
+    static CONTROL: Slot<&'static mut DriveOnBoard<Work, VirtualBoard>> = slot();
     /// The capture and the last step's status: filled by the control interrupt, read by
     /// the thread.
-    static LINK: BoardLinkState<CAPTURE_SAMPLES> = BoardLinkState::new();
+    static CAPTURE: CaptureCell<CAPTURE_SAMPLES> = capture_cell();
+    static LINK: BoardLinkState<CAPTURE_SAMPLES> = BoardLinkState::new(&CAPTURE);
     static SETPOINTS: Setpoints = Setpoints::new();
 
     #[entry]
@@ -140,10 +143,14 @@ mod firmware {
             "dcfo-firmware qemu_drive: virtual motor, {kind}, capture {CAPTURE_SAMPLES} samples\r\n\0"
         );
 
-        let control = DriveOnBoard {
-            control: ControlLoop::new(drive, u16::MAX),
-            board: VirtualBoard::new(virtual_motor),
-        };
+        // The drive in a static of its own, in .bss (`Slot`); `None` only if this ran twice.
+        let control = cortex_m::singleton!(
+            : DriveOnBoard<Work, VirtualBoard> = DriveOnBoard {
+                control: ControlLoop::new(drive, u16::MAX),
+                board: VirtualBoard::new(virtual_motor),
+            }
+        );
+        let Some(control) = control else { halt("control state taken twice") };
         if !install(&CONTROL, control) {
             halt("control state busy at start-up");
         }

@@ -56,6 +56,8 @@ fn main() {
 
 #[cfg(target_arch = "arm")]
 mod firmware {
+    #[cfg(target_abi = "eabihf")]
+    use cortex_m::peripheral::scb::FpuAccessMode;
     use cortex_m::peripheral::syst::SystClkSource;
     use cortex_m_rt::{entry, exception};
     use dcfo::drive::{Drive, DriveConfig};
@@ -99,7 +101,7 @@ mod firmware {
         tx: Producer<'static, u8, TX_QUEUE_BYTES>,
     }
 
-    static CONTROL: Slot<Control> = slot();
+    static CONTROL: Slot<&'static mut Control> = slot();
 
     #[entry]
     fn main() -> ! {
@@ -173,17 +175,27 @@ mod firmware {
         // The banner states the numeric type and, with an FPU, the access mode
         // (CPACR CP10/CP11) cortex-m-rt set before `main`. The 0x00 after it is a link
         // frame delimiter: the host's receiver drops the banner as one bad frame.
+        // Written piece by piece: `write!` would link core::fmt (3-5 KB of flash).
         #[cfg(target_abi = "eabihf")]
-        let _ = write!(
-            uart,
-            "dcfo-firmware qemu_hil: f32, fpu {:?}, {axis}\r\n\0",
-            cortex_m::peripheral::SCB::fpu_access_mode()
-        );
+        let numbers = match cortex_m::peripheral::SCB::fpu_access_mode() {
+            FpuAccessMode::Enabled => "f32, fpu Enabled",
+            FpuAccessMode::Privileged => "f32, fpu Privileged",
+            FpuAccessMode::Disabled => "f32, fpu Disabled",
+        };
         #[cfg(not(target_abi = "eabihf"))]
-        let _ = write!(uart, "dcfo-firmware qemu_hil: Q8.24 fixed point, no fpu, {axis}\r\n\0");
+        let numbers = "Q8.24 fixed point, no fpu";
+        for part in ["dcfo-firmware qemu_hil: ", numbers, ", ", axis, "\r\n\0"] {
+            let _ = uart.write_all(part.as_bytes());
+        }
 
         let (rx, tx) = uart.into_interrupt_driven();
-        if !install(&CONTROL, Control { server: HilServer::new(drive), rx, tx: producer }) {
+        // The state in a static of its own, in .bss (`Slot`); `None` only if this ran twice.
+        let Some(control) =
+            cortex_m::singleton!(: Control = Control { server: HilServer::new(drive), rx, tx: producer })
+        else {
+            return Err("control state taken twice");
+        };
+        if !install(&CONTROL, control) {
             return Err("control state busy at start-up");
         }
         Ok(tx)

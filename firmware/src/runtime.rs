@@ -44,6 +44,11 @@ use crate::control::{ControlLoop, Setpoints};
 
 /// State that an interrupt owns: empty until `main` [`install`]s it, then borrowed only
 /// in critical sections that never nest.
+///
+/// For a large state, install a `&'static mut` to it (from `cortex_m::singleton!`, which
+/// keeps it in `.bss`): an empty `Slot` of a reference is all zeros and lives in `.bss`
+/// too, where `Option<T>` of a state with a niche (a `bool`, an enum) is not all zeros,
+/// and the whole state would be copied from flash into `.data` at reset.
 pub type Slot<T> = Mutex<RefCell<Option<T>>>;
 
 /// An empty [`Slot`], for a `static` (const).
@@ -88,28 +93,31 @@ pub struct DriveOnBoard<T, B> {
     pub board: B,
 }
 
+/// The capture of a drive image's board link (`N` samples), behind a critical section:
+/// a `static` of its own ([`capture_cell`]). An empty capture is all zero bytes, so the
+/// static starts in `.bss` (zeroed at reset) and costs no flash; inside
+/// [`BoardLinkState`], whose status is not all zeros, it would be copied from flash into
+/// `.data`.
+pub type CaptureCell<const N: usize> = Mutex<RefCell<Capture<N>>>;
+
+/// An empty [`CaptureCell`], for a `static` (const).
+pub const fn capture_cell<const N: usize>() -> CaptureCell<N> {
+    Mutex::new(RefCell::new(Capture::new()))
+}
+
 /// What the control interrupt leaves for the board link, and the thread's side of that
-/// link: the capture (`N` samples) and the last step's status, each behind a critical
-/// section. Constant-initialised in place (a `static`): the capture never passes
-/// through the stack.
+/// link: the capture (`N` samples, a [`CaptureCell`] of its own) and the last step's
+/// status, each behind a critical section. Constant-initialised in place (a `static`):
+/// the capture never passes through the stack.
 pub struct BoardLinkState<const N: usize> {
-    capture: Mutex<RefCell<Capture<N>>>,
+    capture: &'static CaptureCell<N>,
     status: Mutex<RefCell<DriveStatus>>,
 }
 
-impl<const N: usize> Default for BoardLinkState<N> {
-    fn default() -> Self {
-        Self::new()
-    }
-}
-
 impl<const N: usize> BoardLinkState<N> {
-    /// An empty capture, a disabled drive's status.
-    pub const fn new() -> Self {
-        BoardLinkState {
-            capture: Mutex::new(RefCell::new(Capture::new())),
-            status: Mutex::new(RefCell::new(DriveStatus::new())),
-        }
+    /// The board link on `capture`, with a disabled drive's status.
+    pub const fn new(capture: &'static CaptureCell<N>) -> Self {
+        BoardLinkState { capture, status: Mutex::new(RefCell::new(DriveStatus::new())) }
     }
 
     /// One control period, from the control interrupt inside its critical section `cs`:

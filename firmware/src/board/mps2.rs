@@ -331,21 +331,41 @@ impl embedded_io::Write for UartTx {
 }
 
 /// An image that cannot run (an initialisation that cannot complete): `HALT: <why>` on
-/// UART0, then as [`stop`]. Nothing is switched on yet when `main` calls it.
+/// UART0, then as [`stop_with`]. Nothing is switched on yet when `main` calls it.
 pub fn halt(why: &str) -> ! {
-    stop(format_args!("HALT: {why}"))
+    stop_with(&["HALT: ", why])
 }
 
 /// Stops the image for good: masks every interrupt (the control step lives in one, so it
 /// never runs again: no answer goes out and the drive's bridge flag is never set again),
-/// prints `what` on UART0 and sleeps. For [`halt`], the HardFault and the panic handler
-/// ([`mps2_fault_handlers!`](crate::mps2_fault_handlers)).
+/// prints the pieces of `what` on UART0 as one line and sleeps. For [`halt`] and the
+/// HardFault ([`mps2_fault_handlers!`](crate::mps2_fault_handlers)). Pieces, not
+/// `format_args!`: formatting would link core::fmt (3 to 5 KB of flash) into every image.
+pub fn stop_with(what: &[&str]) -> ! {
+    let mut uart = stop_uart();
+    for part in [&["\r\n"], what, &["\r\n"]].into_iter().flatten() {
+        let _ = embedded_io::Write::write_all(&mut uart, part.as_bytes());
+    }
+    sleep_forever()
+}
+
+/// [`stop_with`] for a formatted message: the panic handler's (not linked while nothing
+/// can panic, `.ci/no-panic`).
 pub fn stop(what: core::fmt::Arguments<'_>) -> ! {
-    cortex_m::interrupt::disable();
-    // SAFETY: interrupts are off and this never returns, so no other user of UART0 runs
-    // again; a byte the thread was writing is at worst cut short.
-    let mut uart = unsafe { CmsdkUart::steal_uart0() };
+    let mut uart = stop_uart();
     let _ = embedded_io::Write::write_fmt(&mut uart, format_args!("\r\n{what}\r\n"));
+    sleep_forever()
+}
+
+/// Masks every interrupt and takes UART0 for a last message.
+fn stop_uart() -> CmsdkUart {
+    cortex_m::interrupt::disable();
+    // SAFETY: interrupts are off and the callers never return, so no other user of UART0
+    // runs again; a byte the thread was writing is at worst cut short.
+    unsafe { CmsdkUart::steal_uart0() }
+}
+
+fn sleep_forever() -> ! {
     loop {
         cortex_m::asm::wfi();
     }
@@ -404,15 +424,15 @@ pub fn semihosting_exit(ok: bool) -> ! {
 /// image: `HardFault` (a stack overflow among others) on a fresh stack
 /// ([`crate::hard_fault_entry!`]) prints `HARDFAULT`, and the panic handler (not linked
 /// while nothing can panic, `.ci/no-panic`; kept so that a panic that creeps in still
-/// stops the control step first) prints `PANIC: <message>`; both through
-/// [`stop`](crate::board::mps2::stop). Expand once, at the image's top level; the
+/// stops the control step first) prints `PANIC: <message>`; through
+/// [`stop_with`](crate::board::mps2::stop_with) and [`stop`](crate::board::mps2::stop). Expand once, at the image's top level; the
 /// image's `DefaultHandler` is its own (it dispatches its interrupts).
 #[macro_export]
 macro_rules! mps2_fault_handlers {
     () => {
         /// HardFault (a stack overflow among others), on a fresh stack: stops the core.
         extern "C" fn on_hard_fault() -> ! {
-            $crate::board::mps2::stop(format_args!("HARDFAULT"))
+            $crate::board::mps2::stop_with(&["HARDFAULT"])
         }
 
         $crate::hard_fault_entry!(on_hard_fault);
