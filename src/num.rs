@@ -187,6 +187,27 @@ impl Neg for Angle {
     }
 }
 
+/// Sine and cosine of `x` radians in `f32` for code outside the control step's hot path
+/// that takes radians (commissioning's test signals, the low-speed mode's dither):
+/// the binary angle ([`Scalar::radians_to_angle`], exact to `f32` rounding of
+/// `x / 2π`) and [`Scalar::cos_sin`]'s table, within 2e-5 absolute for `|x|` up to a
+/// few hundred radians. libm's `sinf`/`cosf` are correctly rounded but reduce the
+/// argument in `f64` (software on Cortex-M), about 10 KB of flash with their
+/// `f64` routines. NaN and infinite `x` give `(0, 1)`.
+pub fn sin_cos(x: f32) -> (f32, f32) {
+    let (c, s) = <f32 as Scalar>::cos_sin(x.radians_to_angle());
+    (s, c)
+}
+
+/// Arcsine of `x` (clamped to `[-1, 1]`) in radians, `f32`: the angle of the vector
+/// `(sqrt((1 - x)(1 + x)), x)` ([`Scalar::atan2`]), within 2e-5 rad; see [`sin_cos`] for
+/// why not libm's `asinf`. NaN gives 0.
+pub fn asin(x: f32) -> f32 {
+    let x = x.clamp_to(-1.0, 1.0);
+    let adjacent = Scalar::sqrt((1.0 - x) * (1.0 + x));
+    <f32 as Scalar>::atan2(x, adjacent).to_radians::<f32>()
+}
+
 /// Binary-angle counts per radian, `2^31 / π`.
 const COUNTS_PER_RAD: f64 = 2_147_483_648.0 / core::f64::consts::PI;
 /// `1 / 2^31`: converts idsp's full-scale `i32` sine/cosine to 1.0.
@@ -471,16 +492,19 @@ fn div_u64_by_u32(high: u32, low: u32, d: u32) -> u32 {
     // Normalise: the divisor's top bit set (d > high >= 0, so d > 0).
     let shift = d.leading_zeros();
     let v = d << shift;
-    let (v1, v0) = (v >> 16, v & MASK);
+    let v0 = v & MASK;
+    // v's top bit is set, so its high digit is at least 2^15: never zero (the type says
+    // so to the compiler, which then links no division-by-zero panic).
+    let Some(v1) = core::num::NonZeroU32::new(v >> 16) else { return u32::MAX };
     let n32 = if shift == 0 { high } else { (high << shift) | (low >> (32 - shift)) };
     let n10 = low << shift;
     let (n1, n0) = (n10 >> 16, n10 & MASK);
     // The first digit: n32 / v1 is at most two too large.
     let mut q1 = n32 / v1;
-    let mut rhat = n32 - q1 * v1;
+    let mut rhat = n32 - q1 * v1.get();
     while q1 >= BASE || q1 * v0 > (rhat << 16) + n1 {
         q1 -= 1;
-        rhat += v1;
+        rhat += v1.get();
         if rhat >= BASE {
             break;
         }
@@ -488,10 +512,10 @@ fn div_u64_by_u32(high: u32, low: u32, d: u32) -> u32 {
     let n21 = (n32 << 16).wrapping_add(n1).wrapping_sub(q1.wrapping_mul(v));
     // The second digit, likewise.
     let mut q0 = n21 / v1;
-    let mut rhat = n21 - q0 * v1;
+    let mut rhat = n21 - q0 * v1.get();
     while q0 >= BASE || q0 * v0 > (rhat << 16) + n0 {
         q0 -= 1;
-        rhat += v1;
+        rhat += v1.get();
         if rhat >= BASE {
             break;
         }
