@@ -270,7 +270,8 @@ impl Scalar for f32 {
     fn atan2(y: f32, x: f32) -> Angle {
         // idsp's atan2 takes integers: scale the larger component to 2^30 so that
         // both fit an i32 with full resolution. NaN/inf give 0 (callers check validity).
-        let m = Scalar::abs(x).max(Scalar::abs(y));
+        // Scalar::max, not f32::max: a library call (fmaxf) on FPv4.
+        let m = Scalar::max(Scalar::abs(x), Scalar::abs(y));
         if !(m > 0.0 && m.is_finite()) {
             return Angle::ZERO;
         }
@@ -583,7 +584,11 @@ fn q24_inv_sqrt_positive(x: i32) -> Option<i32> {
 /// The Q24 bits of `x`: rounded to nearest, ties to even, saturated to the Q8.24 range,
 /// NaN to 0. The same result as `I8F24::saturating_from_num` for every non-NaN `f32`
 /// (tested), read from the float's bits: `fixed` panics on NaN inside that conversion,
-/// and that path stayed in the firmware images although NaN never reaches it.
+/// and that path stayed in the firmware images although NaN never reaches it. Not
+/// inlined: a conversion is configuration or I/O, and inlined at each of its many call
+/// sites (the drive's, the estimator's and the observers' constructors) it cost about
+/// 100 bytes of flash apiece on Cortex-M3.
+#[inline(never)]
 fn q24_bits_from_f32(x: f32) -> i32 {
     let bits = x.to_bits();
     let negative = bits >> 31 != 0;
@@ -598,12 +603,14 @@ fn q24_bits_from_f32(x: f32) -> i32 {
     // |x| 2^24 = m 2^(e - 126).
     let (m, e) = if exponent == 0 { (fraction, 1) } else { (fraction | 0x80_0000, exponent) };
     let shift = e - 126;
-    let magnitude: u64 = if shift >= 0 {
+    // In 32 bits (a shift of a 64-bit value is several instructions on Cortex-M3):
+    // m < 2^24 and a shift below 8 keep |x| 2^24 below 2^31.
+    let magnitude: u32 = if shift >= 0 {
         // A normal m >= 2^23: from a shift of 8 on, |x| 2^24 >= 2^31.
         if shift >= 8 {
             return saturated;
         } else {
-            u64::from(m) << shift
+            m << shift
         }
     } else {
         let r = -shift;
@@ -611,18 +618,15 @@ fn q24_bits_from_f32(x: f32) -> i32 {
             // Below half an LSB (m < 2^24 <= 2^(r - 1) / 2): rounds to 0.
             0
         } else {
-            let m = u64::from(m);
             let kept = m >> r;
             let rest = m & ((1 << r) - 1);
-            let half = 1u64 << (r - 1);
+            let half = 1u32 << (r - 1);
             if rest > half || (rest == half && kept & 1 == 1) { kept + 1 } else { kept }
         }
     };
-    if negative {
-        i32::try_from(-(magnitude as i64)).unwrap_or(i32::MIN)
-    } else {
-        i32::try_from(magnitude).unwrap_or(i32::MAX)
-    }
+    // Below 2^31: the cast keeps the value.
+    let magnitude = magnitude as i32;
+    if negative { -magnitude } else { magnitude }
 }
 
 impl Scalar for Q24 {

@@ -195,8 +195,10 @@ impl<T: Scalar> Drive<T> {
     /// the pole position the mover aligned to on enable (see the module docs).
     pub fn position_m(&self) -> f32 {
         let counts = self.position_counts;
-        let turns = (counts >> 32) as f32;
-        let frac = (counts & 0xFFFF_FFFF) as f32 * (1.0 / 4_294_967_296.0);
+        // Through 32-bit integers (the same values): an i64 to f32 conversion is a library
+        // call on Cortex-M.
+        let turns = ((counts >> 32) as i32) as f32;
+        let frac = (counts as u32) as f32 * (1.0 / 4_294_967_296.0);
         (turns + frac) * self.k.metres_per_turn
     }
 
