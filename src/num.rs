@@ -458,8 +458,8 @@ fn q24_mul_in_range(a: i32, b: i32) -> i32 {
 
 /// `(a << 24) / b` of two Q24 bit patterns, rounded towards zero; `None` for `b = 0` or
 /// a quotient outside `i32`: the same result as the `fixed` crate's `checked_div` for
-/// every pair of operands (tested), which divides 64 by 64 bits in software (a library
-/// routine of about 150 instructions on Cortex-M3). Here the magnitudes divide 56 by
+/// every pair of operands (tested), which divides 64 by 64 bits in a software library
+/// routine on Cortex-M3 (`__aeabi_ldivmod`). Here the magnitudes divide 56 by
 /// 32 bits with two of the core's 32-bit hardware divisions ([`div_u64_by_u32`]).
 #[inline]
 fn q24_div(a: i32, b: i32) -> Option<i32> {

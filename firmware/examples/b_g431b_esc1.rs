@@ -28,7 +28,7 @@
 //!
 //! | context | priority | work | budget |
 //! |---|---|---|---|
-//! | `ADC1_2` (end of injected conversions) | 0x00, highest | `ControlLoop::period`: sample, `Drive::step`, duties / bridge; `Capture::record`, `DriveStatus::update` | one PWM period, 100 µs = 17,000 cycles at 170 MHz; the f32 step is about 1220 instructions on QEMU's Cortex-M4F (`bench_qemu`) |
+//! | `ADC1_2` (end of injected conversions) | 0x00, highest | `ControlLoop::period`: sample, `Drive::step`, duties / bridge; `Capture::record`, `DriveStatus::update` | one PWM period, 100 µs = 17,000 cycles at 170 MHz; the step's instructions, mean and worst, are `bench_qemu`'s (`docs/cost-budget.md`) |
 //! | SysTick, every 10 ms | 0x80 | stall check: control periods still counting, else bridge off | a load, a swap and a compare (not measured) |
 //! | thread | — | board link (`BoardLinkServer`: commands in, one answer each), command watchdog, LED, defmt | — |
 //!

@@ -13,7 +13,7 @@
 //!
 //! | context | priority | work | budget |
 //! |---|---|---|---|
-//! | SysTick, 10 kHz | 0x00, highest | `ControlLoop::period` on the `VirtualBoard`, `Capture::record`, `DriveStatus::update` | 100 µs = 17,000 cycles at 170 MHz; the f32 step is about 1,450 instructions on QEMU's Cortex-M4F, the virtual motor eight sub-steps of a few dozen (not measured on the G4) |
+//! | SysTick, 10 kHz | 0x00, highest | `ControlLoop::period` on the `VirtualBoard`, `Capture::record`, `DriveStatus::update` | 100 µs = 17,000 cycles at 170 MHz; the step's instructions are `bench_qemu`'s (`docs/cost-budget.md`), the virtual motor's eight sub-steps are not measured |
 //! | thread | — | board link on USART2, command watchdog (0.5 s), defmt | — |
 //!
 //! ```sh

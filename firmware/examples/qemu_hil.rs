@@ -15,7 +15,7 @@
 //!
 //! | context | priority | work | budget |
 //! |---|---|---|---|
-//! | UART0 RX interrupt (IRQ 0) | 0x00, highest | per byte: `HilServer::on_byte`; per complete in-order frame: one `Drive::step` and the encoded `ActuationFrame` into the TX queue | one control step: about 1220 instructions on Cortex-M4F (f32), 3640 on Cortex-M3 (Q24), measured by `bench_qemu`, plus the per-byte COBS decoding (not measured separately) |
+//! | UART0 RX interrupt (IRQ 0) | 0x00, highest | per byte: `HilServer::on_byte`; per complete in-order frame: one `Drive::step` and the encoded `ActuationFrame` into the TX queue | one control step (its instructions on either core: `bench_qemu`, `docs/cost-budget.md`), plus the per-byte COBS decoding (not measured separately) |
 //! | SysTick, every 50 ms | 0x80 | link watchdog: `HilServer::watchdog_period` | a counter and a compare (not measured) |
 //! | thread | — | moves the TX queue into UART0, sleeps when it is empty | — |
 //!
