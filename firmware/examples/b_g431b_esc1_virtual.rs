@@ -73,7 +73,10 @@ mod firmware {
         let guarded = stack::guard(&mut cp.MPU);
         // The bridge stays off: init leaves MOE clear and nothing here enables it (the
         // virtual board has no register).
-        let board = esc1::init(dp, &Esc1Config { baud: BAUD, ..Esc1Config::default() });
+        let board = match esc1::init(dp, &Esc1Config { baud: BAUD, ..Esc1Config::default() }) {
+            Ok(board) => board,
+            Err(e) => stop(defmt::Display2Format(&e)),
+        };
         let mut uart = board.uart;
         // The image's drive (`image_drive::drive_config`, as every drive image: with an
         // axis a positioning drive); without a valid image, the paper motor's speed drive.
