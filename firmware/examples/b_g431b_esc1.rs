@@ -60,7 +60,7 @@ mod firmware {
         Esc1Sensors, StatusLed, stop,
     };
     use dcfo_firmware::board::{Bridge, PhaseSensors, PowerStage};
-    use dcfo_firmware::board_link::BoardLinkServer;
+    use dcfo_firmware::board_link::{BoardLinkServer, LinkClock};
     use dcfo_firmware::control::{ControlLoop, Setpoints};
     use dcfo_firmware::image_drive::{Inverter, drive_config};
     use dcfo_firmware::runtime::{
@@ -222,11 +222,13 @@ mod firmware {
             // Commands in, one answer each (telemetry, or capture samples).
             while let Ok(Some(byte)) = uart.try_read_byte() {
                 let periods = STALL.periods();
-                if let Some(bytes) = LINK.on_byte(&mut server, byte, &SETPOINTS, periods, &mut wire) {
+                if let Some(bytes) =
+                    LINK.on_byte(&mut server, byte, &SETPOINTS, LinkClock::periods(periods), &mut wire)
+                {
                     let _ = uart.write_all(bytes);
                 }
             }
-            server.watchdog(&SETPOINTS, STALL.periods());
+            server.watchdog(&SETPOINTS, LinkClock::periods(STALL.periods()));
             // State changes logged.
             let (state, faults) =
                 LINK.status().map(|s| (s.state, s.faults)).unwrap_or((last_state, Default::default()));
