@@ -60,7 +60,7 @@ mod firmware {
         Esc1PowerStage, Esc1Sensors, StatusLed, stop,
     };
     use dcfo_firmware::board::{Bridge, PhaseSensors, PowerStage};
-    use dcfo_firmware::board_link::BoardLinkServer;
+    use dcfo_firmware::board_link::{BoardLinkServer, LinkClock};
     use dcfo_firmware::control::{ControlLoop, Setpoints};
     use dcfo_firmware::image_drive::{Inverter, drive_config};
     use dcfo_firmware::runtime::{
@@ -111,7 +111,12 @@ mod firmware {
         stack::paint();
         let guarded = stack::guard(&mut cp.MPU);
         let config = Esc1Config { baud: BAUD, ..Esc1Config::default() };
-        let board = esc1::init(dp, &config);
+        // Refused (dead time below the floor, a comparator's zero-current level out of its
+        // window, the ADC trigger off the valley): bridge off, the reason over defmt, stop.
+        let board = match esc1::init(dp, &config) {
+            Ok(board) => board,
+            Err(e) => stop(e),
+        };
         let (mut uart, mut led) = (board.uart, board.led);
         // Named here rather than through `Debug2Format`: that would link core::fmt (4.9 KB).
         let clock = match board.clock_source {
@@ -120,6 +125,11 @@ mod firmware {
         };
         defmt::info!("B-G431B-ESC1 up, clock {}", clock);
         defmt::info!("stack: {} bytes, MPU guard {}", stack::bounds().1 - stack::bounds().0, guarded);
+        // Lamp test: the status LED lit for half a second, then dark until the drive runs
+        // (first power-up checklist: lit now and dark after, or the polarity is wrong).
+        led.set_lit(true);
+        cortex_m::asm::delay(esc1::SYSCLK_HZ / 2);
+        led.set_lit(false);
 
         let image = match esc1::motor_image() {
             Ok(image) => image,
@@ -148,12 +158,22 @@ mod firmware {
         );
 
         // The hardware trip a quarter above the drive's own over-current fault (which acts
-        // first, in software), within the board's limits.
+        // first, in software), within the board's limits, over the comparators' zero-current
+        // levels measured at init.
         let mut power = board.power;
-        let trip_a = power.set_over_current_trip_a(1.25 * drive_config.faults.overcurrent_a);
+        let zero = power.zero_current_codes();
         defmt::info!(
-            "over-current trip {} A (hardware), {} A (drive); comparators U/V/W {}",
-            trip_a,
+            "comparator inputs at zero current U/V/W: {} counts = {} V by the DAC3 sweep, {} V by the ADCs",
+            zero,
+            zero.map(esc1::dac_code_volts),
+            board.shunt_inputs_adc_v
+        );
+        let thresholds = power.set_over_current_trip_a(1.25 * drive_config.faults.overcurrent_a);
+        defmt::info!(
+            "over-current trip U/V/W {} A (hardware: DAC3 {} / {} counts), {} A (drive); comparators U/V/W {}",
+            thresholds.trip_a,
+            thresholds.dac_ch1,
+            thresholds.dac_ch2,
             drive_config.faults.overcurrent_a,
             power.comparators()
         );
@@ -213,11 +233,13 @@ mod firmware {
             // Commands in, one answer each (telemetry, or capture samples).
             while let Ok(Some(byte)) = uart.try_read_byte() {
                 let periods = STALL.periods();
-                if let Some(bytes) = LINK.on_byte(&mut server, byte, &SETPOINTS, periods, &mut wire) {
+                if let Some(bytes) =
+                    LINK.on_byte(&mut server, byte, &SETPOINTS, LinkClock::periods(periods), &mut wire)
+                {
                     let _ = uart.write_all(bytes);
                 }
             }
-            server.watchdog(&SETPOINTS, STALL.periods());
+            server.watchdog(&SETPOINTS, LinkClock::periods(STALL.periods()));
             // State changes logged.
             let (state, faults) =
                 LINK.status().map(|s| (s.state, s.faults)).unwrap_or((last_state, Default::default()));

@@ -43,7 +43,7 @@ mod firmware {
     use dcfo::virtual_motor::VirtualMotor;
     use dcfo_firmware::board::b_g431b_esc1::{self as esc1, DEFAULT_PWM_HZ, Esc1Config, SYSCLK_HZ, stop};
     use dcfo_firmware::board::virtual_motor::VirtualBoard;
-    use dcfo_firmware::board_link::BoardLinkServer;
+    use dcfo_firmware::board_link::{BoardLinkServer, LinkClock};
     use dcfo_firmware::control::{ControlLoop, Setpoints};
     use dcfo_firmware::image_drive::{Inverter, drive_config, virtual_axis};
     use dcfo_firmware::runtime::{
@@ -76,7 +76,10 @@ mod firmware {
         let guarded = stack::guard(&mut cp.MPU);
         // The bridge stays off: init leaves MOE clear and nothing here enables it (the
         // virtual board has no register).
-        let board = esc1::init(dp, &Esc1Config { baud: BAUD, ..Esc1Config::default() });
+        let board = match esc1::init(dp, &Esc1Config { baud: BAUD, ..Esc1Config::default() }) {
+            Ok(board) => board,
+            Err(e) => stop(e),
+        };
         let mut uart = board.uart;
         // The image's drive (`image_drive::drive_config`, as every drive image: with an
         // axis a positioning drive); without a valid image, the paper motor's speed drive.
@@ -129,11 +132,13 @@ mod firmware {
         loop {
             let periods = LINK.periods();
             while let Ok(Some(byte)) = uart.try_read_byte() {
-                if let Some(bytes) = LINK.on_byte(&mut server, byte, &SETPOINTS, periods, &mut wire) {
+                if let Some(bytes) =
+                    LINK.on_byte(&mut server, byte, &SETPOINTS, LinkClock::periods(periods), &mut wire)
+                {
                     let _ = uart.write_all(bytes);
                 }
             }
-            server.watchdog(&SETPOINTS, periods);
+            server.watchdog(&SETPOINTS, LinkClock::periods(periods));
         }
     }
 

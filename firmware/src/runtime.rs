@@ -17,7 +17,7 @@
 //!  thread                                         control interrupt
 //!  ------                                         -----------------
 //!  BoardLinkState::on_byte -> answer bytes         BoardLinkState::period(drive on board)
-//!  BoardLinkState::periods (watchdog clock)          ControlLoop::period, Capture::record,
+//!  BoardLinkState::periods (a watchdog clock)        ControlLoop::period, Capture::record,
 //!                                                    DriveStatus::update
 //! ```
 //!
@@ -39,7 +39,7 @@ use dcfo::link::board::{BoardTelemetry, CaptureChunk};
 use dcfo::link::encode;
 
 use crate::board::{PhaseSensors, PowerStage};
-use crate::board_link::{BoardAnswer, BoardLinkServer, DriveStatus, answer};
+use crate::board_link::{BoardAnswer, BoardLinkServer, DriveStatus, LinkClock, answer};
 use crate::control::{ControlLoop, Setpoints};
 
 /// State that an interrupt owns: empty until `main` [`install`]s it, then borrowed only
@@ -145,7 +145,7 @@ impl<const N: usize> BoardLinkState<N> {
     }
 
     /// Control periods run so far (the status's count; 0 if it could not be read): the
-    /// command watchdog's clock.
+    /// command watchdog's clock ([`LinkClock::periods`]).
     pub fn periods(&self) -> u32 {
         interrupt::free(|cs| self.status.borrow(cs).try_borrow().map(|s| s.periods).unwrap_or(0))
     }
@@ -155,16 +155,17 @@ impl<const N: usize> BoardLinkState<N> {
     /// (telemetry, or capture samples) is encoded into `wire` and returned for the
     /// caller to send. `None` while no command is complete, or should the capture or
     /// status be busy (the host then sees no answer and asks again). The critical
-    /// section copies at most one chunk of samples.
+    /// section copies at most one chunk of samples. `now` is the command watchdog's
+    /// clocks ([`BoardLinkServer::on_byte`]).
     pub fn on_byte<'w>(
         &self,
         server: &mut BoardLinkServer,
         byte: u8,
         setpoints: &Setpoints,
-        periods: u32,
+        now: LinkClock,
         wire: &'w mut [u8; CaptureChunk::WIRE_LEN],
     ) -> Option<&'w [u8]> {
-        let command = server.on_byte(byte, setpoints, periods)?;
+        let command = server.on_byte(byte, setpoints, now)?;
         let reply = interrupt::free(|cs| {
             match (self.capture.borrow(cs).try_borrow_mut(), self.status.borrow(cs).try_borrow()) {
                 (Ok(mut capture), Ok(status)) => Some(answer(&command, &mut capture, &status, setpoints)),

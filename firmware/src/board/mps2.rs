@@ -401,6 +401,63 @@ pub fn semihosting_cmdline(buf: &mut [u8]) -> Option<&[u8]> {
     buf.get(..len)
 }
 
+/// The host's clock, read through ARM semihosting `SYS_ELAPSED` and `SYS_TICKFREQ` (QEMU: the
+/// host's monotonic clock in ns since QEMU started). On QEMU the drive image's own time
+/// follows the instructions it executes (`-icount`, `dcfo_host::qemu`), faster or slower than
+/// the host's; its command watchdog wants a silence in both clocks, and reads the host's
+/// here. One semihosting call per reading (a trap into QEMU, no guest instructions). Only
+/// for QEMU (a core without a debugger takes the breakpoint as a HardFault).
+#[derive(Clone, Copy, Debug)]
+pub struct HostClock {
+    ticks_per_ms: core::num::NonZeroU64,
+}
+
+impl HostClock {
+    /// The clock, `None` if the host does not give its tick rate (semihosting off, or a
+    /// rate under 1 kHz).
+    pub fn new() -> Option<Self> {
+        const SYS_TICKFREQ: usize = 0x31;
+        let hz: isize;
+        // SAFETY: a semihosting call (`bkpt 0xab`, operation in r0, r1 = 0: no parameter
+        // block), the tick rate or -1 in r0; nothing in memory is read or written.
+        unsafe {
+            core::arch::asm!(
+                "bkpt #0xab",
+                inout("r0") SYS_TICKFREQ => hz,
+                in("r1") 0usize,
+                options(nostack)
+            );
+        }
+        let hz = u64::try_from(hz).ok()?;
+        Some(HostClock { ticks_per_ms: core::num::NonZeroU64::new(hz / 1000)? })
+    }
+
+    /// Milliseconds since QEMU started (wrapping after 49 days), `None` if the call fails.
+    pub fn now_ms(&self) -> Option<u32> {
+        const SYS_ELAPSED: usize = 0x30;
+        // The parameter block: the 64-bit tick count, low word first (out).
+        let mut block: [u32; 2] = [0; 2];
+        let status: isize;
+        // SAFETY: a semihosting call (`bkpt 0xab`, operation in r0, the parameter block's
+        // address in r1, the status in r0). QEMU writes the two words of `block`, a live
+        // local that long; nothing else in memory is touched.
+        unsafe {
+            core::arch::asm!(
+                "bkpt #0xab",
+                inout("r0") SYS_ELAPSED => status,
+                in("r1") block.as_mut_ptr(),
+                options(nostack)
+            );
+        }
+        if status != 0 {
+            return None;
+        }
+        let ticks = u64::from(block[0]) | (u64::from(block[1]) << 32);
+        // Truncation to u32 is the wrap-around: the watchdogs subtract with wrapping.
+        Some((ticks / self.ticks_per_ms) as u32)
+    }
+}
+
 /// Ends the QEMU run through ARM semihosting `SYS_EXIT` (QEMU runs with
 /// `-semihosting-config enable=on`): QEMU exits with status 0 when `ok`, 1 otherwise. For
 /// the test images (`stack_guard`, `bench`); should no debugger or QEMU take the call, the
