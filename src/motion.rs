@@ -258,10 +258,14 @@ impl<const N: usize> Profile<N> {
         // speed ramp). Solving for v_new: the discrete braking curve.
         let dv_max = a_max * dt_s;
         let toward = if e >= 0.0 { v } else { -v };
-        let room = (e.abs() - 0.5 * toward * dt_s).max(0.0);
+        // Comparisons, not f32::max / f32::min (library calls on FPv4); NaN gives 0 and
+        // the top speed, as those calls would.
+        let room = e.abs() - 0.5 * toward * dt_s;
+        let room = if room > 0.0 { room } else { 0.0 };
         let half = 0.5 * dv_max;
-        let braking =
-            (Scalar::sqrt(half * half + 2.0 * a_max * room) - half).min(self.limits.max_speed_m_per_s);
+        let braking = Scalar::sqrt(half * half + 2.0 * a_max * room) - half;
+        let top = self.limits.max_speed_m_per_s;
+        let braking = if braking < top { braking } else { top };
         let v_des = if e >= 0.0 { braking } else { -braking };
         let v_new = v + (v_des - v).clamp_to(-dv_max, dv_max);
         let mut x_new = x + 0.5 * (v + v_new) * dt_s;

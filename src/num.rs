@@ -76,6 +76,15 @@ pub trait Scalar:
     fn mul_nearest(self, rhs: Self) -> Self {
         self * rhs
     }
+    /// `self * k` for a factor of magnitude at most one (`|k| <= 1`: a cosine, a sine, a
+    /// constant below one), where the product cannot leave the range (`|self k| <=
+    /// |self|`): the same value as `self * k`, and for [`Q24`] one `SMULL` and a shift
+    /// with no saturation check. The caller proves `|k| <= 1`; a larger `k` gives a
+    /// wrong (wrapped) fixed-point result, never a panic (host builds with debug
+    /// assertions check the bound).
+    fn mul_unit(self, k: Self) -> Self {
+        self * k
+    }
     /// `self` limited to `[lo, hi]`; returns `lo` if `lo > hi` would otherwise apply.
     fn clamp_to(self, lo: Self, hi: Self) -> Self {
         self.min(hi).max(lo)
@@ -84,7 +93,8 @@ pub trait Scalar:
     /// 4e-7 relative; [`Q24`] within 1 LSB (2^-24).
     fn sqrt(self) -> Self;
     /// `self / rhs`, or `None` when `rhs` is zero or the quotient is not representable
-    /// (infinite, NaN, or outside the fixed-point range).
+    /// (infinite, NaN, or outside the fixed-point range). [`Q24`] rounds towards zero;
+    /// on Cortex-M3 two hardware divisions and a few corrections.
     fn checked_div(self, rhs: Self) -> Option<Self>;
     /// `1 / self`, or `None` when `self` is zero or the result is not representable.
     /// Accuracy: floats correctly rounded (one division); [`Q24`] within 4 LSB
@@ -177,6 +187,27 @@ impl Neg for Angle {
     }
 }
 
+/// Sine and cosine of `x` radians in `f32` for code outside the control step's hot path
+/// that takes radians (commissioning's test signals, the low-speed mode's dither):
+/// the binary angle ([`Scalar::radians_to_angle`], exact to `f32` rounding of
+/// `x / 2π`) and [`Scalar::cos_sin`]'s table, within 2e-5 absolute for `|x|` up to a
+/// few hundred radians. libm's `sinf`/`cosf` are correctly rounded but reduce the
+/// argument in `f64` (software on Cortex-M), about 10 KB of flash with their
+/// `f64` routines. NaN and infinite `x` give `(0, 1)`.
+pub fn sin_cos(x: f32) -> (f32, f32) {
+    let (c, s) = <f32 as Scalar>::cos_sin(x.radians_to_angle());
+    (s, c)
+}
+
+/// Arcsine of `x` (clamped to `[-1, 1]`) in radians, `f32`: the angle of the vector
+/// `(sqrt((1 - x)(1 + x)), x)` ([`Scalar::atan2`]), within 2e-5 rad; see [`sin_cos`] for
+/// why not libm's `asinf`. NaN gives 0.
+pub fn asin(x: f32) -> f32 {
+    let x = x.clamp_to(-1.0, 1.0);
+    let adjacent = Scalar::sqrt((1.0 - x) * (1.0 + x));
+    <f32 as Scalar>::atan2(x, adjacent).to_radians::<f32>()
+}
+
 /// Binary-angle counts per radian, `2^31 / π`.
 const COUNTS_PER_RAD: f64 = 2_147_483_648.0 / core::f64::consts::PI;
 /// `1 / 2^31`: converts idsp's full-scale `i32` sine/cosine to 1.0.
@@ -239,7 +270,8 @@ impl Scalar for f32 {
     fn atan2(y: f32, x: f32) -> Angle {
         // idsp's atan2 takes integers: scale the larger component to 2^30 so that
         // both fit an i32 with full resolution. NaN/inf give 0 (callers check validity).
-        let m = Scalar::abs(x).max(Scalar::abs(y));
+        // Scalar::max, not f32::max: a library call (fmaxf) on FPv4.
+        let m = Scalar::max(Scalar::abs(x), Scalar::abs(y));
         if !(m > 0.0 && m.is_finite()) {
             return Angle::ZERO;
         }
@@ -368,8 +400,13 @@ impl Sub for Q24 {
 }
 impl Mul for Q24 {
     type Output = Q24;
+    /// The product rounded down (towards -inf), saturated: the same result as the `fixed`
+    /// crate's `saturating_mul` for every pair of operands (tested), which forms a wider
+    /// product and spends four multiplications on it; this is one `SMULL`, the shift and
+    /// a range check on the high word.
+    #[inline]
     fn mul(self, rhs: Q24) -> Q24 {
-        Q24(self.0.saturating_mul(rhs.0))
+        Q24::from_bits(q24_mul_saturating(self.to_bits(), rhs.to_bits()))
     }
 }
 impl Neg for Q24 {
@@ -394,6 +431,97 @@ fn f32_inv_sqrt(x: f32) -> f32 {
         r = r * (1.5 - half_x * r * r);
     }
     r
+}
+
+/// `(a * b) >> 24` of two Q24 bit patterns, rounded down and saturated to `i32`: one
+/// `SMULL` (32 x 32 -> 64 bits), the shift, and a check that bits 55 to 63 of the product
+/// (those the shift leaves above bit 31) are all copies of its sign.
+#[inline(always)]
+fn q24_mul_saturating(a: i32, b: i32) -> i32 {
+    let product = i64::from(a) * i64::from(b);
+    let high = (product >> 32) as i32;
+    let shifted = (product >> 24) as i32;
+    if high >> 23 == shifted >> 31 {
+        shifted
+    } else {
+        // The product's sign: i32::MAX when positive, i32::MIN when negative.
+        (high >> 31) ^ i32::MAX
+    }
+}
+
+/// `(a * b) >> 24` of two Q24 bit patterns whose product is in range (`|b| <= 2^24`,
+/// i.e. a factor of magnitude at most one): one `SMULL` and the shift, no check.
+#[inline(always)]
+fn q24_mul_in_range(a: i32, b: i32) -> i32 {
+    ((i64::from(a) * i64::from(b)) >> 24) as i32
+}
+
+/// `(a << 24) / b` of two Q24 bit patterns, rounded towards zero; `None` for `b = 0` or
+/// a quotient outside `i32`: the same result as the `fixed` crate's `checked_div` for
+/// every pair of operands (tested), which divides 64 by 64 bits in a software library
+/// routine on Cortex-M3 (`__aeabi_ldivmod`). Here the magnitudes divide 56 by
+/// 32 bits with two of the core's 32-bit hardware divisions ([`div_u64_by_u32`]).
+#[inline]
+fn q24_div(a: i32, b: i32) -> Option<i32> {
+    if b == 0 {
+        return None;
+    }
+    let n = u64::from(a.unsigned_abs()) << 24;
+    let d = b.unsigned_abs();
+    // A quotient of 2^32 or more: (n >> 32) >= d.
+    let (high, low) = ((n >> 32) as u32, n as u32);
+    if high >= d {
+        return None;
+    }
+    let q = div_u64_by_u32(high, low, d);
+    if (a < 0) != (b < 0) {
+        // -q down to i32::MIN (q = 2^31).
+        (q <= 1 << 31).then(|| (q as i32).wrapping_neg())
+    } else {
+        i32::try_from(q).ok()
+    }
+}
+
+/// `(high * 2^32 + low) / d` for `high < d` (so the quotient fits 32 bits), rounded down:
+/// long division in two 16-bit digits on the normalised divisor, each digit from one
+/// 32-bit hardware division and corrected at most twice (H. S. Warren, *Hacker's
+/// Delight*, 2nd ed., section 9-4, `divlu`). Bounded: no loop runs more than twice.
+#[inline]
+fn div_u64_by_u32(high: u32, low: u32, d: u32) -> u32 {
+    const BASE: u32 = 1 << 16;
+    const MASK: u32 = BASE - 1;
+    // Normalise: the divisor's top bit set (d > high >= 0, so d > 0).
+    let shift = d.leading_zeros();
+    let v = d << shift;
+    let v0 = v & MASK;
+    // v's top bit is set, so its high digit is at least 2^15: never zero (the type says
+    // so to the compiler, which then links no division-by-zero panic).
+    let Some(v1) = core::num::NonZeroU32::new(v >> 16) else { return u32::MAX };
+    let n32 = if shift == 0 { high } else { (high << shift) | (low >> (32 - shift)) };
+    let n10 = low << shift;
+    let (n1, n0) = (n10 >> 16, n10 & MASK);
+    // The first digit: n32 / v1 is at most two too large.
+    let mut q1 = n32 / v1;
+    let mut rhat = n32 - q1 * v1.get();
+    while q1 >= BASE || q1 * v0 > (rhat << 16) + n1 {
+        q1 -= 1;
+        rhat += v1.get();
+        if rhat >= BASE {
+            break;
+        }
+    }
+    let n21 = (n32 << 16).wrapping_add(n1).wrapping_sub(q1.wrapping_mul(v));
+    // The second digit, likewise.
+    let mut q0 = n21 / v1;
+    let mut rhat = n21 - q0 * v1.get();
+    while q0 >= BASE || q0 * v0 > (rhat << 16) + n0 {
+        q0 -= 1;
+        rhat += v1.get();
+        if rhat >= BASE {
+            break;
+        }
+    }
+    (q1 << 16) | q0
 }
 
 /// `(a * b) >> 24` of two Q24 bit patterns, in 64 bits (one `SMULL` on Cortex-M3).
@@ -456,7 +584,11 @@ fn q24_inv_sqrt_positive(x: i32) -> Option<i32> {
 /// The Q24 bits of `x`: rounded to nearest, ties to even, saturated to the Q8.24 range,
 /// NaN to 0. The same result as `I8F24::saturating_from_num` for every non-NaN `f32`
 /// (tested), read from the float's bits: `fixed` panics on NaN inside that conversion,
-/// and that path stayed in the firmware images although NaN never reaches it.
+/// and that path stayed in the firmware images although NaN never reaches it. Not
+/// inlined: a conversion is configuration or I/O, and inlined at each of its many call
+/// sites (the drive's, the estimator's and the observers' constructors) it cost about
+/// 100 bytes of flash apiece on Cortex-M3.
+#[inline(never)]
 fn q24_bits_from_f32(x: f32) -> i32 {
     let bits = x.to_bits();
     let negative = bits >> 31 != 0;
@@ -471,12 +603,14 @@ fn q24_bits_from_f32(x: f32) -> i32 {
     // |x| 2^24 = m 2^(e - 126).
     let (m, e) = if exponent == 0 { (fraction, 1) } else { (fraction | 0x80_0000, exponent) };
     let shift = e - 126;
-    let magnitude: u64 = if shift >= 0 {
+    // In 32 bits (a shift of a 64-bit value is several instructions on Cortex-M3):
+    // m < 2^24 and a shift below 8 keep |x| 2^24 below 2^31.
+    let magnitude: u32 = if shift >= 0 {
         // A normal m >= 2^23: from a shift of 8 on, |x| 2^24 >= 2^31.
         if shift >= 8 {
             return saturated;
         } else {
-            u64::from(m) << shift
+            m << shift
         }
     } else {
         let r = -shift;
@@ -484,18 +618,15 @@ fn q24_bits_from_f32(x: f32) -> i32 {
             // Below half an LSB (m < 2^24 <= 2^(r - 1) / 2): rounds to 0.
             0
         } else {
-            let m = u64::from(m);
             let kept = m >> r;
             let rest = m & ((1 << r) - 1);
-            let half = 1u64 << (r - 1);
+            let half = 1u32 << (r - 1);
             if rest > half || (rest == half && kept & 1 == 1) { kept + 1 } else { kept }
         }
     };
-    if negative {
-        i32::try_from(-(magnitude as i64)).unwrap_or(i32::MIN)
-    } else {
-        i32::try_from(magnitude).unwrap_or(i32::MAX)
-    }
+    // Below 2^31: the cast keeps the value.
+    let magnitude = magnitude as i32;
+    if negative { -magnitude } else { magnitude }
 }
 
 impl Scalar for Q24 {
@@ -516,6 +647,11 @@ impl Scalar for Q24 {
     fn abs(self) -> Q24 {
         Q24(self.0.saturating_abs())
     }
+    #[inline]
+    fn mul_unit(self, k: Q24) -> Q24 {
+        debug_assert!(k.to_bits().unsigned_abs() <= 1 << 24, "mul_unit: |k| > 1");
+        Q24::from_bits(q24_mul_in_range(self.to_bits(), k.to_bits()))
+    }
     fn mul_nearest(self, rhs: Q24) -> Q24 {
         let product = i64::from(self.0.to_bits()) * i64::from(rhs.0.to_bits());
         let rounded = (product + (1 << 23)) >> 24;
@@ -530,7 +666,7 @@ impl Scalar for Q24 {
         }
     }
     fn checked_div(self, rhs: Q24) -> Option<Q24> {
-        self.0.checked_div(rhs.0).map(Q24)
+        q24_div(self.to_bits(), rhs.to_bits()).map(Q24::from_bits)
     }
     fn recip(self) -> Option<Q24> {
         let x = self.to_bits();

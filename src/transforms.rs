@@ -4,6 +4,11 @@
 //! `X` gives `|x_alphabeta| = X`; the rotor (dq) frame has d along the magnet flux, at
 //! electrical angle `theta` from the alpha axis. Units are whatever the inputs carry
 //! (V, A, Wb, or per-unit): the transforms are linear and dimensionless.
+//!
+//! Cost: every product has a factor of magnitude at most one (a constant below one, a
+//! cosine or a sine of [`CosSin`], which [`Scalar::cos_sin`] keeps within `[-1, 1]`), so
+//! it cannot leave the number's range and is taken with [`Scalar::mul_unit`]: in fixed
+//! point one `SMULL` and a shift; the sums saturate.
 
 use crate::num::{Angle, Scalar};
 
@@ -81,9 +86,9 @@ impl<T: Scalar> Dq<T> {
 /// it in a control step.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct CosSin<T> {
-    /// cos(theta), dimensionless.
+    /// cos(theta), dimensionless, within `[-1, 1]` (the transforms rely on it).
     pub cos: T,
-    /// sin(theta), dimensionless.
+    /// sin(theta), dimensionless, within `[-1, 1]`.
     pub sin: T,
 }
 
@@ -98,31 +103,40 @@ impl<T: Scalar> CosSin<T> {
 /// Clarke transform, amplitude-invariant: `alpha = (2a - b - c) / 3`,
 /// `beta = (b - c) / sqrt(3)`. Any common-mode part of `abc` is discarded.
 pub fn clarke<T: Scalar>(abc: Abc<T>) -> AlphaBeta<T> {
-    AlphaBeta { alpha: (abc.a + abc.a - abc.b - abc.c) * T::ONE_THIRD, beta: (abc.b - abc.c) * T::INV_SQRT3 }
+    AlphaBeta {
+        alpha: (abc.a + abc.a - abc.b - abc.c).mul_unit(T::ONE_THIRD),
+        beta: (abc.b - abc.c).mul_unit(T::INV_SQRT3),
+    }
 }
 
 /// Clarke transform from two phases of a three-wire system (`a + b + c = 0`):
 /// `alpha = a`, `beta = (a + 2b) / sqrt(3)`.
 pub fn clarke_two_phase<T: Scalar>(a: T, b: T) -> AlphaBeta<T> {
-    AlphaBeta { alpha: a, beta: (a + b + b) * T::INV_SQRT3 }
+    AlphaBeta { alpha: a, beta: (a + b + b).mul_unit(T::INV_SQRT3) }
 }
 
 /// Inverse Clarke transform (zero common mode): `a = alpha`,
 /// `b = -alpha/2 + (sqrt(3)/2) beta`, `c = -alpha/2 - (sqrt(3)/2) beta`.
 pub fn inverse_clarke<T: Scalar>(ab: AlphaBeta<T>) -> Abc<T> {
-    let half_alpha = ab.alpha * T::HALF;
-    let k_beta = ab.beta * T::SQRT3_HALF;
+    let half_alpha = ab.alpha.mul_unit(T::HALF);
+    let k_beta = ab.beta.mul_unit(T::SQRT3_HALF);
     Abc { a: ab.alpha, b: k_beta - half_alpha, c: -half_alpha - k_beta }
 }
 
 /// Park transform into the frame at angle `theta` (given as its [`CosSin`]):
 /// `d = alpha cos + beta sin`, `q = -alpha sin + beta cos`.
 pub fn park<T: Scalar>(ab: AlphaBeta<T>, theta: &CosSin<T>) -> Dq<T> {
-    Dq { d: ab.alpha * theta.cos + ab.beta * theta.sin, q: ab.beta * theta.cos - ab.alpha * theta.sin }
+    Dq {
+        d: ab.alpha.mul_unit(theta.cos) + ab.beta.mul_unit(theta.sin),
+        q: ab.beta.mul_unit(theta.cos) - ab.alpha.mul_unit(theta.sin),
+    }
 }
 
 /// Inverse Park transform from the frame at angle `theta`:
 /// `alpha = d cos - q sin`, `beta = d sin + q cos`.
 pub fn inverse_park<T: Scalar>(dq: Dq<T>, theta: &CosSin<T>) -> AlphaBeta<T> {
-    AlphaBeta { alpha: dq.d * theta.cos - dq.q * theta.sin, beta: dq.d * theta.sin + dq.q * theta.cos }
+    AlphaBeta {
+        alpha: dq.d.mul_unit(theta.cos) - dq.q.mul_unit(theta.sin),
+        beta: dq.d.mul_unit(theta.sin) + dq.q.mul_unit(theta.cos),
+    }
 }

@@ -296,3 +296,113 @@ fn q24_mul_nearest_is_within_half_an_lsb_and_unbiased() {
     assert!(mean_nearest.abs() < 0.01, "mean error {mean_nearest} LSB");
     assert!((mean_floor + 0.5).abs() < 0.01, "`*` mean error {mean_floor} LSB");
 }
+
+#[test]
+fn q24_product_is_fixed_saturating_mul_bit_for_bit() {
+    // `*` on Q24 is one SMULL and a range check; it must equal the `fixed` crate's
+    // saturating product (floor of the exact product, saturated) for every operand pair:
+    // the sweep against itself and against pseudo-random factors of every magnitude,
+    // including both extremes and the products that just reach or just leave the range.
+    use fixed::types::I8F24;
+    let mut seed = 0x9e37_79b9u32;
+    let mut n = 0u64;
+    let mut saturated = 0u64;
+    let mut check = |a: i32, b: i32| {
+        let want = I8F24::from_bits(a).saturating_mul(I8F24::from_bits(b)).to_bits();
+        let got = (Q24::from_bits(a) * Q24::from_bits(b)).to_bits();
+        assert_eq!(got, want, "{a} x {b}");
+        n += 1;
+        if want == i32::MAX || want == i32::MIN {
+            saturated += 1;
+        }
+    };
+    let operands: Vec<i32> = q24_sweep().flat_map(|a| [a, -a]).chain([0, i32::MIN, i32::MIN + 1]).collect();
+    for &a in &operands {
+        for shift in 0..32 {
+            seed = seed.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+            let b = (seed as i32) >> shift;
+            check(a, b);
+            check(b, a);
+        }
+        // Factors around the product's edge of range: 2^31 / |a| (in Q24) and its neighbours.
+        if a != 0 && a != i32::MIN {
+            let edge = (1i64 << 55) / i64::from(a.unsigned_abs());
+            for d in -2..=2 {
+                if let Ok(b) = i32::try_from(edge + d) {
+                    check(a, b);
+                    check(a, -b);
+                }
+            }
+        }
+    }
+    assert!(n > 2_000_000, "{n} products");
+    assert!(saturated > 100_000, "{saturated} saturated products");
+}
+
+#[test]
+fn q24_mul_unit_equals_the_saturating_product_for_factors_up_to_one() {
+    // `mul_unit` skips the range check: with |k| <= 1 the product cannot leave the range,
+    // so it must equal `*` there, for every value including the extremes.
+    let mut seed = 0x1234_5678u32;
+    let mut n = 0u64;
+    let one = 1i32 << 24;
+    for a in q24_sweep().flat_map(|a| [a, -a]).chain([0, i32::MIN + 1]) {
+        for k in [one, -one, 0, 1, -1, one - 1, -(one - 1)] {
+            let (x, k) = (Q24::from_bits(a), Q24::from_bits(k));
+            assert_eq!(x.mul_unit(k), x * k, "{a} x {}", k.to_bits());
+            n += 1;
+        }
+        for _ in 0..16 {
+            seed = seed.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+            let k = Q24::from_bits(((seed as i32) >> 7).clamp(-one, one));
+            let x = Q24::from_bits(a);
+            assert_eq!(x.mul_unit(k), x * k, "{a} x {}", k.to_bits());
+            n += 1;
+        }
+    }
+    assert!(n > 500_000, "{n} products");
+    // The floats: the product itself.
+    assert_eq!(3.0f32.mul_unit(-0.5), -1.5);
+    assert_eq!(3.0f64.mul_unit(0.25), 0.75);
+}
+
+#[test]
+fn q24_division_is_fixed_checked_div_bit_for_bit() {
+    // Q24's checked_div divides 56 by 32 bits with two hardware divisions; it must equal
+    // the `fixed` crate's checked division (64-bit, rounded towards zero, None on zero or
+    // overflow) for every operand pair: the sweep against pseudo-random divisors of every
+    // magnitude, both signs, the extremes, and divisors at the edge of overflow.
+    use fixed::types::I8F24;
+    let mut seed = 0x0bad_5eedu32;
+    let (mut n, mut none) = (0u64, 0u64);
+    let mut check = |a: i32, b: i32| {
+        let want = I8F24::from_bits(a).checked_div(I8F24::from_bits(b)).map(I8F24::to_bits);
+        let got = Q24::from_bits(a).checked_div(Q24::from_bits(b)).map(Q24::to_bits);
+        assert_eq!(got, want, "{a} / {b}");
+        n += 1;
+        none += u64::from(want.is_none());
+    };
+    let operands: Vec<i32> =
+        q24_sweep().flat_map(|a| [a, -a]).chain([0, i32::MIN, i32::MIN + 1, -1]).collect();
+    for &a in &operands {
+        for shift in 0..32 {
+            seed = seed.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+            let b = (seed as i32) >> shift;
+            check(a, b);
+            check(b, a);
+        }
+        for b in [0, 1, -1, 2, 1 << 24, -(1 << 24), i32::MAX, i32::MIN, i32::MIN + 1] {
+            check(a, b);
+        }
+        // Divisors around |a| 2^24 / 2^31, where the quotient leaves the range.
+        let edge = (i64::from(a.unsigned_abs()) << 24) >> 31;
+        for d in -2..=2 {
+            if let Ok(b) = i32::try_from(edge + d) {
+                check(a, b);
+                check(a, b.wrapping_neg());
+            }
+        }
+    }
+    assert!(n > 2_000_000, "{n} divisions");
+    assert!(none > 50_000, "{none} refused divisions");
+}

@@ -28,7 +28,7 @@
 //!
 //! | context | priority | work | budget |
 //! |---|---|---|---|
-//! | `ADC1_2` (end of injected conversions) | 0x00, highest | `ControlLoop::period`: sample, `Drive::step`, duties / bridge; `Capture::record`, `DriveStatus::update` | one PWM period, 100 µs = 17,000 cycles at 170 MHz; the f32 step is about 1220 instructions on QEMU's Cortex-M4F (`bench_qemu`) |
+//! | `ADC1_2` (end of injected conversions) | 0x00, highest | `ControlLoop::period`: sample, `Drive::step`, duties / bridge; `Capture::record`, `DriveStatus::update` | one PWM period, 100 µs = 17,000 cycles at 170 MHz; the step's instructions, mean and worst, are `bench_qemu`'s (`docs/cost-budget.md`) |
 //! | SysTick, every 10 ms | 0x80 | stall check: control periods still counting, else bridge off | a load, a swap and a compare (not measured) |
 //! | thread | — | board link (`BoardLinkServer`: commands in, one answer each), command watchdog, LED, defmt | — |
 //!
@@ -56,15 +56,16 @@ mod firmware {
     use dcfo::link::board::CaptureChunk;
     use dcfo::units::Base;
     use dcfo_firmware::board::b_g431b_esc1::{
-        self as esc1, CONTROL_IRQ, DEFAULT_DEAD_TIME_NS, DEFAULT_PWM_HZ, Esc1Config, Esc1PowerStage,
-        Esc1Sensors, StatusLed, stop,
+        self as esc1, CONTROL_IRQ, ClockSource, DEFAULT_DEAD_TIME_NS, DEFAULT_PWM_HZ, Esc1Config,
+        Esc1PowerStage, Esc1Sensors, StatusLed, stop,
     };
     use dcfo_firmware::board::{Bridge, PhaseSensors, PowerStage};
-    use dcfo_firmware::board_link::BoardLinkServer;
+    use dcfo_firmware::board_link::{BoardLinkServer, LinkClock};
     use dcfo_firmware::control::{ControlLoop, Setpoints};
     use dcfo_firmware::image_drive::{Inverter, drive_config};
     use dcfo_firmware::runtime::{
-        BoardLinkState, DriveOnBoard, Slot, StallCheck, install, slot, start_systick,
+        BoardLinkState, CaptureCell, DriveOnBoard, Slot, StallCheck, capture_cell, install, slot,
+        start_systick,
     };
     use dcfo_firmware::stack;
     use embedded_hal::digital::OutputPin;
@@ -91,10 +92,11 @@ mod firmware {
     const PRIORITY_STALL_CHECK: u8 = 0x80;
 
     /// What the control interrupt owns: the drive on the board's sensors and power stage.
-    static CONTROL: Slot<DriveOnBoard<f32, Bridge<Esc1Sensors, Esc1PowerStage>>> = slot();
+    static CONTROL: Slot<&'static mut DriveOnBoard<f32, Bridge<Esc1Sensors, Esc1PowerStage>>> = slot();
     /// The capture and the last step's status, filled by the control interrupt, read by
     /// the thread (both in critical sections); constant-initialised in place.
-    static LINK: BoardLinkState<CAPTURE_SAMPLES> = BoardLinkState::new();
+    static CAPTURE: CaptureCell<CAPTURE_SAMPLES> = capture_cell();
+    static LINK: BoardLinkState<CAPTURE_SAMPLES> = BoardLinkState::new(&CAPTURE);
     static SETPOINTS: Setpoints = Setpoints::new();
     /// Control periods run (the thread's time base) and the stall check on them.
     static STALL: StallCheck = StallCheck::new(STALL_CHECKS);
@@ -109,14 +111,29 @@ mod firmware {
         stack::paint();
         let guarded = stack::guard(&mut cp.MPU);
         let config = Esc1Config { baud: BAUD, ..Esc1Config::default() };
-        let board = esc1::init(dp, &config);
+        // Refused (dead time below the floor, a comparator's zero-current level out of its
+        // window, the ADC trigger off the valley): bridge off, the reason over defmt, stop.
+        let board = match esc1::init(dp, &config) {
+            Ok(board) => board,
+            Err(e) => stop(e),
+        };
         let (mut uart, mut led) = (board.uart, board.led);
-        defmt::info!("B-G431B-ESC1 up, clock {}", defmt::Debug2Format(&board.clock_source));
+        // Named here rather than through `Debug2Format`: that would link core::fmt (4.9 KB).
+        let clock = match board.clock_source {
+            ClockSource::Hsi16 => "HSI16",
+            ClockSource::Hse8MHz => "HSE 8 MHz",
+        };
+        defmt::info!("B-G431B-ESC1 up, clock {}", clock);
         defmt::info!("stack: {} bytes, MPU guard {}", stack::bounds().1 - stack::bounds().0, guarded);
+        // Lamp test: the status LED lit for half a second, then dark until the drive runs
+        // (first power-up checklist: lit now and dark after, or the polarity is wrong).
+        led.set_lit(true);
+        cortex_m::asm::delay(esc1::SYSCLK_HZ / 2);
+        led.set_lit(false);
 
         let image = match esc1::motor_image() {
             Ok(image) => image,
-            Err(e) => halt(&mut led, defmt::Display2Format(&e)),
+            Err(e) => halt(&mut led, e),
         };
         // The drive of the image (`image_drive::drive_config`, as every drive image):
         // positioning on the image's axis, or a speed drive without one; the inverter
@@ -141,12 +158,22 @@ mod firmware {
         );
 
         // The hardware trip a quarter above the drive's own over-current fault (which acts
-        // first, in software), within the board's limits.
+        // first, in software), within the board's limits, over the comparators' zero-current
+        // levels measured at init.
         let mut power = board.power;
-        let trip_a = power.set_over_current_trip_a(1.25 * drive_config.faults.overcurrent_a);
+        let zero = power.zero_current_codes();
         defmt::info!(
-            "over-current trip {} A (hardware), {} A (drive); comparators U/V/W {}",
-            trip_a,
+            "comparator inputs at zero current U/V/W: {} counts = {} V by the DAC3 sweep, {} V by the ADCs",
+            zero,
+            zero.map(esc1::dac_code_volts),
+            board.shunt_inputs_adc_v
+        );
+        let thresholds = power.set_over_current_trip_a(1.25 * drive_config.faults.overcurrent_a);
+        defmt::info!(
+            "over-current trip U/V/W {} A (hardware: DAC3 {} / {} counts), {} A (drive); comparators U/V/W {}",
+            thresholds.trip_a,
+            thresholds.dac_ch1,
+            thresholds.dac_ch2,
             drive_config.faults.overcurrent_a,
             power.comparators()
         );
@@ -172,8 +199,12 @@ mod firmware {
         defmt::info!("current offsets (counts): {}", sensors.current_offsets());
         defmt::info!("bus at rest: {} V", sensors.sample().vdc_v);
 
-        let control =
-            DriveOnBoard { control: ControlLoop::new(drive, u16::MAX), board: Bridge { sensors, power } };
+        // The drive in a static of its own, in .bss (`Slot`); `None` only if this ran twice.
+        let control = cortex_m::singleton!(
+            : DriveOnBoard<f32, Bridge<Esc1Sensors, Esc1PowerStage>> =
+                DriveOnBoard { control: ControlLoop::new(drive, u16::MAX), board: Bridge { sensors, power } }
+        );
+        let Some(control) = control else { halt(&mut led, "control state taken twice") };
         if !install(&CONTROL, control) {
             halt(&mut led, "control state busy at start-up");
         }
@@ -202,11 +233,13 @@ mod firmware {
             // Commands in, one answer each (telemetry, or capture samples).
             while let Ok(Some(byte)) = uart.try_read_byte() {
                 let periods = STALL.periods();
-                if let Some(bytes) = LINK.on_byte(&mut server, byte, &SETPOINTS, periods, &mut wire) {
+                if let Some(bytes) =
+                    LINK.on_byte(&mut server, byte, &SETPOINTS, LinkClock::periods(periods), &mut wire)
+                {
                     let _ = uart.write_all(bytes);
                 }
             }
-            server.watchdog(&SETPOINTS, STALL.periods());
+            server.watchdog(&SETPOINTS, LinkClock::periods(STALL.periods()));
             // State changes logged.
             let (state, faults) =
                 LINK.status().map(|s| (s.state, s.faults)).unwrap_or((last_state, Default::default()));

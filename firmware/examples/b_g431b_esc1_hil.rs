@@ -65,7 +65,10 @@ mod firmware {
         stack::paint();
         let guarded = stack::guard(&mut cp.MPU);
         // The bridge stays off: init leaves MOE clear and nothing here enables it.
-        let board = esc1::init(dp, &Esc1Config { baud: BAUD, ..Esc1Config::default() });
+        let board = match esc1::init(dp, &Esc1Config { baud: BAUD, ..Esc1Config::default() }) {
+            Ok(board) => board,
+            Err(e) => stop(e),
+        };
         let mut uart = board.uart;
         let motor = MotorParams::paper();
         let drive = match Drive::<f32>::new(&motor, &DriveConfig::paper_axis(ObserverKind::Dcfo), &Base::SI) {

@@ -13,7 +13,7 @@
 //!
 //! | context | priority | work | budget |
 //! |---|---|---|---|
-//! | SysTick, 10 kHz | 0x00, highest | `ControlLoop::period` on the `VirtualBoard`, `Capture::record`, `DriveStatus::update` | 100 µs = 17,000 cycles at 170 MHz; the f32 step is about 1,450 instructions on QEMU's Cortex-M4F, the virtual motor eight sub-steps of a few dozen (not measured on the G4) |
+//! | SysTick, 10 kHz | 0x00, highest | `ControlLoop::period` on the `VirtualBoard`, `Capture::record`, `DriveStatus::update` | 100 µs = 17,000 cycles at 170 MHz; the step's instructions are `bench_qemu`'s (`docs/cost-budget.md`), the virtual motor's eight sub-steps are not measured |
 //! | thread | — | board link on USART2, command watchdog (0.5 s), defmt | — |
 //!
 //! ```sh
@@ -43,10 +43,12 @@ mod firmware {
     use dcfo::virtual_motor::VirtualMotor;
     use dcfo_firmware::board::b_g431b_esc1::{self as esc1, DEFAULT_PWM_HZ, Esc1Config, SYSCLK_HZ, stop};
     use dcfo_firmware::board::virtual_motor::VirtualBoard;
-    use dcfo_firmware::board_link::BoardLinkServer;
+    use dcfo_firmware::board_link::{BoardLinkServer, LinkClock};
     use dcfo_firmware::control::{ControlLoop, Setpoints};
     use dcfo_firmware::image_drive::{Inverter, drive_config, virtual_axis};
-    use dcfo_firmware::runtime::{BoardLinkState, DriveOnBoard, Slot, install, slot, start_systick};
+    use dcfo_firmware::runtime::{
+        BoardLinkState, CaptureCell, DriveOnBoard, Slot, capture_cell, install, slot, start_systick,
+    };
     use dcfo_firmware::stack;
     use embedded_io::Write as _;
     use stm32g4::stm32g431 as pac;
@@ -60,9 +62,10 @@ mod firmware {
     const PRIORITY_CONTROL: u8 = 0x00;
 
     /// What the control interrupt owns.
-    static CONTROL: Slot<DriveOnBoard<f32, VirtualBoard>> = slot();
+    static CONTROL: Slot<&'static mut DriveOnBoard<f32, VirtualBoard>> = slot();
     /// The capture and the last step's status.
-    static LINK: BoardLinkState<CAPTURE_SAMPLES> = BoardLinkState::new();
+    static CAPTURE: CaptureCell<CAPTURE_SAMPLES> = capture_cell();
+    static LINK: BoardLinkState<CAPTURE_SAMPLES> = BoardLinkState::new(&CAPTURE);
     static SETPOINTS: Setpoints = Setpoints::new();
 
     #[entry]
@@ -73,7 +76,10 @@ mod firmware {
         let guarded = stack::guard(&mut cp.MPU);
         // The bridge stays off: init leaves MOE clear and nothing here enables it (the
         // virtual board has no register).
-        let board = esc1::init(dp, &Esc1Config { baud: BAUD, ..Esc1Config::default() });
+        let board = match esc1::init(dp, &Esc1Config { baud: BAUD, ..Esc1Config::default() }) {
+            Ok(board) => board,
+            Err(e) => stop(e),
+        };
         let mut uart = board.uart;
         // The image's drive (`image_drive::drive_config`, as every drive image: with an
         // axis a positioning drive); without a valid image, the paper motor's speed drive.
@@ -96,10 +102,14 @@ mod firmware {
         let Ok(virtual_motor) = VirtualMotor::new(&image.motor, &virtual_axis(&image, period_s)) else {
             stop("virtual motor settings refused")
         };
-        let control = DriveOnBoard {
-            control: ControlLoop::new(drive, u16::MAX),
-            board: VirtualBoard::new(virtual_motor),
-        };
+        // The drive in a static of its own, in .bss (`Slot`); `None` only if this ran twice.
+        let control = cortex_m::singleton!(
+            : DriveOnBoard<f32, VirtualBoard> = DriveOnBoard {
+                control: ControlLoop::new(drive, u16::MAX),
+                board: VirtualBoard::new(virtual_motor),
+            }
+        );
+        let Some(control) = control else { stop("control state taken twice") };
         if !install(&CONTROL, control) {
             stop("control state busy at start-up");
         }
@@ -122,11 +132,13 @@ mod firmware {
         loop {
             let periods = LINK.periods();
             while let Ok(Some(byte)) = uart.try_read_byte() {
-                if let Some(bytes) = LINK.on_byte(&mut server, byte, &SETPOINTS, periods, &mut wire) {
+                if let Some(bytes) =
+                    LINK.on_byte(&mut server, byte, &SETPOINTS, LinkClock::periods(periods), &mut wire)
+                {
                     let _ = uart.write_all(bytes);
                 }
             }
-            server.watchdog(&SETPOINTS, periods);
+            server.watchdog(&SETPOINTS, LinkClock::periods(periods));
         }
     }
 

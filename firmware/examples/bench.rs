@@ -1,32 +1,47 @@
-//! Instruction-count benchmark of the control step, for QEMU `mps2-an386` (Cortex-M4F,
-//! f32 and Q24) and `mps2-an385` (Cortex-M3, Q24).
+//! Cost benchmark of the control step, for QEMU `mps2-an386` (Cortex-M4F, `Drive<f32>`)
+//! and `mps2-an385` (Cortex-M3, `Drive<Q24>`), run by `host/src/bin/bench_qemu.rs`.
 //!
-//! The firmware brings a drive into its sensorless `Running` state against a small
-//! built-in plant (the paper motor, its mover held at the hand-over speed of 0.25 m/s,
-//! an ideal inverter), then calls each stage of the control step once, on the inputs of
-//! the drive's last step, between calls of the marker functions `bench_begin` and
-//! `bench_end`. Run under `qemu-system-arm -singlestep -d exec,nochain`, every executed
-//! instruction is one trace line; the host program `host/src/bin/bench_qemu.rs` counts
-//! the lines from an entry of `bench_begin` to the next entry of `bench_end` and
-//! subtracts the count of the `empty` region (an empty stage: markers and call overhead).
+//! # What it runs
+//! Every `Drive::step` of a scripted run against the virtual motor (`dcfo::virtual_motor`:
+//! the motor of the image on the command line, the salient `motors/salient.toml` from
+//! `bench_qemu`, with the paper axis's carriage), timed one by one:
+//! 1. *speed*: a speed drive (`DriveConfig::for_motor`, DCFO): enable, calibration, the
+//!    I/f start-up, the cold acquisition and the hand-over to `Running`; then a lock loss
+//!    (`Drive::reset_estimator` at speed) and the re-acquisition back to `Running`.
+//! 2. *positioning*: the stroke axis's positioning drive (`DriveConfig::stroke_axis`,
+//!    HFI on the salient motor): enable, calibration, HFI's alignment, then two moves in
+//!    opposite directions, each out of `LowSpeed` into sensorless `Running` and back, the
+//!    second one through zero speed at the reversal, and a hold at rest.
 //!
-//! UART0 gets, per numeric type, `STATE <type> <state> <steps>` after the warm-up,
-//! then `READY`; the firmware then waits for one byte on UART0 (the host switches the
-//! exec log on first, so the warm-up is not traced). Then, per type, a line
-//! `BENCH <type> <region>,<region>,..` naming the regions that follow, in order,
-//! `END <type> <state>`, `STACK <type> <bytes>` (the deepest stack used by one
-//! `Drive::step`, from a painted stack) and `STACK_HIL <type> <bytes>` (the same for the
-//! HIL image's receive path on the byte that completes a frame). The firmware exits through semihosting
-//! `SYS_EXIT` (status 0, or 1 when a drive could not be built).
+//! The run is deterministic: no input but the command line, no interrupt, no clock read
+//! that steers anything. Each step's cost is the SysTick count across the call
+//! (`timed`), under QEMU's `-icount shift=N`, where every guest instruction advances the
+//! virtual clock by `2^N` ns: with SysTick on the 25 MHz core clock (40 ns a tick) and
+//! `N = 8`, an instruction is 6.4 ticks, so a count converts to instructions exactly
+//! (`bench_qemu` checks the conversion on a sled of `nop`s, and subtracts the `empty`
+//! region: the call and the two reads). The virtual motor's period and the bookkeeping
+//! between steps are outside the timed region.
+//!
+//! Per type, the image prints on UART0 (one line each, words separated by spaces):
+//! - `CAL <type> <ticks of an empty function> <ticks of the sled> <sled instructions>
+//!   <ticks of the empty region>`;
+//! - `STAGE <type> <name> <ticks>`: each stage of the step once, on the inputs of the
+//!   positioning drive's last step (`clarke`, `cos_sin`, `park`, `pi`, `inverse_park`,
+//!   `svpwm`, `dead_time`, `observer`, `pll`);
+//! - `STEPS <type> <segment> <state> <count> <sum ticks> <max ticks>`: the steps of a
+//!   segment that ended in each drive state (`step` regions);
+//! - `ESTIMATOR <type> <segment> <state> <count> <sum ticks> <max ticks>`: the estimator
+//!   alone, a copy of the drive's stepped on the drive's own inputs after each step
+//!   that had an estimate;
+//! - `VISITED <type> <segment> <state>,<state>,..`: the states in the order entered;
+//! - `STACK <type> <bytes>`: the deepest stack of one `Drive::step` (painted stack, every
+//!   64th step and each step that changes the state), `STACK_HIL <type> <bytes>` the
+//!   same for the HIL image's receive path on the byte that completes a frame;
+//! - `END <type>`; then the image exits through semihosting `SYS_EXIT` (status 0, or 1
+//!   when a drive or the virtual motor could not be built).
 //!
 //! ```sh
-//! cargo build -p dcfo-firmware --release --features mps2 --target thumbv7em-none-eabihf --example bench
-//! echo g | qemu-system-arm -M mps2-an386 -cpu cortex-m4 -display none -monitor none \
-//!     -semihosting-config enable=on,target=native -serial stdio \
-//!     -kernel target/thumbv7em-none-eabihf/release/examples/bench
-//! cargo build -p dcfo-firmware --release --features mps2 --target thumbv7m-none-eabi --example bench
-//! echo g | qemu-system-arm -M mps2-an385 -cpu cortex-m3 ... \
-//!     -kernel target/thumbv7m-none-eabi/release/examples/bench
+//! cargo run --release -p dcfo-host --bin bench_qemu        # builds and runs it
 //! ```
 //!
 //! On the host this file builds to an empty `main`.
@@ -42,73 +57,75 @@ fn main() {
 mod firmware {
     use core::fmt::Write as _;
     use core::hint::black_box;
-    use core::sync::atomic::AtomicU32;
 
-    use cortex_m as _; // critical-section implementation (single core)
+    use cortex_m::peripheral::SYST;
+    use cortex_m::peripheral::syst::SystClkSource;
     use cortex_m_rt::entry;
-    use dcfo::drive::{Drive, DriveConfig, DriveState, Measurements, StepOutput};
+    use dcfo::dead_time::InverterErrorModel;
+    use dcfo::drive::{
+        DeadTimeCompensation, Drive, DriveConfig, DriveState, Measurements, MotionConfig,
+        PAPER_AXIS_PAYLOAD_KG, STROKE_AXIS_LIMITS, StepOutput,
+    };
     use dcfo::estimator::Estimator;
     use dcfo::link::{SensorFrame, encode};
+    use dcfo::motion::{Move, ProfileLimits};
     use dcfo::motor::MotorParams;
-    use dcfo::num::{Angle, Q24, Scalar};
+    use dcfo::motor_image::MotorImage;
+    #[cfg(not(target_abi = "eabihf"))]
+    use dcfo::num::Q24;
+    use dcfo::num::{Angle, Scalar};
     use dcfo::observer::{Dcfo, FluxObserver, ObserverInput, ObserverKind, ObserverMotor};
     use dcfo::pi::Pi;
     use dcfo::pll::Pll;
     use dcfo::svpwm::svpwm;
-    use dcfo::transforms::{Abc, AlphaBeta, CosSin, Dq, clarke, inverse_clarke, inverse_park, park};
+    use dcfo::transforms::{Abc, AlphaBeta, CosSin, Dq, clarke, inverse_park, park};
     use dcfo::units::Base;
-    use dcfo_firmware::board::mps2::{CmsdkUart, semihosting_exit as exit};
+    use dcfo::virtual_motor::{VirtualAxis, VirtualMotor};
+    use dcfo_firmware::board::mps2::{CmsdkUart, semihosting_cmdline, semihosting_exit as exit};
     use dcfo_firmware::hil::HilServer;
+    use dcfo_firmware::image_drive::motor_image_from_hex;
     use dcfo_firmware::queue::Queue;
 
-    /// Control period of the drive and the plant (s).
+    /// Control period of the drives and the virtual motor (s): 10 kHz.
     const TS: f32 = 1e-4;
-    /// Mover speed (m/s): the start-up's hand-over speed, so the drive hands over.
-    const SPEED_M_PER_S: f32 = 0.25;
-    /// Steps after which the bench gives up waiting for `Running` (2 s).
-    const MAX_WARMUP_STEPS: u32 = 20_000;
-    /// Steps run in `Running` before measuring (the hand-over's d-axis ramp is 50 ms).
-    const RUNNING_STEPS: u32 = 600;
-    /// Consecutive control steps measured (one speed-loop period).
-    const MEASURED_STEPS: usize = 10;
-    /// Estimator steps measured from a re-acquisition on (80 ms): at the plant's 8.3 Hz
-    /// the circle fit ends within them (`ACQUIRE` reports the step), so they include
-    /// every sample the back-EMF fit solves and the seed.
-    const ACQUIRE_STEPS: usize = 800;
+    /// The speed drive's reference (m/s) and how long it runs (s) before the lock loss
+    /// and after it: start-up, acquisition and hand-over fit in the first, the
+    /// re-acquisition in the second.
+    const SPEED_M_PER_S: f32 = 0.3;
+    const SPEED_RUN_S: f32 = 2.2;
+    const REACQUIRE_RUN_S: f32 = 1.0;
+    /// The positioning drive: time for calibration and HFI's alignment before the first
+    /// move (s), the two moves (m from the start; the second reverses through zero speed
+    /// with no dwell between) and the time left for them and a hold at rest (s).
+    const ALIGN_S: f32 = 0.3;
+    const MOVES: [Move; 2] = [Move { target_m: 0.25, dwell_s: 0.0 }, Move { target_m: 0.02, dwell_s: 0.0 }];
+    const MOVE_RUN_S: f32 = 1.5;
+    /// The moves' profile: the stroke axis's (`STROKE_AXIS_LIMITS`) but for the top
+    /// speed, 0.8 m/s instead of 0.5: the salient motor leaves the low-speed mode only
+    /// above 1.25 times its threshold (0.41 m/s on the simulated inverter's bus), so at
+    /// 0.5 m/s a move would never run sensorless.
+    const LIMITS: ProfileLimits = ProfileLimits { max_speed_m_per_s: 0.8, ..STROKE_AXIS_LIMITS };
+    /// Instructions in the calibration sled.
+    const SLED: u32 = 64;
+    /// Steps between two stack measurements (each paints the stack: about 12,000
+    /// instructions, outside the timed regions).
+    const STACK_EVERY: u32 = 64;
     /// Stack painted below the probe's frame (bytes) and the paint pattern.
     const PAINT_BYTES: usize = 16 * 1024;
     const PAINT: u32 = 0xA5C3_5A3C;
-
-    /// Written by the markers (distinct values: the two bodies differ and are never merged).
-    static MARK: AtomicU32 = AtomicU32::new(0);
-
-    /// Marks the start of a measured region: the host counts trace lines from an entry
-    /// of this function to the next entry of [`bench_end`].
-    #[unsafe(no_mangle)]
-    #[inline(never)]
-    pub extern "C" fn bench_begin() {
-        // SAFETY: a valid, aligned static; volatile, so the call is never optimised out.
-        unsafe { MARK.as_ptr().write_volatile(1) };
-    }
-
-    /// Marks the end of a measured region.
-    #[unsafe(no_mangle)]
-    #[inline(never)]
-    pub extern "C" fn bench_end() {
-        // SAFETY: a valid, aligned static; volatile, so the call is never optimised out.
-        unsafe { MARK.as_ptr().write_volatile(2) };
-    }
+    /// SysTick's reload: its whole 24-bit range.
+    const SYST_MASK: u32 = 0x00FF_FFFF;
 
     /// A line of output, printed on UART0 (QEMU's semihosting stdout is buffered when
     /// it is a pipe; the serial port is not).
     struct Line {
-        buf: [u8; 256],
+        buf: [u8; 200],
         len: usize,
     }
 
     impl Line {
         fn new() -> Self {
-            Line { buf: [0; 256], len: 0 }
+            Line { buf: [0; 200], len: 0 }
         }
         fn print(self) {
             // SAFETY: single core, no interrupt handlers: the only UART0 handles are the
@@ -140,50 +157,24 @@ mod firmware {
         }};
     }
 
-    // ---- the plant: paper motor, mover at constant speed, ideal inverter (SI, f32)
-
-    struct Plant {
-        i_ab: AlphaBeta<f32>,
-        theta: Angle,
-        d_theta: Angle,
-        psi_f: f32,
-        rs: f32,
-        ls: f32,
+    /// SysTick counts down (24 bits) on the core clock from here on; no interrupt.
+    fn start_clock(syst: &mut SYST) {
+        syst.set_clock_source(SystClkSource::Core);
+        syst.set_reload(SYST_MASK);
+        syst.clear_current();
+        syst.disable_interrupt();
+        syst.enable_counter();
     }
 
-    impl Plant {
-        fn new(motor: &MotorParams) -> Self {
-            let omega = motor.omega_e_from_speed(SPEED_M_PER_S);
-            Plant {
-                i_ab: AlphaBeta::default(),
-                theta: Angle::ZERO,
-                d_theta: (omega * TS).radians_to_angle(),
-                psi_f: motor.psi_f_wb,
-                rs: motor.rs_ohm,
-                ls: motor.lq_h,
-            }
-        }
-
-        fn flux(&self, theta: Angle) -> AlphaBeta<f32> {
-            let (c, s) = f32::cos_sin(theta);
-            AlphaBeta::new(self.psi_f * c, self.psi_f * s)
-        }
-
-        /// One period with `u` (V) applied, `Ls di = (u - Rs i) dt - d psi`, or with
-        /// the bridge off (`None`: no current; the back-EMF stays below the bus).
-        fn advance(&mut self, u: Option<AlphaBeta<f32>>) {
-            let next = self.theta + self.d_theta;
-            let Some(u) = u else {
-                self.i_ab = AlphaBeta::default();
-                self.theta = next;
-                return;
-            };
-            let (p0, p1) = (self.flux(self.theta), self.flux(next));
-            let k = 1.0 / self.ls;
-            self.i_ab.alpha += k * ((u.alpha - self.rs * self.i_ab.alpha) * TS - (p1.alpha - p0.alpha));
-            self.i_ab.beta += k * ((u.beta - self.rs * self.i_ab.beta) * TS - (p1.beta - p0.beta));
-            self.theta = next;
-        }
+    /// SysTick ticks spent in `f` (at most 2^24 - 1: 2.6 million instructions at
+    /// `shift=8`), and its result, materialised inside the region. Never inlined, so
+    /// that the compiler cannot move the caller's instructions in between the reads.
+    #[inline(never)]
+    fn timed<R>(f: impl FnOnce() -> R) -> (R, u32) {
+        let start = SYST::get_current();
+        let r = black_box(f());
+        let end = SYST::get_current();
+        (r, start.wrapping_sub(end) & SYST_MASK)
     }
 
     // ---- the measured stages: one call each, never inlined into the caller
@@ -191,6 +182,35 @@ mod firmware {
     #[inline(never)]
     fn stage_empty(x: AlphaBeta<f32>) -> AlphaBeta<f32> {
         x
+    }
+    /// Nothing: a return.
+    #[inline(never)]
+    fn stage_nothing() {
+        black_box(());
+    }
+    /// `SLED` instructions more than [`stage_nothing`]: the conversion's check.
+    #[inline(never)]
+    fn stage_sled() {
+        macro_rules! nop8 {
+            () => {
+                cortex_m::asm::nop();
+                cortex_m::asm::nop();
+                cortex_m::asm::nop();
+                cortex_m::asm::nop();
+                cortex_m::asm::nop();
+                cortex_m::asm::nop();
+                cortex_m::asm::nop();
+                cortex_m::asm::nop();
+            };
+        }
+        nop8!();
+        nop8!();
+        nop8!();
+        nop8!();
+        nop8!();
+        nop8!();
+        nop8!();
+        nop8!();
     }
     #[inline(never)]
     fn stage_clarke<T: Scalar>(abc: Abc<T>) -> AlphaBeta<T> {
@@ -217,6 +237,15 @@ mod firmware {
         svpwm(u, vdc).map(|m| black_box(m).limited).unwrap_or(true)
     }
     #[inline(never)]
+    fn stage_dead_time<T: Scalar>(
+        model: &InverterErrorModel<T>,
+        u: AlphaBeta<T>,
+        vdc: T,
+        i: Abc<T>,
+    ) -> AlphaBeta<T> {
+        model.compensation(u, vdc, i)
+    }
+    #[inline(never)]
     fn stage_observer<T: Scalar>(obs: &mut Dcfo<T>, input: &ObserverInput<T>) -> Option<AlphaBeta<T>> {
         obs.update(input).ok().map(|f| f.psi_ab)
     }
@@ -238,26 +267,32 @@ mod firmware {
         drive.step(m)
     }
 
-    /// One control step, keeping what the bench's plant needs (the applied voltage,
-    /// the bridge flag, the state). Storing the whole 104-byte output into a field made
-    /// the caller copy it inside the measured region (111 instructions of `memcpy`),
-    /// which is the bench's cost, not the drive's; a firmware uses the output in place.
+    /// One control step, returning what the run needs of its output (the duties, the
+    /// bridge flag, the state, the estimator's inputs) in registers: a firmware uses the
+    /// output in place, and copying the whole output out of the timed call would be the
+    /// bench's cost, not the drive's.
     #[inline(never)]
-    fn stage_step_brief<T: Scalar>(
-        drive: &mut Drive<T>,
-        m: &Measurements<T>,
-    ) -> (AlphaBeta<T>, bool, DriveState) {
+    fn stage_step_brief<T: Scalar>(drive: &mut Drive<T>, m: &Measurements<T>) -> Brief<T> {
         let out = drive.step(m);
-        (out.u_applied, out.bridge_enabled, out.state)
+        Brief {
+            duties: [out.duties.a, out.duties.b, out.duties.c],
+            bridge: out.bridge_enabled,
+            state: out.state,
+            estimate: out.estimate.is_some(),
+            u_applied: out.u_applied,
+            i_observer: out.i_observer,
+        }
     }
 
-    /// Runs `f` between the markers; its result is materialised inside the region.
-    macro_rules! region {
-        ($f:expr) => {{
-            bench_begin();
-            black_box($f);
-            bench_end();
-        }};
+    /// What the run keeps of a step's output.
+    #[derive(Clone, Copy)]
+    struct Brief<T> {
+        duties: [T; 3],
+        bridge: bool,
+        state: DriveState,
+        estimate: bool,
+        u_applied: AlphaBeta<T>,
+        i_observer: AlphaBeta<T>,
     }
 
     /// Deepest stack (bytes below the caller's stack pointer) used by `f`.
@@ -311,6 +346,22 @@ mod firmware {
         stack_depth(|| server.on_byte(black_box(last), &mut tx))
     }
 
+    /// The drive states, in the order of their index in the tallies.
+    const STATES: [DriveState; 8] = [
+        DriveState::Disabled,
+        DriveState::Calibrating,
+        DriveState::Starting,
+        DriveState::Running,
+        DriveState::Fault,
+        DriveState::Reacquiring,
+        DriveState::LowSpeed,
+        DriveState::Commissioning,
+    ];
+
+    fn state_index(s: DriveState) -> usize {
+        STATES.iter().position(|&x| x == s).unwrap_or(0)
+    }
+
     fn state_name(s: DriveState) -> &'static str {
         match s {
             DriveState::Disabled => "disabled",
@@ -319,229 +370,325 @@ mod firmware {
             DriveState::Running => "running",
             DriveState::Fault => "fault",
             DriveState::Reacquiring => "reacquiring",
-            DriveState::LowSpeed => "low speed",
+            DriveState::LowSpeed => "low_speed",
             DriveState::Commissioning => "commissioning",
         }
     }
 
-    /// A drive warmed up on the plant, with replicas of its estimator (fed the drive's
-    /// own observer inputs) and the inputs of its last step.
-    struct Bench<T> {
-        name: &'static str,
-        base: Base,
-        drive: Drive<T>,
-        estimator: Estimator<T>,
-        observer: Dcfo<T>,
-        pll: Pll<T>,
-        plant: Plant,
-        out: StepOutput<T>,
-        /// The estimator's voltage input of the next step: this step's `u_applied`.
-        u_observer: AlphaBeta<T>,
-        last_input: ObserverInput<T>,
-        dt: T,
-        vdc: T,
+    /// Count, sum and maximum of a region's ticks.
+    #[derive(Clone, Copy, Default)]
+    struct Tally {
+        count: u32,
+        sum: u64,
+        max: u32,
     }
 
-    impl<T: Scalar> Bench<T> {
-        /// Brings a drive into `Running` (or gives up after `MAX_WARMUP_STEPS`).
-        fn warm_up(name: &'static str, base: Base) -> Option<Self> {
-            let motor = MotorParams::paper();
-            let mut config = DriveConfig::paper_axis(ObserverKind::Dcfo);
-            // A shorter start-up than the axis's (same sequence): less to simulate.
-            config.faults.calibration_samples = 16;
-            config.startup.accel_m_per_s2 = 25.0;
-            config.startup.dwell_s = 0.1;
-            let drive = Drive::<T>::new(&motor, &config, &base).ok()?;
-            let estimator = Estimator::<T>::new(&motor, &config.estimator, &base).ok()?;
-            let observer =
-                Dcfo::<T>::new(ObserverMotor::new(&motor, &base), &config.estimator.dcfo, &base).ok()?;
-            let pll = Pll::<T>::new(&config.estimator.pll, motor.pole_pitch_m, &base).ok()?;
-            let dt: T = base.time(TS);
-            let vdc: T = base.voltage(dcfo::drive::PAPER_AXIS_BUS_V);
-            let plant = Plant::new(&motor);
-            let out = StepOutput {
-                duties: Default::default(),
-                bridge_enabled: false,
-                state: DriveState::Disabled,
-                faults: Default::default(),
-                estimate: None,
-                theta_control: Angle::ZERO,
-                i_ab: AlphaBeta::default(),
-                i_dq: Dq::default(),
-                i_dq_ref: Dq::default(),
-                u_applied: AlphaBeta::default(),
-                i_observer: AlphaBeta::default(),
-                alpha_e_ref: T::ZERO,
-            };
-            let mut b = Bench {
+    impl Tally {
+        fn add(&mut self, ticks: u32) {
+            self.count += 1;
+            self.sum += u64::from(ticks);
+            self.max = self.max.max(ticks);
+        }
+    }
+
+    /// The states a segment entered, in order (each change once; at most 16 kept).
+    struct Visits {
+        states: [DriveState; 16],
+        len: usize,
+    }
+
+    impl Visits {
+        fn new() -> Self {
+            Visits { states: [DriveState::Disabled; 16], len: 0 }
+        }
+        fn enter(&mut self, s: DriveState) {
+            let changed = self.len == 0 || self.states.get(self.len - 1) != Some(&s);
+            if let Some(slot) = self.states.get_mut(self.len).filter(|_| changed) {
+                *slot = s;
+                self.len += 1;
+            }
+        }
+    }
+
+    /// One drive on the virtual motor, with the tallies of its steps by state.
+    struct Segment<'a, T> {
+        ty: &'static str,
+        name: &'static str,
+        drive: Drive<T>,
+        plant: VirtualMotor,
+        base: Base,
+        /// The last step's output (the plant applies it during the period after the next).
+        last: Brief<T>,
+        /// `u_applied` of the step before the last: the estimator's voltage input.
+        u_prev: AlphaBeta<T>,
+        dt: T,
+        steps: [Tally; 8],
+        estimator: [Tally; 8],
+        visits: Visits,
+        stack: &'a mut usize,
+        count: u32,
+    }
+
+    impl<'a, T: Scalar> Segment<'a, T> {
+        fn new(
+            ty: &'static str,
+            name: &'static str,
+            drive: Drive<T>,
+            plant: VirtualMotor,
+            base: Base,
+            stack: &'a mut usize,
+        ) -> Self {
+            let zero = AlphaBeta::default();
+            Segment {
+                ty,
                 name,
-                base,
                 drive,
-                estimator,
-                observer,
-                pll,
                 plant,
-                out,
-                u_observer: AlphaBeta::default(),
-                last_input: ObserverInput::default(),
-                dt,
-                vdc,
-            };
-            b.drive.set_speed_reference(b.drive.omega_from_speed(SPEED_M_PER_S));
-            b.drive.enable();
-            b.out = b.drive.step(&b.measure());
-            let mut steps = 1u32;
-            let mut running = 0u32;
-            while running < RUNNING_STEPS && steps < MAX_WARMUP_STEPS {
-                if b.out.estimate.is_some() {
-                    let (u, i) = (b.u_observer, b.out.i_observer);
-                    let _ = b.estimator.update(u, i, dt);
-                    b.last_input = ObserverInput { u_ab: u, i_ab: i, omega_e: b.pll.omega_integral(), dt };
-                    if let Ok(flux) = b.observer.update(&b.last_input) {
-                        let _ = b.pll.update(flux.psi_ab, dt);
+                base,
+                last: Brief {
+                    duties: [T::HALF; 3],
+                    bridge: false,
+                    state: DriveState::Disabled,
+                    estimate: false,
+                    u_applied: zero,
+                    i_observer: zero,
+                },
+                u_prev: zero,
+                dt: base.time(TS),
+                steps: [Tally::default(); 8],
+                estimator: [Tally::default(); 8],
+                visits: Visits::new(),
+                stack,
+                count: 0,
+            }
+        }
+
+        /// The virtual motor's currents and bus as the drive's measurements.
+        fn measure(&self) -> Measurements<T> {
+            Measurements::from_si(self.plant.phase_currents_a(), self.plant.bus_v(), &self.base)
+        }
+
+        /// `seconds` of control periods: one timed step on the plant's currents, the
+        /// estimator's copy stepped and timed after it, then the plant over one period
+        /// with the step before's output.
+        fn run(&mut self, seconds: f32) {
+            let n = (seconds / TS) as u32;
+            for _ in 0..n {
+                let m = self.measure();
+                let estimator = self.drive.estimator().clone();
+                let before = self.last.state;
+                let measure_stack = self.count.is_multiple_of(STACK_EVERY);
+                let (out, ticks) = if measure_stack {
+                    let mut result = None;
+                    let depth =
+                        stack_depth(|| result = Some(timed(|| stage_step_brief(&mut self.drive, &m))));
+                    *self.stack = (*self.stack).max(depth);
+                    match result {
+                        Some(r) => r,
+                        None => return,
+                    }
+                } else {
+                    timed(|| stage_step_brief(black_box(&mut self.drive), black_box(&m)))
+                };
+                if let Some(t) = self.steps.get_mut(state_index(out.state)) {
+                    t.add(ticks);
+                }
+                self.visits.enter(out.state);
+                if out.state != before && !measure_stack {
+                    // A change of state: its step once more on a painted stack, on a copy.
+                    let mut copy = self.drive.clone();
+                    let depth = stack_depth(|| {
+                        black_box(stage_step(&mut copy, black_box(&m)));
+                    });
+                    *self.stack = (*self.stack).max(depth);
+                }
+                if out.estimate {
+                    let mut copy = estimator;
+                    let (_, ticks) = timed(|| {
+                        stage_estimator(
+                            black_box(&mut copy),
+                            black_box(self.u_prev),
+                            black_box(out.i_observer),
+                            self.dt,
+                        )
+                    });
+                    if let Some(t) = self.estimator.get_mut(state_index(out.state)) {
+                        t.add(ticks);
                     }
                 }
-                b.u_observer = b.out.u_applied;
-                let prev = b.out.state;
-                b.advance();
-                b.out = b.drive.step(&b.measure());
-                steps += 1;
-                if b.out.state != prev {
-                    println!(
-                        "TRANSITION {name} step {steps} {} faults {:#x}",
-                        state_name(b.out.state),
-                        b.out.faults.bits()
-                    );
-                }
-                if b.out.state == DriveState::Running {
-                    running += 1;
-                }
-            }
-            println!("STATE {name} {} {steps}", state_name(b.out.state));
-            Some(b)
-        }
-
-        /// The plant's currents as the drive's measurements.
-        fn measure(&self) -> Measurements<T> {
-            let i = inverse_clarke(self.plant.i_ab);
-            let b = &self.base;
-            Measurements {
-                i_abc: Abc { a: b.current(i.a), b: b.current(i.b), c: b.current(i.c) },
-                vdc: self.vdc,
+                // The plant applies the previous step's output over the next period: a
+                // board's preloaded PWM registers (one period of computation delay).
+                let d = self.last.duties.map(|x| x.to_f32());
+                self.plant.step(d, self.last.bridge);
+                self.u_prev = out.u_applied;
+                self.last = out;
+                self.count += 1;
             }
         }
 
-        /// The plant over one period with the last step's output.
-        fn advance(&mut self) {
-            let u = self.out.u_applied;
-            let b = &self.base;
-            let u = self.out.bridge_enabled.then(|| AlphaBeta::new(b.to_volts(u.alpha), b.to_volts(u.beta)));
-            self.plant.advance(u);
-        }
-
-        /// Each stage once, then `MEASURED_STEPS` control steps, each between the markers.
-        fn measure_stages(&mut self) {
-            let name = self.name;
-            let out = self.out;
-            let m = self.measure();
-            let theta = out.theta_control;
-            let cs: CosSin<T> = CosSin::new(theta);
-            let v_max = self.vdc * T::from_f32(0.95 * 0.577_350_26);
-            let Ok(mut pi) = Pi::new(T::from_f32(0.1), T::from_f32(0.01), -v_max, v_max) else {
-                return;
-            };
-            let err = out.i_dq_ref.q - out.i_dq.q;
-            let u_dq = Dq::new(self.base.voltage(5.0), self.base.voltage(30.0));
-            let u_ab = inverse_park(u_dq, &cs);
-            let psi = self.observer.update(&self.last_input).map(|f| f.psi_ab).unwrap_or_default();
-            let dt = self.dt;
-
+        fn report(&self) {
+            let (ty, name) = (self.ty, self.name);
+            for (k, s) in STATES.iter().enumerate() {
+                if let Some(t) = self.steps.get(k).filter(|t| t.count > 0) {
+                    println!("STEPS {ty} {name} {} {} {} {}", state_name(*s), t.count, t.sum, t.max);
+                }
+                if let Some(t) = self.estimator.get(k).filter(|t| t.count > 0) {
+                    println!("ESTIMATOR {ty} {name} {} {} {} {}", state_name(*s), t.count, t.sum, t.max);
+                }
+            }
             let mut line = Line::new();
-            let _ = write!(
-                line,
-                "BENCH {name} empty,clarke,cos_sin,park,pi,inverse_park,svpwm,observer,pll,estimator"
-            );
-            let _ = write!(line, ",step*{MEASURED_STEPS},acquire*{ACQUIRE_STEPS}");
+            let _ = write!(line, "VISITED {ty} {name} ");
+            for (k, s) in self.visits.states.iter().take(self.visits.len).enumerate() {
+                let _ = write!(line, "{}{}", if k == 0 { "" } else { "," }, state_name(*s));
+            }
             line.print();
-            region!(stage_empty(black_box(AlphaBeta::new(1.0, 2.0))));
-            region!(stage_clarke(black_box(m.i_abc)));
-            region!(stage_cos_sin::<T>(black_box(theta)));
-            region!(stage_park(black_box(out.i_ab), black_box(&cs)));
-            region!(stage_pi(black_box(&mut pi), black_box(err), black_box(-v_max), black_box(v_max)));
-            region!(stage_inverse_park(black_box(u_dq), black_box(&cs)));
-            region!(stage_svpwm(black_box(u_ab), black_box(self.vdc)));
-            region!(stage_observer(black_box(&mut self.observer), black_box(&self.last_input)));
-            region!(stage_pll(black_box(&mut self.pll), black_box(psi), black_box(dt)));
-            region!(stage_estimator(
-                black_box(&mut self.estimator),
-                black_box(self.u_observer),
-                black_box(out.i_observer),
-                dt
-            ));
-            for _ in 0..MEASURED_STEPS {
-                self.advance();
-                let m = self.measure();
-                bench_begin();
-                let (u_applied, bridge_enabled, state) =
-                    stage_step_brief(black_box(&mut self.drive), black_box(&m));
-                bench_end();
-                (self.out.u_applied, self.out.bridge_enabled, self.out.state) =
-                    (u_applied, bridge_enabled, state);
-            }
-            // The estimator from a re-acquisition (a lock loss at speed), fed the running
-            // drive's own observer inputs: every step until and past the circle fit's end.
-            let mut acquiring = self.estimator.clone();
-            acquiring.reacquire();
-            let mut fit_end = None;
-            for k in 0..ACQUIRE_STEPS {
-                let (u, i) = (self.out.u_applied, self.out.i_observer);
-                region!(stage_estimator(black_box(&mut acquiring), black_box(u), black_box(i), dt));
-                if fit_end.is_none() && !acquiring.fitting() {
-                    fit_end = Some(k);
-                }
-                self.advance();
-                let m = self.measure();
-                self.out = self.drive.step(&m);
-            }
-            match fit_end {
-                Some(k) => println!("ACQUIRE {name} {k}"),
-                None => println!("ACQUIRE {name} none"),
-            }
-            println!("END {name} {}", state_name(self.out.state));
-            self.advance();
-            let m = self.measure();
-            let depth = stack_depth(|| {
-                black_box(stage_step(&mut self.drive, black_box(&m)));
-            });
-            println!("STACK {name} {depth}");
-            println!("STACK_HIL {name} {}", hil_stack_depth(&self.drive, dcfo::drive::PAPER_AXIS_BUS_V));
         }
+    }
+
+    /// The virtual motor of `image` on the paper axis's carriage, at rest.
+    fn plant_for(image: &MotorImage) -> Option<VirtualMotor> {
+        let axis =
+            VirtualAxis { payload_kg: PAPER_AXIS_PAYLOAD_KG, load_n: 0.0, bus_v: image.bus_v, period_s: TS };
+        VirtualMotor::new(&image.motor, &axis).ok()
+    }
+
+    /// The whole run for number type `T` in `base`: the two segments, then the stages.
+    fn bench<T: Scalar>(ty: &'static str, image: &MotorImage, base: Base) -> Option<()> {
+        let motor = image.motor;
+        // Calibration of the conversion (a function of nothing, the sled), and the
+        // empty region (a call with an argument and a result) subtracted from the others.
+        let (_, nothing) = timed(stage_nothing);
+        let (_, sled) = timed(stage_sled);
+        let (_, empty) = timed(|| stage_empty(black_box(AlphaBeta::new(1.0, 2.0))));
+        println!("CAL {ty} {nothing} {sled} {SLED} {empty}");
+        let mut stack = 0usize;
+
+        // 1. The speed drive: start-up, acquisition, a lock loss and the re-acquisition.
+        let mut config = DriveConfig::for_motor(&motor, image.bus_v, ObserverKind::Dcfo);
+        config.moving_mass_kg = motor.mass_kg + PAPER_AXIS_PAYLOAD_KG;
+        config.control_period_s = TS;
+        let drive = Drive::<T>::new(&motor, &config, &base).ok()?;
+        let mut speed = Segment::new(ty, "speed", drive, plant_for(image)?, base, &mut stack);
+        speed.drive.set_speed_reference(speed.drive.omega_from_speed(SPEED_M_PER_S));
+        speed.drive.enable();
+        speed.run(SPEED_RUN_S);
+        speed.drive.reset_estimator();
+        speed.run(REACQUIRE_RUN_S);
+        speed.report();
+        drop(speed);
+
+        // 2. The positioning drive with HFI: alignment, a move out and one back through
+        //    zero speed, a hold.
+        let mut config = DriveConfig::stroke_axis(&motor, image.bus_v);
+        config.check_profile(&motor, &LIMITS).ok()?;
+        config.motion = Some(MotionConfig::for_drive(&motor, &config, LIMITS));
+        let drive = Drive::<T>::new(&motor, &config, &base).ok()?;
+        let mut pos = Segment::new(ty, "positioning", drive, plant_for(image)?, base, &mut stack);
+        pos.drive.enable();
+        pos.run(ALIGN_S);
+        for m in MOVES {
+            pos.drive.push_move(m).ok()?;
+        }
+        pos.run(MOVE_RUN_S);
+        pos.report();
+
+        // The stages, once each on the last step's inputs.
+        stages(&mut pos, &config, &motor);
+        let hil = hil_stack_depth(&pos.drive, image.bus_v);
+        drop(pos);
+        println!("STACK {ty} {stack}");
+        println!("STACK_HIL {ty} {hil}");
+        println!("END {ty}");
+        Some(())
+    }
+
+    /// Each stage of the step once, on the inputs of `seg`'s last step; the observer and
+    /// the PLL as fresh ones fed the same inputs over 200 steps first.
+    fn stages<T: Scalar>(seg: &mut Segment<'_, T>, config: &DriveConfig, motor: &MotorParams) {
+        let ty = seg.ty;
+        let base = seg.base;
+        let m = seg.measure();
+        let out = stage_step(&mut seg.drive, &m);
+        let theta = out.theta_control;
+        let cs: CosSin<T> = CosSin::new(theta);
+        let v_max = m.vdc * T::from_f32(0.95 * 0.577_350_26);
+        let Ok(mut pi) = Pi::new(T::from_f32(0.1), T::from_f32(0.01), -v_max, v_max) else { return };
+        let err = out.i_dq_ref.q - out.i_dq.q;
+        let u_dq = Dq::new(base.voltage(5.0), base.voltage(30.0));
+        let u_ab = inverse_park(u_dq, &cs);
+        let compensation = config.dead_time_compensation.unwrap_or(DeadTimeCompensation {
+            dead_time_s: 2e-6,
+            device_drop_v: 0.95,
+            current_band_a: 0.01,
+        });
+        let model = InverterErrorModel::<T>::for_drive(&compensation, TS, motor, &base);
+        let Ok(mut observer) =
+            Dcfo::<T>::new(ObserverMotor::new(motor, &base), &config.estimator.dcfo, &base)
+        else {
+            return;
+        };
+        let Ok(mut pll) = Pll::<T>::new(&config.estimator.pll, motor.pole_pitch_m, &base) else { return };
+        let dt = seg.dt;
+        let mut input = ObserverInput { u_ab: out.u_applied, i_ab: out.i_observer, omega_e: T::ZERO, dt };
+        for _ in 0..200 {
+            seg.run(TS);
+            input = ObserverInput {
+                u_ab: seg.u_prev,
+                i_ab: seg.last.i_observer,
+                omega_e: pll.omega_integral(),
+                dt,
+            };
+            if let Ok(flux) = observer.update(&input) {
+                let _ = pll.update(flux.psi_ab, dt);
+            }
+        }
+        let psi = observer.clone().update(&input).map(|f| f.psi_ab).unwrap_or_default();
+        let i_abc = m.i_abc;
+        let stage = |name: &str, ticks: u32| println!("STAGE {ty} {name} {ticks}");
+        stage("clarke", timed(|| stage_clarke(black_box(i_abc))).1);
+        stage("cos_sin", timed(|| stage_cos_sin::<T>(black_box(theta))).1);
+        stage("park", timed(|| stage_park(black_box(out.i_ab), black_box(&cs))).1);
+        stage(
+            "pi",
+            timed(|| stage_pi(black_box(&mut pi), black_box(err), black_box(-v_max), black_box(v_max))).1,
+        );
+        stage("inverse_park", timed(|| stage_inverse_park(black_box(u_dq), black_box(&cs))).1);
+        stage("svpwm", timed(|| stage_svpwm(black_box(u_ab), black_box(m.vdc))).1);
+        stage(
+            "dead_time",
+            timed(|| stage_dead_time(black_box(&model), black_box(u_ab), black_box(m.vdc), black_box(i_abc)))
+                .1,
+        );
+        stage("observer", timed(|| stage_observer(black_box(&mut observer), black_box(&input))).1);
+        stage("pll", timed(|| stage_pll(black_box(&mut pll), black_box(psi), black_box(dt))).1);
+    }
+
+    /// The motor image from the command line (`image <hex>`, QEMU's `-append`).
+    fn image_from_cmdline() -> Option<MotorImage> {
+        let mut line = [0u8; 512];
+        let line = semihosting_cmdline(&mut line)?;
+        let mut words = line.split(|&b| b == b' ').filter(|w| !w.is_empty());
+        words.by_ref().find(|w| *w == b"image")?;
+        motor_image_from_hex(words.next()?).ok()
     }
 
     #[entry]
     fn main() -> ! {
-        let motor = MotorParams::paper();
         // SAFETY: the first UART0 handle; see `Line::print`.
         let mut uart = unsafe { CmsdkUart::steal_uart0() };
         uart.init(115_200);
+        let Some(mut cp) = cortex_m::Peripherals::take() else { exit(false) };
+        start_clock(&mut cp.SYST);
+        let Some(image) = image_from_cmdline() else {
+            println!("ERROR no motor image on the command line (`image <hex>`)");
+            exit(false)
+        };
         #[cfg(target_abi = "eabihf")]
-        let mut f = Bench::<f32>::warm_up("f32", Base::SI);
-        let mut q = Bench::<Q24>::warm_up("q24", Base::for_motor(&motor));
-
-        // The gate: the host switches QEMU's exec log on, then sends a byte on UART0.
-        uart.enable_rx_wakeup();
-        println!("READY");
-        let _ = uart.read_byte();
-
-        let mut ok = true;
-        #[cfg(target_abi = "eabihf")]
-        match f.as_mut() {
-            Some(b) => b.measure_stages(),
-            None => ok = false,
-        }
-        match q.as_mut() {
-            Some(b) => b.measure_stages(),
-            None => ok = false,
+        let ok = bench::<f32>("f32", &image, Base::SI).is_some();
+        #[cfg(not(target_abi = "eabihf"))]
+        let ok = bench::<Q24>("q24", &image, Base::for_motor(&image.motor)).is_some();
+        if !ok {
+            println!("ERROR a drive or the virtual motor could not be built, or a move was refused");
         }
         exit(ok)
     }

@@ -22,12 +22,26 @@
 //!
 //! | context | priority | work | budget |
 //! |---|---|---|---|
-//! | SysTick, 10 kHz (the PWM period) | 0x00, highest | `ControlLoop::period` on the `VirtualBoard` (virtual motor: 8 sub-steps), `Capture::record`, `DriveStatus::update` | one period: 2,500 cycles at 25 MHz are not enough in real time; QEMU runs it as fast as it can and the simulated time is the count of periods, not the wall clock |
-//! | thread | — | UART0 polled: `BoardLinkServer` commands, one answer per command, command watchdog | — |
+//! | SysTick, 10 kHz (the PWM period) | 0x00, highest | `ControlLoop::period` on the `VirtualBoard` (virtual motor: 8 sub-steps), `Capture::record`, `DriveStatus::update` | one period: 2,500 cycles at 25 MHz are not enough on a real MPS2; on QEMU with `-icount shift=0` a period is 100,000 instructions, of which the step takes a fraction (`bench_qemu`) |
+//! | thread | — | UART0 polled: `BoardLinkServer` commands, one answer per command, command watchdog on the drive's periods and the host's clock | the rest of each period |
 //!
-//! Command watchdog: no command for 5,000 control periods (0.5 s of simulated time)
-//! disables the drive. Every other interrupt vector lands in `DefaultHandler`, which
-//! masks it and disables the drive. Nothing in the image can panic (`.ci/no-panic`).
+//! Time: QEMU runs the image with `-icount shift=0,sleep=off` (`dcfo_host::qemu`): one
+//! instruction is one nanosecond of the image's time and an idle core (`WFI` until the next
+//! SysTick) jumps to the next timer deadline. So the control periods, and what the thread
+//! gets done between them, follow the instructions executed, whatever the host's load:
+//! the drive's simulated time is its count of periods, and a loaded host slows it down
+//! without reordering anything in it. It also runs as fast as QEMU can execute, not at the
+//! wall clock's pace.
+//!
+//! Command watchdog: no command for 5,000 control periods (0.5 s of the drive's time) *and*
+//! 500 ms of the host's time (`HostClock`, semihosting `SYS_ELAPSED`) disables the drive
+//! (`BoardLinkServer::with_host_clock`). The drive's periods run as fast as QEMU executes
+//! them, faster or slower than the host's clock; a silence is one in both: a host merely
+//! slower than QEMU, or a machine that stalled QEMU and the host together (no periods ran),
+//! is not silent. The bytes that have arrived are taken before the watchdog looks, so a
+//! command that waited while the thread did not run is not a silence either.
+//! Every other interrupt vector lands in `DefaultHandler`, which masks it and disables the
+//! drive. Nothing in the image can panic (`.ci/no-panic`).
 //!
 //! ```sh
 //! cargo build -p dcfo-firmware --release --features mps2 --example qemu_drive --target thumbv7em-none-eabihf
@@ -57,12 +71,14 @@ mod firmware {
     use dcfo::motor_image::MotorImage;
     use dcfo::units::Base;
     use dcfo::virtual_motor::VirtualMotor;
-    use dcfo_firmware::board::mps2::{CmsdkUart, SYSCLK_HZ, halt};
+    use dcfo_firmware::board::mps2::{CmsdkUart, HostClock, SYSCLK_HZ, halt};
     use dcfo_firmware::board::virtual_motor::VirtualBoard;
-    use dcfo_firmware::board_link::BoardLinkServer;
+    use dcfo_firmware::board_link::{BoardLinkServer, LinkClock};
     use dcfo_firmware::control::{ControlLoop, Setpoints};
     use dcfo_firmware::image_drive::{Inverter, drive_config, motor_image_from_hex, virtual_axis};
-    use dcfo_firmware::runtime::{BoardLinkState, DriveOnBoard, Slot, install, slot, start_systick};
+    use dcfo_firmware::runtime::{
+        BoardLinkState, CaptureCell, DriveOnBoard, Slot, capture_cell, install, slot, start_systick,
+    };
     use dcfo_firmware::stack;
     use embedded_io::Write as _;
 
@@ -83,16 +99,20 @@ mod firmware {
     const CAPTURE_SAMPLES: usize = 24_000;
     /// Control (PWM) rate, Hz.
     const CONTROL_HZ: u32 = 10_000;
-    /// Control periods without a command after which the drive is disabled (0.5 s).
+    /// Control periods without a command after which the drive is disabled (0.5 s of the
+    /// drive's time)...
     const COMMAND_TIMEOUT_PERIODS: u32 = CONTROL_HZ / 2;
+    /// ... if they also span this much of the host's time (ms).
+    const COMMAND_TIMEOUT_HOST_MS: u32 = 500;
     /// SysTick (the control period) priority: the highest.
     const PRIORITY_CONTROL: u8 = 0x00;
 
     /// What the control interrupt owns.
-    static CONTROL: Slot<DriveOnBoard<Work, VirtualBoard>> = slot();
+    static CONTROL: Slot<&'static mut DriveOnBoard<Work, VirtualBoard>> = slot();
     /// The capture and the last step's status: filled by the control interrupt, read by
     /// the thread.
-    static LINK: BoardLinkState<CAPTURE_SAMPLES> = BoardLinkState::new();
+    static CAPTURE: CaptureCell<CAPTURE_SAMPLES> = capture_cell();
+    static LINK: BoardLinkState<CAPTURE_SAMPLES> = BoardLinkState::new(&CAPTURE);
     static SETPOINTS: Setpoints = Setpoints::new();
 
     #[entry]
@@ -100,6 +120,7 @@ mod firmware {
         let Some(mut uart) = CmsdkUart::take_uart0() else { halt("UART0 already taken") };
         uart.init(115_200);
         let Some(mut cp) = cortex_m::Peripherals::take() else { halt("core peripherals taken twice") };
+        let Some(host_clock) = HostClock::new() else { halt("no host clock (semihosting SYS_TICKFREQ)") };
         stack::paint();
         if !stack::guard(&mut cp.MPU) {
             halt("no MPU guard for the stack");
@@ -140,10 +161,14 @@ mod firmware {
             "dcfo-firmware qemu_drive: virtual motor, {kind}, capture {CAPTURE_SAMPLES} samples\r\n\0"
         );
 
-        let control = DriveOnBoard {
-            control: ControlLoop::new(drive, u16::MAX),
-            board: VirtualBoard::new(virtual_motor),
-        };
+        // The drive in a static of its own, in .bss (`Slot`); `None` only if this ran twice.
+        let control = cortex_m::singleton!(
+            : DriveOnBoard<Work, VirtualBoard> = DriveOnBoard {
+                control: ControlLoop::new(drive, u16::MAX),
+                board: VirtualBoard::new(virtual_motor),
+            }
+        );
+        let Some(control) = control else { halt("control state taken twice") };
         if !install(&CONTROL, control) {
             halt("control state busy at start-up");
         }
@@ -155,18 +180,19 @@ mod firmware {
             SYSCLK_HZ / CONTROL_HZ - 1,
         );
 
-        let mut server = BoardLinkServer::new(COMMAND_TIMEOUT_PERIODS);
+        let mut server = BoardLinkServer::with_host_clock(COMMAND_TIMEOUT_PERIODS, COMMAND_TIMEOUT_HOST_MS);
         let mut wire = [0u8; CaptureChunk::WIRE_LEN];
         loop {
-            let periods = LINK.periods();
+            // (A host clock that cannot be read counts as time passed.)
+            let now = LinkClock { periods: LINK.periods(), host_ms: host_clock.now_ms() };
             while let Some(byte) = uart.try_read_byte() {
-                if let Some(bytes) = LINK.on_byte(&mut server, byte, &SETPOINTS, periods, &mut wire) {
+                if let Some(bytes) = LINK.on_byte(&mut server, byte, &SETPOINTS, now, &mut wire) {
                     for &b in bytes {
                         uart.write_byte(b);
                     }
                 }
             }
-            server.watchdog(&SETPOINTS, periods);
+            server.watchdog(&SETPOINTS, now);
             // SysTick wakes the core every period; a byte that arrives meanwhile waits in
             // the UART (the host sends one command and waits for its answer).
             cortex_m::asm::wfi();

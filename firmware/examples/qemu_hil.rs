@@ -15,18 +15,22 @@
 //!
 //! | context | priority | work | budget |
 //! |---|---|---|---|
-//! | UART0 RX interrupt (IRQ 0) | 0x00, highest | per byte: `HilServer::on_byte`; per complete in-order frame: one `Drive::step` and the encoded `ActuationFrame` into the TX queue | one control step: about 1220 instructions on Cortex-M4F (f32), 3640 on Cortex-M3 (Q24), measured by `bench_qemu`, plus the per-byte COBS decoding (not measured separately) |
-//! | SysTick, every 50 ms | 0x80 | link watchdog: `HilServer::watchdog_period` | a counter and a compare (not measured) |
+//! | UART0 RX interrupt (IRQ 0) | 0x00, highest | per byte: `HilServer::on_byte`; per complete in-order frame: the link watchdog on its sequence number, one `Drive::step` and the encoded `ActuationFrame` into the TX queue | one control step (its instructions on either core: `bench_qemu`, `docs/cost-budget.md`), plus the per-byte COBS decoding (not measured separately) |
 //! | thread | — | moves the TX queue into UART0, sleeps when it is empty | — |
 //!
 //! Between periods the host may send a `dcfo::link::CommissioningRequest`; it is answered
 //! with a `CommissioningReport` in the same interrupt, and a start replaces the drive by
 //! the one commissioning is told about (`LinkServer::on_byte`; `dcfo identify --qemu`).
 //!
-//! A silent link (no in-order frame for 10 watchdog periods, 0.5 s of wall-clock time)
-//! switches the bridge off (fault `EXTERNAL`) if the drive was active. The watchdog
-//! period is long because QEMU runs in wall-clock time on a shared host: the lock-step
-//! exchange itself takes about 1.6 ms. Every other interrupt vector lands in
+//! A silent link switches the bridge off (fault `EXTERNAL`) if the drive was active: a
+//! frame whose sequence number skips 10 or more (the host sent no frame for 10 control
+//! periods of its own) trips the drive before it steps on it, and that frame's answer
+//! reports it (`LinkWatchdog::frame_after`, the periods the in-process fault campaign's
+//! watchdog counts). The image has no timer and reads no clock: it steps once per frame,
+//! and nothing it does follows QEMU's virtual clock or the host's wall clock. A host that
+//! stops (a loaded machine, a debugger) stops the simulation with it, and picks it up where
+//! it left it; the plant does not run meanwhile, so there is no silence to catch. Between
+//! frames the core sleeps, and QEMU with it. Every other interrupt vector lands in
 //! `DefaultHandler`, which masks that interrupt and trips the drive.
 //!
 //! Nothing in the image can panic (`.ci/no-panic` checks that the panic machinery is not
@@ -56,19 +60,18 @@ fn main() {
 
 #[cfg(target_arch = "arm")]
 mod firmware {
-    use cortex_m::peripheral::syst::SystClkSource;
+    #[cfg(target_abi = "eabihf")]
+    use cortex_m::peripheral::scb::FpuAccessMode;
     use cortex_m_rt::{entry, exception};
     use dcfo::drive::{Drive, DriveConfig};
     use dcfo::motor::MotorParams;
     use dcfo::motor_image::MotorImage;
     use dcfo::observer::ObserverKind;
     use dcfo::units::Base;
-    use dcfo_firmware::board::mps2::{
-        self, CmsdkUart, SYSCLK_HZ, UART0_RX_IRQN, Uart0RxIrq, UartRx, UartTx, halt,
-    };
+    use dcfo_firmware::board::mps2::{self, CmsdkUart, UART0_RX_IRQN, Uart0RxIrq, UartRx, UartTx, halt};
     use dcfo_firmware::hil::HilServer;
     use dcfo_firmware::queue::{Producer, Queue};
-    use dcfo_firmware::runtime::{Slot, install, slot, start_systick, with_slot};
+    use dcfo_firmware::runtime::{Slot, install, slot, with_slot};
     use dcfo_firmware::stack;
     use embedded_io::Write as _;
 
@@ -85,21 +88,17 @@ mod firmware {
 
     /// NVIC priority of the control (UART0 RX) interrupt: the highest.
     const PRIORITY_CONTROL: u8 = 0x00;
-    /// Priority of the link watchdog (SysTick): below the control interrupt.
-    const PRIORITY_WATCHDOG: u8 = 0x80;
-    /// Watchdog ticks per second (a 50 ms period).
-    const WATCHDOG_TICK_HZ: u32 = 20;
     /// Bytes of transmit queue: four answers (or a commissioning report).
     const TX_QUEUE_BYTES: usize = dcfo_firmware::hil::tx_queue_bytes(4);
 
-    /// What the control interrupt owns; the watchdog borrows it between steps.
+    /// What the control interrupt owns.
     struct Control {
         server: HilServer<Work>,
         rx: UartRx,
         tx: Producer<'static, u8, TX_QUEUE_BYTES>,
     }
 
-    static CONTROL: Slot<Control> = slot();
+    static CONTROL: Slot<&'static mut Control> = slot();
 
     #[entry]
     fn main() -> ! {
@@ -129,13 +128,6 @@ mod firmware {
         // SAFETY: set before the interrupt is unmasked; no critical section here relies on
         // priorities (they mask with PRIMASK).
         unsafe { cp.NVIC.set_priority(Uart0RxIrq, PRIORITY_CONTROL) };
-        start_systick(
-            &mut cp.SYST,
-            &mut cp.SCB,
-            PRIORITY_WATCHDOG,
-            SystClkSource::Core,
-            SYSCLK_HZ / WATCHDOG_TICK_HZ - 1,
-        );
         mps2::unmask_uart0_rx();
 
         loop {
@@ -173,17 +165,27 @@ mod firmware {
         // The banner states the numeric type and, with an FPU, the access mode
         // (CPACR CP10/CP11) cortex-m-rt set before `main`. The 0x00 after it is a link
         // frame delimiter: the host's receiver drops the banner as one bad frame.
+        // Written piece by piece: `write!` would link core::fmt (3-5 KB of flash).
         #[cfg(target_abi = "eabihf")]
-        let _ = write!(
-            uart,
-            "dcfo-firmware qemu_hil: f32, fpu {:?}, {axis}\r\n\0",
-            cortex_m::peripheral::SCB::fpu_access_mode()
-        );
+        let numbers = match cortex_m::peripheral::SCB::fpu_access_mode() {
+            FpuAccessMode::Enabled => "f32, fpu Enabled",
+            FpuAccessMode::Privileged => "f32, fpu Privileged",
+            FpuAccessMode::Disabled => "f32, fpu Disabled",
+        };
         #[cfg(not(target_abi = "eabihf"))]
-        let _ = write!(uart, "dcfo-firmware qemu_hil: Q8.24 fixed point, no fpu, {axis}\r\n\0");
+        let numbers = "Q8.24 fixed point, no fpu";
+        for part in ["dcfo-firmware qemu_hil: ", numbers, ", ", axis, "\r\n\0"] {
+            let _ = uart.write_all(part.as_bytes());
+        }
 
         let (rx, tx) = uart.into_interrupt_driven();
-        if !install(&CONTROL, Control { server: HilServer::new(drive), rx, tx: producer }) {
+        // The state in a static of its own, in .bss (`Slot`); `None` only if this ran twice.
+        let Some(control) =
+            cortex_m::singleton!(: Control = Control { server: HilServer::new(drive), rx, tx: producer })
+        else {
+            return Err("control state taken twice");
+        };
+        if !install(&CONTROL, control) {
             return Err("control state busy at start-up");
         }
         Ok(tx)
@@ -203,9 +205,10 @@ mod firmware {
     }
 
     /// UART0 RX: drain the receiver through the HIL server; an in-order frame runs one
-    /// control step, whose answer goes to the transmit queue. Should the state be
-    /// unreachable, the bytes are left in the UART and this interrupt is masked: a drive
-    /// that cannot step answers nothing, and the host's watchdog sees a silent link.
+    /// control step (after the link watchdog on its sequence number), whose answer goes to
+    /// the transmit queue. Should the state be unreachable, the bytes are left in the UART
+    /// and this interrupt is masked: a drive that cannot step answers nothing, and the
+    /// host's watchdog sees a silent link.
     fn on_uart0_rx() {
         let ok = with_slot(&CONTROL, |c| {
             while let Some(byte) = c.rx.try_read_byte() {
@@ -215,14 +218,6 @@ mod firmware {
         if !ok {
             mps2::mask_irq(UART0_RX_IRQN as i16);
         }
-    }
-
-    /// The link watchdog, every 50 ms.
-    #[exception]
-    fn SysTick() {
-        with_slot(&CONTROL, |c| {
-            c.server.watchdog_period();
-        });
     }
 
     // SAFETY: cortex-m-rt requires the default handler to be declared `unsafe`; it runs

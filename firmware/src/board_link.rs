@@ -12,6 +12,15 @@
 //!  BoardLinkServer::watchdog(periods)
 //! ```
 //!
+//! The command watchdog counts the drive's control periods ([`LinkClock`]): on a board
+//! they run in real time, so 5,000 periods are 0.5 s. On QEMU the drive's time follows the
+//! instructions QEMU executes (`-icount`), as fast as it can, so a silence must also last
+//! in the host's time ([`BoardLinkServer::with_host_clock`], the host's milliseconds read
+//! through `board::mps2::HostClock`): the drive is disabled only when the host has sent
+//! nothing for both 500 ms of its own time and 5,000 periods of the drive's. A host that is
+//! merely slower than QEMU's drive is not silent, nor is one whose machine stalled QEMU with
+//! it (no periods ran), nor one whose QEMU was descheduled (the periods did not run).
+//!
 //! The thread touches the capture and the status only inside short critical sections
 //! (arming, copying [`CAPTURE_CHUNK_SAMPLES`] samples, copying the status), so the
 //! control interrupt waits at most that long and never for the UART. Samples are read
@@ -153,14 +162,33 @@ pub fn answer<const N: usize>(
     })
 }
 
+/// The command watchdog's clocks at one instant (see the module docs).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct LinkClock {
+    /// Control periods run (wrapping): the drive's own time.
+    pub periods: u32,
+    /// The host's milliseconds (wrapping) where the drive's time is not the host's (QEMU);
+    /// `None` on a board, or when the host's clock could not be read.
+    pub host_ms: Option<u32>,
+}
+
+impl LinkClock {
+    /// The drive's periods alone (a board: they run in real time).
+    pub const fn periods(periods: u32) -> Self {
+        LinkClock { periods, host_ms: None }
+    }
+}
+
 /// The thread's side: decodes commands, applies them to the setpoints, keeps the
-/// command watchdog.
+/// command watchdog (on the clocks of [`LinkClock`]: see the module docs).
 #[derive(Clone, Debug)]
 pub struct BoardLinkServer {
     rx: Receiver<BoardCommand>,
-    /// Control periods at the last command.
-    last_command_periods: u32,
+    /// The clocks at the last command.
+    last_command_at: LinkClock,
     timeout_periods: u32,
+    /// The host's silence that must pass too (ms), `None`: periods alone.
+    timeout_host_ms: Option<u32>,
     /// Sequence number of the last command whose move was posted: the host resends a
     /// command it got no answer to with the same number, and its move must not be
     /// queued twice.
@@ -168,23 +196,31 @@ pub struct BoardLinkServer {
 }
 
 impl BoardLinkServer {
-    /// A server whose watchdog disables the drive after `timeout_periods` control
-    /// periods without a command.
+    /// A server whose watchdog disables the drive after `timeout_periods` control periods
+    /// without a command (a board, whose periods run in real time).
     pub const fn new(timeout_periods: u32) -> Self {
         BoardLinkServer {
             rx: Receiver::new(),
-            last_command_periods: 0,
+            last_command_at: LinkClock::periods(0),
             timeout_periods,
+            timeout_host_ms: None,
             last_move_sequence: None,
         }
+    }
+
+    /// A server whose watchdog disables the drive after `timeout_periods` control periods
+    /// *and* `timeout_host_ms` of the host's time without a command (QEMU, where the
+    /// drive's time follows the instructions executed). A [`LinkClock`] without the host's
+    /// time counts as that time having passed.
+    pub const fn with_host_clock(timeout_periods: u32, timeout_host_ms: u32) -> Self {
+        BoardLinkServer { timeout_host_ms: Some(timeout_host_ms), ..Self::new(timeout_periods) }
     }
 
     /// One received byte; a complete valid command is applied to `setpoints` (clear
     /// faults, enable, speed; its move posted with [`Setpoints::post_move`] unless the
     /// same sequence number's move was posted already: a resent command) and returned,
-    /// for the caller to [`answer`]. `periods` is the control periods run so far (the
-    /// watchdog's clock).
-    pub fn on_byte(&mut self, byte: u8, setpoints: &Setpoints, periods: u32) -> Option<BoardCommand> {
+    /// for the caller to [`answer`]. `now` is the watchdog's clocks.
+    pub fn on_byte(&mut self, byte: u8, setpoints: &Setpoints, now: LinkClock) -> Option<BoardCommand> {
         let command = self.rx.push(byte)?.ok()?;
         setpoints.set_commands(&command.commands());
         if let Some(m) = command.move_to
@@ -193,15 +229,24 @@ impl BoardLinkServer {
             self.last_move_sequence = Some(command.sequence);
             setpoints.post_move(m);
         }
-        self.last_command_periods = periods;
+        self.last_command_at = now;
         Some(command)
     }
 
-    /// The command watchdog: with no command for more than the timeout, disables the
-    /// drive (bridge off) and returns `true`. A host that comes back enables it again
-    /// with its next command.
-    pub fn watchdog(&mut self, setpoints: &Setpoints, periods: u32) -> bool {
-        let silent = periods.wrapping_sub(self.last_command_periods) > self.timeout_periods;
+    /// The command watchdog at `now`: with no command for more than the timeout (in
+    /// periods, and in the host's time where it has one), disables the drive (bridge off)
+    /// and returns `true`. A host that comes back enables it again with its next command.
+    /// Call it after the bytes that have arrived are taken: a command that waited in the
+    /// UART while the thread did not run is a host that was not silent.
+    pub fn watchdog(&mut self, setpoints: &Setpoints, now: LinkClock) -> bool {
+        let periods_silent = now.periods.wrapping_sub(self.last_command_at.periods) > self.timeout_periods;
+        let host_silent = match (self.timeout_host_ms, now.host_ms, self.last_command_at.host_ms) {
+            (None, _, _) => true,
+            (Some(limit), Some(now_ms), Some(then_ms)) => now_ms.wrapping_sub(then_ms) > limit,
+            // A host clock that cannot be read: no evidence the host was not silent.
+            (Some(_), _, _) => true,
+        };
+        let silent = periods_silent && host_silent;
         if silent {
             setpoints.set_enable(false);
         }
@@ -247,7 +292,7 @@ mod tests {
     ) -> Option<BoardCommand> {
         let mut wire = [0u8; BoardCommand::WIRE_LEN];
         let n = encode(c, &mut wire).unwrap();
-        wire[..n].iter().filter_map(|&b| server.on_byte(b, sp, periods)).last()
+        wire[..n].iter().filter_map(|&b| server.on_byte(b, sp, LinkClock::periods(periods))).last()
     }
 
     /// The drive image on the virtual motor, commanded as `dcfo board` does: armed and
@@ -325,8 +370,8 @@ mod tests {
         assert!(matches!(past, BoardAnswer::Chunk(c) if c.count == 0));
         // Silence: the watchdog disables the drive.
         let now = status.periods;
-        assert!(!server.watchdog(&sp, now));
-        assert!(server.watchdog(&sp, now.wrapping_add(5001)));
+        assert!(!server.watchdog(&sp, LinkClock::periods(now)));
+        assert!(server.watchdog(&sp, LinkClock::periods(now.wrapping_add(5001))));
         for _ in 0..2 {
             let (out, sample) = control.period(&mut board, &sp);
             status.update(&out, &sample, control.base(), control.position_report(&sp));
@@ -407,5 +452,28 @@ mod tests {
             feed(&mut server, &m, &sp, status.periods).unwrap();
         }
         assert_eq!(sp.moves_rejected(), 2);
+    }
+
+    /// With the host's clock (QEMU): a silence must last 5,000 of the drive's periods and
+    /// 500 ms of the host's time. Periods alone (QEMU ran ahead of a slow host), host time
+    /// alone (QEMU descheduled, or the machine stalled QEMU and host together) do not
+    /// disable the drive; both do; a clock that cannot be read counts as time passed.
+    #[test]
+    fn with_the_hosts_clock_a_silence_must_last_in_both_clocks() {
+        let sp = Setpoints::new();
+        let mut server = BoardLinkServer::with_host_clock(5000, 500);
+        let at = |periods, ms| LinkClock { periods, host_ms: Some(ms) };
+        let c = command(1, true, false, NO_CAPTURE_READ);
+        let mut wire = [0u8; BoardCommand::WIRE_LEN];
+        let n = encode(&c, &mut wire).unwrap();
+        assert!(wire[..n].iter().filter_map(|&b| server.on_byte(b, &sp, at(100, 10_000))).last().is_some());
+        assert!(sp.take_commands().enable);
+        assert!(!server.watchdog(&sp, at(100 + 50_000, 10_000 + 400)), "periods alone");
+        assert!(!server.watchdog(&sp, at(100 + 4000, 10_000 + 60_000)), "host time alone");
+        assert!(sp.take_commands().enable);
+        assert!(server.watchdog(&sp, at(100 + 5001, 10_000 + 501)), "both");
+        assert!(!sp.take_commands().enable);
+        let mut server = BoardLinkServer::with_host_clock(5000, 500);
+        assert!(server.watchdog(&sp, LinkClock::periods(5001)), "no host clock: time passed");
     }
 }

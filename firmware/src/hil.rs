@@ -6,6 +6,11 @@
 //! [`HilServer::watchdog_period`]. An answer goes into the queue whole or not at all (a
 //! full queue drops it and counts it): half an answer on the wire would cost the next
 //! one too.
+//!
+//! The link also counts the sequence numbers a frame skipped as silent periods
+//! (`LinkWatchdog::frame_after`): the host numbers its frames by control period, so an
+//! image with no timer (the QEMU one, whose clock must not be the host's) still trips on a
+//! silence, measured in the host's periods rather than in anybody's wall clock.
 
 use crate::queue::Producer;
 use dcfo::drive::Drive;
@@ -185,5 +190,29 @@ mod tests {
             (0..dcfo::link::SILENT_LINK_PERIODS).map(|_| usize::from(s.watchdog_period())).sum();
         assert_eq!(trips, 1);
         assert_eq!(s.drive().state(), DriveState::Fault);
+    }
+
+    /// A frame that skips 10 sequence numbers (the host sent none for 10 periods) trips
+    /// an active drive before it steps, and that frame's answer reports it; frames that
+    /// follow each other never trip it, however long the host takes between them.
+    #[test]
+    fn a_frame_after_ten_silent_periods_is_answered_with_the_trip() {
+        let mut s = server();
+        let mut q: Queue<u8, 256> = Queue::new();
+        let (mut tx, mut rx) = q.split();
+        for seq in 0..20u16 {
+            for b in frame(seq) {
+                s.on_byte(b, &mut tx);
+            }
+            let got = answers(&mut rx);
+            assert_ne!(got[0].state(), DriveState::Fault, "frame {seq}");
+        }
+        for b in frame(20 + dcfo::link::SILENT_LINK_PERIODS) {
+            s.on_byte(b, &mut tx);
+        }
+        let got = answers(&mut rx);
+        assert_eq!(got.len(), 1);
+        assert_eq!(got[0].state(), DriveState::Fault);
+        assert!(got[0].faults().contains(dcfo::drive::Faults::EXTERNAL));
     }
 }

@@ -17,7 +17,7 @@
 //!  thread                                         control interrupt
 //!  ------                                         -----------------
 //!  BoardLinkState::on_byte -> answer bytes         BoardLinkState::period(drive on board)
-//!  BoardLinkState::periods (watchdog clock)          ControlLoop::period, Capture::record,
+//!  BoardLinkState::periods (a watchdog clock)        ControlLoop::period, Capture::record,
 //!                                                    DriveStatus::update
 //! ```
 //!
@@ -39,11 +39,16 @@ use dcfo::link::board::{BoardTelemetry, CaptureChunk};
 use dcfo::link::encode;
 
 use crate::board::{PhaseSensors, PowerStage};
-use crate::board_link::{BoardAnswer, BoardLinkServer, DriveStatus, answer};
+use crate::board_link::{BoardAnswer, BoardLinkServer, DriveStatus, LinkClock, answer};
 use crate::control::{ControlLoop, Setpoints};
 
 /// State that an interrupt owns: empty until `main` [`install`]s it, then borrowed only
 /// in critical sections that never nest.
+///
+/// For a large state, install a `&'static mut` to it (from `cortex_m::singleton!`, which
+/// keeps it in `.bss`): an empty `Slot` of a reference is all zeros and lives in `.bss`
+/// too, where `Option<T>` of a state with a niche (a `bool`, an enum) is not all zeros,
+/// and the whole state would be copied from flash into `.data` at reset.
 pub type Slot<T> = Mutex<RefCell<Option<T>>>;
 
 /// An empty [`Slot`], for a `static` (const).
@@ -88,28 +93,31 @@ pub struct DriveOnBoard<T, B> {
     pub board: B,
 }
 
+/// The capture of a drive image's board link (`N` samples), behind a critical section:
+/// a `static` of its own ([`capture_cell`]). An empty capture is all zero bytes, so the
+/// static starts in `.bss` (zeroed at reset) and costs no flash; inside
+/// [`BoardLinkState`], whose status is not all zeros, it would be copied from flash into
+/// `.data`.
+pub type CaptureCell<const N: usize> = Mutex<RefCell<Capture<N>>>;
+
+/// An empty [`CaptureCell`], for a `static` (const).
+pub const fn capture_cell<const N: usize>() -> CaptureCell<N> {
+    Mutex::new(RefCell::new(Capture::new()))
+}
+
 /// What the control interrupt leaves for the board link, and the thread's side of that
-/// link: the capture (`N` samples) and the last step's status, each behind a critical
-/// section. Constant-initialised in place (a `static`): the capture never passes
-/// through the stack.
+/// link: the capture (`N` samples, a [`CaptureCell`] of its own) and the last step's
+/// status, each behind a critical section. Constant-initialised in place (a `static`):
+/// the capture never passes through the stack.
 pub struct BoardLinkState<const N: usize> {
-    capture: Mutex<RefCell<Capture<N>>>,
+    capture: &'static CaptureCell<N>,
     status: Mutex<RefCell<DriveStatus>>,
 }
 
-impl<const N: usize> Default for BoardLinkState<N> {
-    fn default() -> Self {
-        Self::new()
-    }
-}
-
 impl<const N: usize> BoardLinkState<N> {
-    /// An empty capture, a disabled drive's status.
-    pub const fn new() -> Self {
-        BoardLinkState {
-            capture: Mutex::new(RefCell::new(Capture::new())),
-            status: Mutex::new(RefCell::new(DriveStatus::new())),
-        }
+    /// The board link on `capture`, with a disabled drive's status.
+    pub const fn new(capture: &'static CaptureCell<N>) -> Self {
+        BoardLinkState { capture, status: Mutex::new(RefCell::new(DriveStatus::new())) }
     }
 
     /// One control period, from the control interrupt inside its critical section `cs`:
@@ -137,7 +145,7 @@ impl<const N: usize> BoardLinkState<N> {
     }
 
     /// Control periods run so far (the status's count; 0 if it could not be read): the
-    /// command watchdog's clock.
+    /// command watchdog's clock ([`LinkClock::periods`]).
     pub fn periods(&self) -> u32 {
         interrupt::free(|cs| self.status.borrow(cs).try_borrow().map(|s| s.periods).unwrap_or(0))
     }
@@ -147,16 +155,17 @@ impl<const N: usize> BoardLinkState<N> {
     /// (telemetry, or capture samples) is encoded into `wire` and returned for the
     /// caller to send. `None` while no command is complete, or should the capture or
     /// status be busy (the host then sees no answer and asks again). The critical
-    /// section copies at most one chunk of samples.
+    /// section copies at most one chunk of samples. `now` is the command watchdog's
+    /// clocks ([`BoardLinkServer::on_byte`]).
     pub fn on_byte<'w>(
         &self,
         server: &mut BoardLinkServer,
         byte: u8,
         setpoints: &Setpoints,
-        periods: u32,
+        now: LinkClock,
         wire: &'w mut [u8; CaptureChunk::WIRE_LEN],
     ) -> Option<&'w [u8]> {
-        let command = server.on_byte(byte, setpoints, periods)?;
+        let command = server.on_byte(byte, setpoints, now)?;
         let reply = interrupt::free(|cs| {
             match (self.capture.borrow(cs).try_borrow_mut(), self.status.borrow(cs).try_borrow()) {
                 (Ok(mut capture), Ok(status)) => Some(answer(&command, &mut capture, &status, setpoints)),

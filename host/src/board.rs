@@ -8,6 +8,13 @@
 //! sends one at least every [`POLL_PERIOD`]; the image disables the drive after 0.5 s
 //! without one, so a host that dies or hangs leaves the drive off.
 //!
+//! Where the host waits for the drive to do something (reach a state, a target, a speed)
+//! it waits on the drive's own time, the control periods its telemetry counts
+//! ([`DriveClock`]), not on the wall clock: on QEMU the drive's time follows the
+//! instructions executed (`crate::qemu`), so a loaded machine makes it slower, and a
+//! wall-clock limit would fail a drive that is only late. The wall clock only catches a
+//! drive whose periods stop coming ([`DRIVE_STALL_LIMIT`]).
+//!
 //! A downloaded capture ([`CaptureData`]: the drive's own words and their
 //! [`CaptureFormat`]) becomes a trace in the shared format (`t`, `u_alpha`, `u_beta`,
 //! `i_alpha`, `i_beta` and the commanded acceleration `alpha_e_ref`, see
@@ -33,7 +40,7 @@ use dcfo::motor::MotorParams;
 use dcfo::motor_image::{MotorAxis, MotorImage};
 use dcfo::observer::ObserverKind;
 
-use crate::qemu::{QemuSession, build_qemu_example};
+use crate::qemu::{GuestClock, QemuSession, build_qemu_example};
 use crate::replay::{replay_trace_as, working_base};
 use crate::sim::report::fault_names;
 use crate::trace::{COMMANDED_ACCEL_COLUMN, GroundTruth, InputTrace, InputTraceWriter, TraceRow};
@@ -48,6 +55,51 @@ pub const POLL_PERIOD: Duration = Duration::from_millis(50);
 pub const DOWNLOAD_SLICE_CHUNKS: u32 = 40;
 /// The control period of the drive images, s (10 kHz).
 pub const CONTROL_PERIOD_S: f64 = 1e-4;
+
+/// Wall-clock time without a new control period after which a wait on the drive's time
+/// gives up: the drive has stopped (a hung image, a halted board), it is not merely slow.
+pub const DRIVE_STALL_LIMIT: Duration = Duration::from_secs(20);
+
+/// The drive's own time as its telemetry reports it (control periods since a start), for
+/// waits that must not depend on how fast the target runs against the wall clock; it
+/// fails a wait only when no new period has come for [`DRIVE_STALL_LIMIT`].
+#[derive(Clone, Copy, Debug)]
+pub struct DriveClock {
+    start: u32,
+    last: u32,
+    last_progress: Instant,
+}
+
+impl DriveClock {
+    /// The drive's time from the periods of `t`.
+    pub fn start(t: &BoardTelemetry) -> Self {
+        DriveClock { start: t.periods, last: t.periods, last_progress: Instant::now() }
+    }
+
+    /// The drive's time since the start at telemetry `t`, s.
+    ///
+    /// # Errors
+    /// No new control period for [`DRIVE_STALL_LIMIT`] (what the drive was doing goes in
+    /// the message).
+    pub fn elapsed_s(&mut self, t: &BoardTelemetry) -> anyhow::Result<f64> {
+        if t.periods != self.last {
+            self.last = t.periods;
+            self.last_progress = Instant::now();
+        } else if self.last_progress.elapsed() > DRIVE_STALL_LIMIT {
+            bail!(
+                "the drive's control periods stopped: none for {} s (drive {:?}, faults {})",
+                DRIVE_STALL_LIMIT.as_secs(),
+                t.state(),
+                fault_names(t.faults())
+            );
+        }
+        Ok(f64::from(t.periods.wrapping_sub(self.start)) * CONTROL_PERIOD_S)
+    }
+}
+
+/// How long the drive has to report itself disabled after the command (its own time,
+/// s): a few control periods are needed; the rest is margin.
+pub const DISABLE_WITHIN_S: f64 = 2.0;
 
 /// Set by Ctrl-C (SIGINT, SIGTERM) once [`catch_interrupt`] has installed the handler.
 static INTERRUPTED: AtomicBool = AtomicBool::new(false);
@@ -316,22 +368,28 @@ impl<W: Write> Board<W> {
         Ok(())
     }
 
-    /// Disables the drive and waits (at most 2 s) until it reports so.
+    /// Disables the drive and waits until it reports so, at most [`DISABLE_WITHIN_S`] of
+    /// its own time.
     ///
     /// # Errors
-    /// The link failed, or the drive still runs after 2 s.
+    /// The link failed, the drive still runs [`DISABLE_WITHIN_S`] after the command, or its
+    /// periods stopped ([`DriveClock`]).
     pub fn disable(&mut self) -> anyhow::Result<BoardTelemetry> {
         self.wish.enable = false;
-        let deadline = Instant::now() + Duration::from_secs(2);
+        let mut t = self.poll(false, false)?;
+        let mut clock = DriveClock::start(&t);
         loop {
-            let t = self.poll(false, false)?;
             if matches!(t.state(), DriveState::Disabled | DriveState::Fault) && !t.bridge_enabled {
                 return Ok(t);
             }
-            if Instant::now() > deadline {
-                bail!("the drive still reports {:?} 2 s after the disable command", t.state());
+            if clock.elapsed_s(&t)? > DISABLE_WITHIN_S {
+                bail!(
+                    "the drive still reports {:?} {DISABLE_WITHIN_S} s (its time) after the disable command",
+                    t.state()
+                );
             }
             std::thread::sleep(Duration::from_millis(10));
+            t = self.poll(false, false)?;
         }
     }
 }
@@ -576,8 +634,9 @@ pub struct MoveDemoReport {
 
 /// `dcfo board --demo --move-to`: connect to a positioning drive image, enable at rest,
 /// queue the move, poll until the reference is at rest at the target and x̂ has settled
-/// within [`move_tolerance_m`] of it (or `timeout`), then send a move outside any
-/// stroke (1 km) and check the image reports it refused, and disable.
+/// within [`move_tolerance_m`] of it (or `timeout` of the drive's own time,
+/// [`DriveClock`]), then send a move outside any stroke (1 km) and check the image
+/// reports it refused, and disable.
 ///
 /// # Errors
 /// The link failed, the image reports no position (a speed drive), the drive tripped.
@@ -591,7 +650,7 @@ pub fn run_move_demo(
     let motor = image.map_or_else(qemu_drive_motor, |i| i.motor);
     let tolerance_m = move_tolerance_m(&motor);
     with_board(target, image, |board| {
-        let first = board.poll(false, false)?;
+        let first = first_period(board)?;
         let Some(p0) = first.position else {
             let _ = board.disable();
             bail!(
@@ -605,7 +664,7 @@ pub fn run_move_demo(
         let mut t = board.poll(true, false)?;
         let enabled_at = t.periods;
         let mut best = t.state();
-        let deadline = Instant::now() + timeout;
+        let mut clock = DriveClock::start(&t);
         let mut reached_at = None;
         let mut settled = 0;
         loop {
@@ -632,7 +691,7 @@ pub fn run_move_demo(
                 settled = 0;
                 reached_at = None;
             }
-            if Instant::now() > deadline {
+            if clock.elapsed_s(&t)? > timeout.as_secs_f64() {
                 break;
             }
             std::thread::sleep(POLL_PERIOD);
@@ -670,6 +729,23 @@ pub fn run_move_demo(
             wall_s: started.elapsed().as_secs_f64(),
         })
     })
+}
+
+/// The first telemetry that follows a control period of the drive: the image may answer
+/// before its control interrupt has run once (a host that connects at boot), and until
+/// then its status is the power-on one (no position report even for a positioning drive).
+///
+/// # Errors
+/// The link failed, or the drive's periods do not start ([`DriveClock`]).
+fn first_period(board: &mut dyn BoardOps) -> anyhow::Result<BoardTelemetry> {
+    let mut t = board.poll(false, false)?;
+    let mut clock = DriveClock::start(&t);
+    while t.periods == 0 {
+        clock.elapsed_s(&t)?;
+        std::thread::sleep(Duration::from_millis(10));
+        t = board.poll(false, false)?;
+    }
+    Ok(t)
 }
 
 /// What `dcfo board --demo` did (its JSON line).
@@ -735,7 +811,10 @@ fn with_board<T>(
                 None => build_qemu_example(workspace, *cpu, "qemu_drive")?,
             };
             let cmdline = image.map(qemu_image_cmdline);
-            let (_session, stdin, stdout) = QemuSession::spawn_with_cmdline(&elf, *cpu, cmdline.as_deref())?;
+            // The drive image's SysTick paces its control periods: its clock counts
+            // instructions.
+            let (_session, stdin, stdout) =
+                QemuSession::spawn_with_cmdline(&elf, *cpu, GuestClock::Instructions, cmdline.as_deref())?;
             let mut board = Board::new(BoardLink::new(stdin, stdout));
             f(&mut board)
         }
@@ -809,7 +888,8 @@ fn speed_settle_periods(image: Option<&MotorImage>, speed: f32) -> u32 {
 /// disable. `record`: also write the capture as a trace there.
 ///
 /// # Errors
-/// The link failed, or the capture did not finish within `timeout`.
+/// The link failed, or the capture did not finish within `timeout` of the drive's own
+/// time ([`DriveClock`]).
 pub fn run_demo(
     target: &Target,
     image: Option<&MotorImage>,
@@ -828,12 +908,12 @@ pub fn run_demo(
         *board.wish_mut() = Wish { enable: true, speed_m_per_s: speed };
         let mut t = board.poll(true, true)?;
         let mut best = t.state();
-        let deadline = Instant::now() + timeout;
+        let mut clock = DriveClock::start(&t);
         while !(t.capture == CaptureState::Done && t.state() == DriveState::Running) {
-            if Instant::now() > deadline {
+            if clock.elapsed_s(&t)? > timeout.as_secs_f64() {
                 let _ = board.disable();
                 bail!(
-                    "no finished capture with the drive running within {} s: drive {:?} (faults {}), capture {:?} with {} samples",
+                    "no finished capture with the drive running within {} s of its time: drive {:?} (faults {}), capture {:?} with {} samples",
                     timeout.as_secs(),
                     t.state(),
                     fault_names(t.faults()),
@@ -871,7 +951,7 @@ pub fn run_demo(
         let settle_periods = speed_settle_periods(image, speed);
         let running_seen = t.periods;
         while t.periods.wrapping_sub(running_seen) < settle_periods {
-            if t.state() != DriveState::Running || Instant::now() > deadline {
+            if t.state() != DriveState::Running || clock.elapsed_s(&t)? > timeout.as_secs_f64() {
                 let _ = board.disable();
                 bail!(
                     "the drive left Running (or the time ran out) while settling at the speed: drive {:?} (faults {})",

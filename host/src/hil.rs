@@ -18,7 +18,7 @@ use std::io::{Read, Write};
 use std::path::{Path, PathBuf};
 
 pub use crate::qemu::{
-    MPS2_RAM_ORIGIN, QemuCpu, QemuSession, STACK_GUARD_BYTES, STACK_PAINT, STACK_SCAN_BYTES,
+    GuestClock, MPS2_RAM_ORIGIN, QemuCpu, QemuSession, STACK_GUARD_BYTES, STACK_PAINT, STACK_SCAN_BYTES,
     build_qemu_example, qemu_example_elf,
 };
 use std::process::ChildStdin;
@@ -245,9 +245,11 @@ impl<W: Write> Controller for SerialController<W> {
 
 impl QemuSession {
     /// Starts `qemu-system-arm` on `cpu`'s board with the HIL firmware `elf`; returns the
-    /// session and a lock-step controller talking to its UART0.
+    /// session and a lock-step controller talking to its UART0. The image has no timer
+    /// (it steps per frame; its watchdog counts the sequence numbers the host skips):
+    /// [`GuestClock::Untimed`].
     pub fn start(elf: &Path, cpu: QemuCpu) -> Result<(QemuSession, SerialController<ChildStdin>), SimError> {
-        let (session, stdin, stdout) = QemuSession::spawn(elf, cpu)?;
+        let (session, stdin, stdout) = QemuSession::spawn(elf, cpu, GuestClock::Untimed)?;
         Ok((session, SerialController::new(stdin, stdout)))
     }
 
@@ -258,7 +260,8 @@ impl QemuSession {
         cpu: QemuCpu,
         cmdline: &str,
     ) -> Result<(QemuSession, SerialController<ChildStdin>), SimError> {
-        let (session, stdin, stdout) = QemuSession::spawn_with_cmdline(elf, cpu, Some(cmdline))?;
+        let (session, stdin, stdout) =
+            QemuSession::spawn_with_cmdline(elf, cpu, GuestClock::Untimed, Some(cmdline))?;
         Ok((session, SerialController::new(stdin, stdout)))
     }
 }

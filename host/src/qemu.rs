@@ -9,6 +9,37 @@
 //! QEMU 7.2+: `-display none -monitor none -serial stdio` (a display or a monitor on
 //! stdio would take the UART's place); the CMSDK UART model moves about 500 to 1,400
 //! lock-step round trips a second.
+//!
+//! **Time.** No image's behaviour may follow the host's clock, which on a loaded machine
+//! is not the image's to count on. Each session says what the guest's clock follows
+//! ([`GuestClock`]):
+//!
+//! - The drive image (`qemu_drive`), whose SysTick paces its control periods, runs with
+//!   [`ICOUNT`], `-icount shift=0,sleep=off`: the guest's clock is its count of executed
+//!   instructions, one nanosecond each, and an idle core (`WFI`) jumps straight to its next
+//!   timer deadline. Without it QEMU's virtual clock follows the host's: on a loaded machine
+//!   the 10 kHz control interrupt keeps the wall clock's pace while QEMU gets less CPU, the
+//!   thread between interrupts starves, and a command can take longer to cross than the
+//!   command watchdog allows (the drive is then disabled and restarted mid-move). With it,
+//!   what the guest does per period is fixed by its instructions: a loaded host makes it
+//!   slower, never different. `shift=0` gives a period of 100,000 instructions, several
+//!   times the heaviest control step (the Cortex-M3's soft-float virtual motor); `sleep=off`
+//!   makes idle time free, so the image runs as fast as QEMU executes it.
+//! - The lock-step HIL image (`qemu_hil`) and the stack-guard image have no timer: the HIL
+//!   image steps once per frame from the host, and its link watchdog counts the periods the
+//!   host's sequence numbers skip. Nothing in them reads a clock, and they run on QEMU's
+//!   default. Under `-icount` every device access ends a translation block, and the
+//!   lock-step exchange is nearly all UART accesses: it would cost QEMU about half again
+//!   the CPU for nothing.
+//!
+//! The watchdogs so measure a silent host in what the host paces: the lock-step image in
+//! the host's simulated periods, the drive image in its own periods *and* the host's
+//! milliseconds (read through semihosting, `dcfo_firmware::board::mps2::HostClock`), so
+//! that neither a host slower than QEMU nor a machine that stalls both looks like a
+//! silence. The host side waits for the drive's own time where it waits for the drive
+//! (`crate::board`: deadlines in control periods of the telemetry, wall-clock limits only
+//! against a hang). The instruction counts of `bench_qemu` come from QEMU's exec log, not
+//! from its clock: its command line ([`qemu_command`]) has no `-icount`.
 
 use crate::sim::{Controller, SimError};
 use std::io::Write;
@@ -156,6 +187,21 @@ pub fn build_qemu_example(workspace: &Path, cpu: QemuCpu, example: &str) -> Resu
     Ok(qemu_example_elf(workspace, cpu, example))
 }
 
+/// QEMU's options that make the guest's clock count its instructions (see the module
+/// docs): one instruction per nanosecond, idle time skipped.
+pub const ICOUNT: [&str; 2] = ["-icount", "shift=0,sleep=off"];
+
+/// What the guest's clock follows in a session (see the module docs).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum GuestClock {
+    /// The instructions the guest executes ([`ICOUNT`]): for an image whose timers pace
+    /// its work (the drive image's control periods).
+    Instructions,
+    /// QEMU's default, which follows the host's clock: only for an image that has no timer
+    /// and reads no clock (the lock-step HIL image, the stack-guard image).
+    Untimed,
+}
+
 /// QEMU running the firmware, its UART0 on QEMU's standard input and output, its
 /// monitor (QMP) on a socket for reading the target's memory.
 pub struct QemuSession {
@@ -177,9 +223,14 @@ pub const STACK_SCAN_BYTES: u32 = 64 * 1024;
 
 impl QemuSession {
     /// Starts `qemu-system-arm` on `cpu`'s board with `elf` (`-display none -monitor none
-    /// -serial stdio`: UART0 on the returned pipes); returns the session and the pipes.
-    pub fn spawn(elf: &Path, cpu: QemuCpu) -> Result<(QemuSession, ChildStdin, ChildStdout), SimError> {
-        Self::spawn_with_cmdline(elf, cpu, None)
+    /// -serial stdio`: UART0 on the returned pipes), the guest's clock following `clock`;
+    /// returns the session and the pipes.
+    pub fn spawn(
+        elf: &Path,
+        cpu: QemuCpu,
+        clock: GuestClock,
+    ) -> Result<(QemuSession, ChildStdin, ChildStdout), SimError> {
+        Self::spawn_with_cmdline(elf, cpu, clock, None)
     }
 
     /// [`QemuSession::spawn`], passing `cmdline` to the image (QEMU's `-append`: the
@@ -187,12 +238,16 @@ impl QemuSession {
     pub fn spawn_with_cmdline(
         elf: &Path,
         cpu: QemuCpu,
+        clock: GuestClock,
         cmdline: Option<&str>,
     ) -> Result<(QemuSession, ChildStdin, ChildStdout), SimError> {
         let dir =
             tempfile::tempdir().map_err(|e| SimError::Controller(format!("temporary directory: {e}")))?;
         let qmp_socket = dir.path().join("qmp.sock");
         let mut command = qemu_command(elf, cpu, &qmp_socket);
+        if clock == GuestClock::Instructions {
+            command.args(ICOUNT);
+        }
         if let Some(line) = cmdline {
             command.arg("-append").arg(line);
         }

@@ -23,13 +23,15 @@ use dcfo::observer::ObserverKind;
 use dcfo::svpwm::svpwm;
 use dcfo::transforms::{Abc, AlphaBeta};
 use dcfo::virtual_motor::{VirtualAxis, VirtualMotor};
-use dcfo_host::board::{Board, BoardLink, CaptureData, capture_trace, replay_matches, write_capture_trace};
+use dcfo_host::board::{
+    Board, BoardLink, CaptureData, DriveClock, capture_trace, replay_matches, write_capture_trace,
+};
 use dcfo_host::plant::{Plant, SimParams};
-use dcfo_host::qemu::{QemuCpu, QemuSession, build_qemu_example};
+use dcfo_host::qemu::{GuestClock, QemuCpu, QemuSession, build_qemu_example};
 use dcfo_host::replay::working_base;
 use dcfo_host::trace::InputTrace;
 use std::process::Command;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 mod common;
 
@@ -254,43 +256,59 @@ fn board_demo_on_qemu_m3_runs_captures_and_replays_identically() {
     board_demo_runs_captures_and_replays_identically(QemuCpu::M3, "m3", "q24");
 }
 
-/// The image's command watchdog: a running drive whose host goes silent for 1 s is
-/// disabled (bridge off); commands again enable it.
+/// The image's command watchdog: a running drive whose host goes silent is disabled
+/// (bridge off) once the silence has lasted 5,000 of the drive's periods and 500 ms of
+/// the host's time, and not before; commands again enable it. The drive's periods run as
+/// fast as QEMU executes them, so the test paces its silence by them: it doubles the
+/// silence until the drive has run past the limit in it, checking at each step that the
+/// drive kept running while it had not.
 #[test]
 fn a_silent_host_disables_the_drive_image() {
     let cpu = QemuCpu::M4f;
     let Some(elf) = drive_image(cpu) else { return };
-    let (_session, stdin, stdout) = QemuSession::spawn(&elf, cpu).expect("qemu starts");
+    let (_session, stdin, stdout) =
+        QemuSession::spawn(&elf, cpu, GuestClock::Instructions).expect("qemu starts");
     let mut board = Board::new(BoardLink::new(stdin, stdout));
     board.wish.enable = true;
     board.wish.speed_m_per_s = 0.3;
-    let start = Instant::now();
     let mut t = board.poll(false, false).expect("telemetry");
-    while !t.bridge_enabled && start.elapsed() < Duration::from_secs(20) {
+    // The current calibration takes 0.1 s of the drive's time; 2 s is the limit.
+    let mut clock = DriveClock::start(&t);
+    while !t.bridge_enabled && clock.elapsed_s(&t).expect("the drive runs") < 2.0 {
         std::thread::sleep(Duration::from_millis(50));
         t = board.poll(false, false).expect("telemetry");
     }
     assert!(t.bridge_enabled, "the drive switched its bridge on: {t:?}");
-    let before = t.periods;
-    // The watchdog counts the image's own periods (0.5 s of drive time); QEMU's speed
-    // depends on the host's load (29,445 periods in 3 s measured beside a build; under
-    // 5,000 in 1 s once, with this file's other QEMU tests running in parallel), so the
-    // silence lasts three times the watchdog at full speed.
-    std::thread::sleep(Duration::from_millis(3000));
-    // The command that ends the silence wishes it enabled: its answer shows what the
-    // watchdog did before it (the image answers right after applying the command; at
-    // most one control period can run in between, which takes a disabled drive to
-    // `Calibrating`, bridge still off).
-    let t = board.poll(false, false).expect("telemetry");
-    println!(
-        "after 3 s of silence ({} periods): {:?}, bridge {}",
-        t.periods - before,
-        t.state(),
-        t.bridge_enabled
-    );
-    assert!(t.periods - before > 5000, "the image ran on meanwhile");
-    assert!(matches!(t.state(), DriveState::Disabled | DriveState::Calibrating), "{:?}", t.state());
-    assert!(!t.bridge_enabled);
+    // The watchdog looks once a period, right after any command: a margin of 100 periods
+    // around the limit either way.
+    const LIMIT: u32 = 5000;
+    const MARGIN: u32 = 100;
+    let mut silence = Duration::from_millis(1000);
+    loop {
+        let before = t.periods;
+        std::thread::sleep(silence);
+        // The command that ends the silence wishes it enabled: its answer shows what the
+        // watchdog did before it (the image answers right after applying the command; at
+        // most one control period can run in between, which takes a disabled drive to
+        // `Calibrating`, bridge still off).
+        t = board.poll(false, false).expect("telemetry");
+        let ran = t.periods.wrapping_sub(before);
+        println!(
+            "after {silence:?} of silence ({ran} periods): {:?}, bridge {}",
+            t.state(),
+            t.bridge_enabled
+        );
+        if ran > LIMIT + MARGIN {
+            assert!(matches!(t.state(), DriveState::Disabled | DriveState::Calibrating), "{:?}", t.state());
+            assert!(!t.bridge_enabled);
+            break;
+        }
+        if ran + MARGIN < LIMIT {
+            assert!(t.bridge_enabled, "disabled after {ran} periods of silence: {t:?}");
+        }
+        assert!(silence < Duration::from_secs(64), "the drive ran {ran} periods in {silence:?}");
+        silence *= 2;
+    }
     let t = board.disable().expect("disabled");
     assert_eq!(t.state(), DriveState::Disabled);
 }

@@ -26,14 +26,15 @@ fn healthy(f: &Figures) {
     assert!(f.healthy, "the drive must reach sensorless operation and end without a fault");
 }
 
+/// Every run reaches sensorless operation without a fault. (How fast the simulation
+/// runs is a figure `dcfo paper` prints, not a test: it follows the machine's load.)
 #[test]
-fn every_run_is_healthy_and_runs_faster_than_real_time() {
+fn every_run_is_healthy() {
     for s in &report().scenarios {
         healthy(&s.cfo);
         healthy(&s.dcfo);
     }
-    println!("real-time factor {:.1}", report().real_time_factor);
-    assert!(report().real_time_factor > 1.0);
+    println!("real-time factor {:.1} (this machine, now)", report().real_time_factor);
 }
 
 #[test]

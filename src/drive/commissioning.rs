@@ -82,6 +82,7 @@
 
 use super::DeadTimeCompensation;
 use crate::motor::MotorParams;
+use crate::num::sin_cos;
 
 /// Crossover of the integral current controllers of the DC tests, rad/s (slow enough for
 /// any electrical time constant up to 6 ms whatever the rough resistance's error).
@@ -676,7 +677,7 @@ impl Commissioning {
         self.dc_loops(i_alpha, i_beta);
         let k = (self.n - 1) % HF_PERIODS;
         let phase = 2.0 * core::f32::consts::PI * k as f32 / HF_PERIODS as f32;
-        let (s, c) = (libm::sinf(phase), libm::cosf(phase));
+        let (s, c) = sin_cos(phase);
         let i_axis = if q_axis { i_beta } else { i_alpha };
         // The command this step returns (applied over the period after next).
         let u_h = self.hf_amp_v * c;
@@ -731,10 +732,11 @@ impl Commissioning {
     /// L from the demodulated phasors (module docs).
     fn inductance(&self) -> Result<f32, CommissioningError> {
         let w_ts = 2.0 * core::f32::consts::PI / HF_PERIODS as f32;
-        let z = C(libm::cosf(w_ts), libm::sinf(w_ts));
+        let (sin_w, cos_w) = sin_cos(w_ts);
+        let z = C(cos_w, sin_w);
         // U / (I z) = (z - a) / b.
         let zp = self.dft_u.div(self.dft_i.mul(z));
-        let b = libm::sinf(w_ts) / zp.1;
+        let b = sin_w / zp.1;
         let x = 1.0 - b * self.rs;
         if !(b.is_finite() && b > 0.0 && x > 0.0 && x < 1.0) {
             return Err(CommissioningError::NotAMotor);
@@ -777,7 +779,7 @@ impl Commissioning {
         } else {
             w_if * (stop.saturating_sub(n)) as f32 / accel.max(1) as f32
         };
-        let (s, c) = (libm::sinf(self.theta), libm::cosf(self.theta));
+        let (s, c) = sin_cos(self.theta);
         let i_d = c * i_alpha + s * i_beta;
         let i_q = -s * i_alpha + c * i_beta;
         // Current loops in the open-loop frame, on the identified R and L.
@@ -843,7 +845,7 @@ impl Commissioning {
         // Apply at the middle of the application window, 1.5 periods ahead, with the
         // identified inverter compensation from the current reference.
         let th = self.theta + 1.5 * self.omega * self.ts;
-        let (sa, ca) = (libm::sinf(th), libm::cosf(th));
+        let (sa, ca) = sin_cos(th);
         let u_alpha = ca * u_d - sa * u_q;
         let u_beta = sa * u_d + ca * u_q;
         let (ia, ib) = (ca * i_ref, sa * i_ref);

@@ -80,7 +80,7 @@ use super::{Drive, DriveState};
 use crate::estimator::Estimate;
 use crate::hfi::Hfi;
 use crate::motion::{MotionError, Move, Profile, Setpoint};
-use crate::num::{Angle, Scalar};
+use crate::num::{Angle, Scalar, asin, sin_cos};
 use crate::transforms::{AlphaBeta, Dq};
 
 /// Capacity of the drive's move queue.
@@ -195,8 +195,10 @@ impl<T: Scalar> Drive<T> {
     /// the pole position the mover aligned to on enable (see the module docs).
     pub fn position_m(&self) -> f32 {
         let counts = self.position_counts;
-        let turns = (counts >> 32) as f32;
-        let frac = (counts & 0xFFFF_FFFF) as f32 * (1.0 / 4_294_967_296.0);
+        // Through 32-bit integers (the same values): an i64 to f32 conversion is a library
+        // call on Cortex-M.
+        let turns = ((counts >> 32) as i32) as f32;
+        let frac = (counts as u32) as f32 * (1.0 / 4_294_967_296.0);
         (turns + frac) * self.k.metres_per_turn
     }
 
@@ -289,7 +291,7 @@ impl<T: Scalar> Drive<T> {
         // the vector and stick): no load angle.
         let direction = if sp.speed_m_per_s == 0.0 { 0.0 } else { sp.speed_m_per_s.signum() };
         let force_n = sp.accel_m_per_s2 * p.mass_kg + direction * p.load_force_n;
-        let load_angle = libm::asinf((force_n / (p.thrust_n_per_a * amplitude_a.max(1e-3))).clamp(-1.0, 1.0));
+        let load_angle = asin((force_n / (p.thrust_n_per_a * amplitude_a.max(1e-3))).clamp(-1.0, 1.0));
         let vector = T::atan2(i_ref.q, i_ref.d);
         // The mover answers a change of the vector or of the force with the spring's
         // dynamics, not at once: the expected offset from the frame is filtered at the
@@ -317,9 +319,8 @@ impl<T: Scalar> Drive<T> {
             let t = p.rest_time_s;
             let dither = if at_rest && t * p.dither_decay_per_s < 7.0 {
                 let ratio = p.load_force_n.abs() / (p.thrust_n_per_a * amplitude_a.max(1e-3));
-                let amp =
-                    (2.0 * libm::asinf(ratio.min(1.0))).min(0.2) * libm::expf(-t * p.dither_decay_per_s);
-                amp * libm::sinf(p.dither_rad_s * t)
+                let amp = (2.0 * asin(ratio.min(1.0))).min(0.2) * libm::expf(-t * p.dither_decay_per_s);
+                amp * sin_cos(p.dither_rad_s * t).0
             } else {
                 0.0
             };

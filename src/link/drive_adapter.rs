@@ -301,7 +301,15 @@ impl LinkServer {
                 return None;
             }
         };
-        self.watchdog.period(true);
+        // Sequence numbers the host skipped were periods without a frame reaching the
+        // drive: a silent link of that many periods, tripped before the step as the
+        // periodic tick would have tripped it during the silence. (An image without a
+        // timer, the lock-step one on QEMU, has only this measure of a silence.)
+        if self.watchdog.frame_after(skipped)
+            && !matches!(drive.state(), DriveState::Disabled | DriveState::Fault)
+        {
+            drive.trip(Faults::EXTERNAL);
+        }
         if frame.apply_commands(drive).is_err() {
             self.moves_rejected = self.moves_rejected.wrapping_add(1);
         }
@@ -458,6 +466,51 @@ mod tests {
         let a = exchange(&mut server, &mut speed, &frame(0, Some(mv)));
         assert_eq!(a.position, None);
         assert_eq!(server.moves_rejected(), 1);
+    }
+
+    /// A lock-step host numbers its frames by control period: a frame that skips 10
+    /// numbers ends a silence of 10 periods, and an active drive trips (EXTERNAL, bridge
+    /// off) before stepping on it, as a periodic tick would have tripped it; a gap of 9
+    /// (lost frames) does not; a disabled drive is left alone; a tick and a skipped number
+    /// stand for the same period, so the two do not add up.
+    #[test]
+    fn a_frame_that_skips_the_silent_link_limit_trips_an_active_drive_first() {
+        let m = MotorParams::paper();
+        let config = DriveConfig::paper_axis(crate::observer::ObserverKind::Dcfo);
+        let frame = |k: u16, enable| SensorFrame {
+            sequence: k,
+            i_a: 0.0,
+            i_b: 0.0,
+            i_c: 0.0,
+            vdc: PAPER_AXIS_BUS_V,
+            speed_ref: 0.3,
+            enable,
+            clear_faults: false,
+            move_to: None,
+        };
+        let limit = super::super::SILENT_LINK_PERIODS;
+        let mut drive = Drive::<f32>::new(&m, &config, &Base::SI).expect("drive");
+        let mut server = LinkServer::new();
+        assert_eq!(exchange(&mut server, &mut drive, &frame(0, true)).state(), DriveState::Calibrating);
+        // Nine numbers skipped: lost frames, not a silent link.
+        let a = exchange(&mut server, &mut drive, &frame(limit, true));
+        assert_eq!((a.state(), a.faults()), (DriveState::Calibrating, Faults::NONE));
+        // Five ticks, then a frame five numbers on: five silent periods, not ten.
+        for _ in 0..5 {
+            assert!(!server.silent_period(&mut drive));
+        }
+        let a = exchange(&mut server, &mut drive, &frame(limit + 6, true));
+        assert_eq!(a.faults(), Faults::NONE);
+        // Ten skipped: tripped before the step, which reports it.
+        let a = exchange(&mut server, &mut drive, &frame(2 * limit + 7, true));
+        assert_eq!(a.state(), DriveState::Fault);
+        assert!(a.faults().contains(Faults::EXTERNAL) && !a.bridge_enabled);
+        // A disabled drive: a long gap changes nothing.
+        let mut drive = Drive::<f32>::new(&m, &config, &Base::SI).expect("drive");
+        let mut server = LinkServer::new();
+        exchange(&mut server, &mut drive, &frame(0, false));
+        let a = exchange(&mut server, &mut drive, &frame(1000, false));
+        assert_eq!((a.state(), a.faults()), (DriveState::Disabled, Faults::NONE));
     }
 
     #[test]

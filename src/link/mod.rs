@@ -148,6 +148,10 @@
 //! [`SILENT_LINK_PERIODS`] = 10 periods (1 ms at the 100 µs default period) the bridge
 //! must be turned off: trip the drive with [`Faults::EXTERNAL`](crate::drive::Faults::EXTERNAL) and
 //! [`reset`](SequenceTracker::reset) the tracker, so a restarted host is accepted again.
+//! The periods are counted by a periodic tick on the controller, and by the sequence
+//! numbers an in-order frame skipped ([`LinkWatchdog::frame_after`]): the host numbers
+//! its frames by period, so a gap of 10 is a silence of 10 periods in the host's own
+//! time, and the drive trips before it steps on that frame.
 //!
 //! ## Modules
 //! The protocol knows nothing of the drive: [`frame`] (constants, the [`Frame`] trait,

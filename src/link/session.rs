@@ -135,6 +135,20 @@ impl LinkWatchdog {
         self.tripped()
     }
 
+    /// An in-order frame arrives after `skipped` sequence numbers for which no frame was
+    /// accepted: those were control periods without one, in the host's own count. They are
+    /// taken with the periods a periodic tick counted since the last frame, the larger of
+    /// the two (a tick and a skipped number stand for the same period), and the frame then
+    /// restarts the count. Returns `true` when that silence reached the limit: the bridge
+    /// must be off before the frame is acted on. A host that numbers its frames by control
+    /// period, as the lock-step host does, so measures a silence in its own time, which no
+    /// wall clock on either side can stretch.
+    pub fn frame_after(&mut self, skipped: u16) -> bool {
+        let silent = self.silent.max(skipped);
+        self.silent = 0;
+        silent >= self.limit
+    }
+
     /// `true` when the last `limit` or more periods had no accepted frame.
     pub const fn tripped(&self) -> bool {
         self.silent >= self.limit

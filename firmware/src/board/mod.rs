@@ -10,12 +10,14 @@
 //! [`virtual_motor::VirtualBoard`] (all targets; the library's virtual motor in place of
 //! a power stage, for a drive image with no hardware) and, on Arm
 //! only, `mps2` (QEMU's MPS2 AN385/AN386 UART) and `b_g431b_esc1` (ST's drive board). The
-//! Arm modules are the only code in the firmware that touches registers.
+//! Arm modules are the only code in the firmware that touches registers; what the ESC1's
+//! set-up computes and decides is [`esc1_settings`] (all targets, tested on the host).
 //!
 //! A board whose start-up hands out its sensors and its power stage separately (as the
 //! ESC1's does) gives the control loop both as one [`Bridge`]. What a new board
 //! implements, with [`fake`] as the reference: `docs/new-board.md`.
 
+pub mod esc1_settings;
 pub mod fake;
 pub mod virtual_motor;
 

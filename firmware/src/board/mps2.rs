@@ -331,21 +331,41 @@ impl embedded_io::Write for UartTx {
 }
 
 /// An image that cannot run (an initialisation that cannot complete): `HALT: <why>` on
-/// UART0, then as [`stop`]. Nothing is switched on yet when `main` calls it.
+/// UART0, then as [`stop_with`]. Nothing is switched on yet when `main` calls it.
 pub fn halt(why: &str) -> ! {
-    stop(format_args!("HALT: {why}"))
+    stop_with(&["HALT: ", why])
 }
 
 /// Stops the image for good: masks every interrupt (the control step lives in one, so it
 /// never runs again: no answer goes out and the drive's bridge flag is never set again),
-/// prints `what` on UART0 and sleeps. For [`halt`], the HardFault and the panic handler
-/// ([`mps2_fault_handlers!`](crate::mps2_fault_handlers)).
+/// prints the pieces of `what` on UART0 as one line and sleeps. For [`halt`] and the
+/// HardFault ([`mps2_fault_handlers!`](crate::mps2_fault_handlers)). Pieces, not
+/// `format_args!`: formatting would link core::fmt (3 to 5 KB of flash) into every image.
+pub fn stop_with(what: &[&str]) -> ! {
+    let mut uart = stop_uart();
+    for part in [&["\r\n"], what, &["\r\n"]].into_iter().flatten() {
+        let _ = embedded_io::Write::write_all(&mut uart, part.as_bytes());
+    }
+    sleep_forever()
+}
+
+/// [`stop_with`] for a formatted message: the panic handler's (not linked while nothing
+/// can panic, `.ci/no-panic`).
 pub fn stop(what: core::fmt::Arguments<'_>) -> ! {
-    cortex_m::interrupt::disable();
-    // SAFETY: interrupts are off and this never returns, so no other user of UART0 runs
-    // again; a byte the thread was writing is at worst cut short.
-    let mut uart = unsafe { CmsdkUart::steal_uart0() };
+    let mut uart = stop_uart();
     let _ = embedded_io::Write::write_fmt(&mut uart, format_args!("\r\n{what}\r\n"));
+    sleep_forever()
+}
+
+/// Masks every interrupt and takes UART0 for a last message.
+fn stop_uart() -> CmsdkUart {
+    cortex_m::interrupt::disable();
+    // SAFETY: interrupts are off and the callers never return, so no other user of UART0
+    // runs again; a byte the thread was writing is at worst cut short.
+    unsafe { CmsdkUart::steal_uart0() }
+}
+
+fn sleep_forever() -> ! {
     loop {
         cortex_m::asm::wfi();
     }
@@ -381,6 +401,63 @@ pub fn semihosting_cmdline(buf: &mut [u8]) -> Option<&[u8]> {
     buf.get(..len)
 }
 
+/// The host's clock, read through ARM semihosting `SYS_ELAPSED` and `SYS_TICKFREQ` (QEMU: the
+/// host's monotonic clock in ns since QEMU started). On QEMU the drive image's own time
+/// follows the instructions it executes (`-icount`, `dcfo_host::qemu`), faster or slower than
+/// the host's; its command watchdog wants a silence in both clocks, and reads the host's
+/// here. One semihosting call per reading (a trap into QEMU, no guest instructions). Only
+/// for QEMU (a core without a debugger takes the breakpoint as a HardFault).
+#[derive(Clone, Copy, Debug)]
+pub struct HostClock {
+    ticks_per_ms: core::num::NonZeroU64,
+}
+
+impl HostClock {
+    /// The clock, `None` if the host does not give its tick rate (semihosting off, or a
+    /// rate under 1 kHz).
+    pub fn new() -> Option<Self> {
+        const SYS_TICKFREQ: usize = 0x31;
+        let hz: isize;
+        // SAFETY: a semihosting call (`bkpt 0xab`, operation in r0, r1 = 0: no parameter
+        // block), the tick rate or -1 in r0; nothing in memory is read or written.
+        unsafe {
+            core::arch::asm!(
+                "bkpt #0xab",
+                inout("r0") SYS_TICKFREQ => hz,
+                in("r1") 0usize,
+                options(nostack)
+            );
+        }
+        let hz = u64::try_from(hz).ok()?;
+        Some(HostClock { ticks_per_ms: core::num::NonZeroU64::new(hz / 1000)? })
+    }
+
+    /// Milliseconds since QEMU started (wrapping after 49 days), `None` if the call fails.
+    pub fn now_ms(&self) -> Option<u32> {
+        const SYS_ELAPSED: usize = 0x30;
+        // The parameter block: the 64-bit tick count, low word first (out).
+        let mut block: [u32; 2] = [0; 2];
+        let status: isize;
+        // SAFETY: a semihosting call (`bkpt 0xab`, operation in r0, the parameter block's
+        // address in r1, the status in r0). QEMU writes the two words of `block`, a live
+        // local that long; nothing else in memory is touched.
+        unsafe {
+            core::arch::asm!(
+                "bkpt #0xab",
+                inout("r0") SYS_ELAPSED => status,
+                in("r1") block.as_mut_ptr(),
+                options(nostack)
+            );
+        }
+        if status != 0 {
+            return None;
+        }
+        let ticks = u64::from(block[0]) | (u64::from(block[1]) << 32);
+        // Truncation to u32 is the wrap-around: the watchdogs subtract with wrapping.
+        Some((ticks / self.ticks_per_ms) as u32)
+    }
+}
+
 /// Ends the QEMU run through ARM semihosting `SYS_EXIT` (QEMU runs with
 /// `-semihosting-config enable=on`): QEMU exits with status 0 when `ok`, 1 otherwise. For
 /// the test images (`stack_guard`, `bench`); should no debugger or QEMU take the call, the
@@ -404,15 +481,15 @@ pub fn semihosting_exit(ok: bool) -> ! {
 /// image: `HardFault` (a stack overflow among others) on a fresh stack
 /// ([`crate::hard_fault_entry!`]) prints `HARDFAULT`, and the panic handler (not linked
 /// while nothing can panic, `.ci/no-panic`; kept so that a panic that creeps in still
-/// stops the control step first) prints `PANIC: <message>`; both through
-/// [`stop`](crate::board::mps2::stop). Expand once, at the image's top level; the
+/// stops the control step first) prints `PANIC: <message>`; through
+/// [`stop_with`](crate::board::mps2::stop_with) and [`stop`](crate::board::mps2::stop). Expand once, at the image's top level; the
 /// image's `DefaultHandler` is its own (it dispatches its interrupts).
 #[macro_export]
 macro_rules! mps2_fault_handlers {
     () => {
         /// HardFault (a stack overflow among others), on a fresh stack: stops the core.
         extern "C" fn on_hard_fault() -> ! {
-            $crate::board::mps2::stop(format_args!("HARDFAULT"))
+            $crate::board::mps2::stop_with(&["HARDFAULT"])
         }
 
         $crate::hard_fault_entry!(on_hard_fault);

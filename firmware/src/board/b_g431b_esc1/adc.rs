@@ -4,7 +4,7 @@
 
 use stm32g4::stm32g431 as pac;
 
-use super::clocks::SYSCLK_HZ;
+use crate::board::esc1_settings::{CURRENT_SENSE_GAIN, SHUNT_OHM, SYSCLK_HZ, VREF_V};
 use crate::board::{PhaseSample, PhaseSensors};
 
 /// ADC1 channel of the OPAMP1 output (VOPAMP1 = ADC1_IN13, internal; RM0440 ADC connectivity).
@@ -15,6 +15,12 @@ pub const ADC1_CH_VBUS: u8 = 1;
 pub const ADC2_CH_I_V: u8 = 16;
 /// ADC2 channel of the OPAMP3 output (VOPAMP3 = ADC2_IN18, internal on ADC2).
 pub const ADC2_CH_I_W: u8 = 18;
+/// ADC1 channel of OPAMP1's input VINP0 = COMP1's input (PA1 = ADC1_IN2; NuttX board.h).
+pub const ADC1_CH_SHUNT_INPUT_U: u8 = 2;
+/// ADC2 channel of OPAMP2's input VINP0 = COMP2's input (PA7 = ADC2_IN4; NuttX STM32G4 pin map).
+pub const ADC2_CH_SHUNT_INPUT_V: u8 = 4;
+/// ADC1 channel of OPAMP3's input VINP0 = COMP4's input (PB0 = ADC1_IN15; NuttX board.h).
+pub const ADC1_CH_SHUNT_INPUT_W: u8 = 15;
 
 /// Interrupt that signals "injected sequence of ADC1 finished" = the control interrupt.
 /// ADC1 and ADC2 share this vector (RM0440 vector table: `ADC1_2`, IRQ 18).
@@ -24,20 +30,6 @@ pub const CONTROL_IRQ: pac::Interrupt = pac::Interrupt::ADC1_2;
 // Analog front-end constants (board facts; sources in the board table above).
 // -------------------------------------------------------------------------------------------------
 
-/// Low-side shunt resistance (ohm), one per phase. MCSDK RSHUNT 0.003; NuttX board README /
-/// stm32_foc.c: 0.003; SimpleFOC ESC1 example `LowsideCurrentSense(0.003, ...)`.
-pub const SHUNT_OHM: f32 = 0.003;
-/// Internal PGA setting (V/V) for the non-inverting input: PGA_GAIN = 0b01011
-/// ("gain 16 / -15 with VINM0"). NuttX stm32_foc.c, SimpleFOC (`OPAMP_PGA_GAIN_16_OR_MINUS_15`).
-pub const PGA_GAIN: f32 = 16.0;
-/// Net transfer of phase current times shunt resistance to OPAMP output (V/V), including the
-/// board's input network (4/7) and the PGA (16): -64/7 = -9.142857, negative because with
-/// "positive into the motor" the current flows up through the low-side shunt and the amplified
-/// voltage falls below the bias. MCSDK AMPLIFICATION_GAIN 9.14; SimpleFOC ESC1 example
-/// `-64.0/7.0`; NuttX README "Current sense gain = -9.14 (inverted current)".
-pub const CURRENT_SENSE_GAIN: f32 = -64.0 / 7.0;
-/// ADC reference / full-scale voltage (V). VDDA = VREF+ = 3.3 V on the board (assumed, 3.3 V LDO).
-pub const VREF_V: f32 = 3.3;
 /// ADC full-scale code count for 12-bit conversions (counts).
 pub const ADC_FULL_SCALE_COUNTS: f32 = 4096.0;
 /// Nominal zero-current ADC code of each current channel (counts). Mid-scale placeholder:
@@ -179,6 +171,74 @@ fn adc_set_injected(adc: &pac::adc1::RegisterBlock, first: u8, second: u8) {
             w.jsq2().bits(second)
         }
     });
+}
+
+/// Sampling time of the shunt-input channels (code 4 = 47.5 cycles = 1.12 us): the network
+/// behind the op-amp inputs is about a kiloohm.
+const SMP_SHUNT_INPUT: u8 = 4;
+/// Polls of `ISR.EOC` before a regular conversion counts as lost (a conversion takes well
+/// under a microsecond; injected conversions may delay it by their own couple).
+const REGULAR_CONVERSION_SPINS: u32 = 100_000;
+
+/// One software-started regular conversion of `ch` (counts), `None` if it does not end.
+/// Injected conversions keep their priority (RM0440: a regular conversion is interrupted
+/// by an injected trigger and resumes after it).
+fn convert_regular(adc: &pac::adc1::RegisterBlock, ch: u8) -> Option<u16> {
+    adc.isr().write(|w| w.eoc().clear().eos().clear().ovr().clear());
+    // SAFETY: SQ1 is a 5-bit channel number; 2, 4 and 15 are existing ADC1/ADC2 channels.
+    adc.sqr1().write(|w| unsafe { w.l().set(0).sq(0).bits(ch) });
+    adc.cr().modify(|_, w| w.adstart().set_bit());
+    let mut spins = 0u32;
+    while adc.isr().read().eoc().bit_is_clear() {
+        spins += 1;
+        if spins > REGULAR_CONVERSION_SPINS {
+            return None;
+        }
+    }
+    Some(adc.dr().read().rdata().bits())
+}
+
+/// Conversions averaged per comparator input by [`measure_shunt_inputs_v`].
+const SHUNT_INPUT_CONVERSIONS: u16 = 16;
+
+/// The comparators' inputs (the op-amps' VINP0 pins) read by the ADCs, U, V, W (V),
+/// averaged over 16 conversions each: an independent reading of the node whose
+/// zero-current level the comparator sweep measured (for the start-up log and the first
+/// power-up checklist; the two differ by the comparator's and the converters' offsets).
+/// `None` if a conversion does not end.
+pub(super) fn measure_shunt_inputs_v(adc1: &pac::ADC1, adc2: &pac::ADC2) -> Option<[f32; 3]> {
+    adc_set_sampling(adc1, ADC1_CH_SHUNT_INPUT_U, SMP_SHUNT_INPUT);
+    adc_set_sampling(adc2, ADC2_CH_SHUNT_INPUT_V, SMP_SHUNT_INPUT);
+    adc_set_sampling(adc1, ADC1_CH_SHUNT_INPUT_W, SMP_SHUNT_INPUT);
+    let channels: [(&pac::adc1::RegisterBlock, u8); 3] =
+        [(adc1, ADC1_CH_SHUNT_INPUT_U), (adc2, ADC2_CH_SHUNT_INPUT_V), (adc1, ADC1_CH_SHUNT_INPUT_W)];
+    let mut volts = [0.0f32; 3];
+    for (v, (adc, ch)) in volts.iter_mut().zip(channels) {
+        let mut sum = 0u32;
+        for _ in 0..SHUNT_INPUT_CONVERSIONS {
+            sum += u32::from(convert_regular(adc, ch)?);
+        }
+        *v = sum as f32 / f32::from(SHUNT_INPUT_CONVERSIONS) * VREF_V / ADC_FULL_SCALE_COUNTS;
+    }
+    Some(volts)
+}
+
+/// Polls of ADC1's `ISR.JEOS` before the injected sequence counts as not triggered: several
+/// carrier periods.
+const INJECTED_END_SPINS: u32 = 2_000_000;
+
+/// Clears ADC1's injected end-of-sequence flag and waits for the next one (the control
+/// interrupt's event, which stays masked in the NVIC): `false` if none comes.
+pub(super) fn wait_injected_end(adc1: &pac::ADC1) -> bool {
+    adc1.isr().write(|w| w.jeos().clear().jeoc().clear());
+    let mut spins = 0u32;
+    while adc1.isr().read().jeos().bit_is_clear() {
+        spins += 1;
+        if spins > INJECTED_END_SPINS {
+            return false;
+        }
+    }
+    true
 }
 
 // =================================================================================================

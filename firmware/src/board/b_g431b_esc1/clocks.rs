@@ -4,12 +4,11 @@
 use stm32g4::stm32g431 as pac;
 
 use super::ClockSource;
+use crate::board::esc1_settings::SYSCLK_HZ;
 
 // Clock constants.
 // -------------------------------------------------------------------------------------------------
 
-/// System, AHB, APB1, APB2 and TIM1 kernel clock after [`init`](super::init) (Hz).
-pub const SYSCLK_HZ: u32 = 170_000_000;
 /// HSE frequency of [`ClockSource::Hse8MHz`] (Hz): UM2516 Table 4 lists "OSC 8 MHz" on
 /// PF0/PF1 and ST's MCSDK project for the board runs its PLL from an 8 MHz HSE (oscillator
 /// mode, not bypass). HSI16 stays the default: it needs nothing from the board.

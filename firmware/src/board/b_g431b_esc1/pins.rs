@@ -48,9 +48,10 @@ pub const PIN_VBUS: PinDef = pin(b'A', 0, 0);
 pub const PIN_UART_TX: PinDef = pin(b'B', 3, 7);
 /// USART2_RX from the ST-LINK virtual COM port (PB4, AF7).
 pub const PIN_UART_RX: PinDef = pin(b'B', 4, 7);
-/// User/status LED LD2 (PC6, push-pull output), active high: UM2516 Table 4 via the pinout
-/// extract ("PC6 STATUS LED"); a CubeMX project's notes for the board switch it on with the pin
-/// set. Its colour is given as green (NuttX) and as red (those notes): not verified.
+/// Status LED (PC6, push-pull output): UM2516 Table 4 via the pinout extract ("PC6 STATUS
+/// LED"); red ("D4 LED RED STATUS" in Zephyr's board file, `LED_RED` in ST's Arduino variant).
+/// Its polarity is a setting, [`Esc1Config::led_polarity`](super::Esc1Config::led_polarity):
+/// the sources disagree (see [`STATUS_LED_POLARITY`](super::STATUS_LED_POLARITY)).
 pub const PIN_LED: PinDef = pin(b'C', 6, 0);
 
 // =================================================================================================

@@ -5,16 +5,12 @@
 use stm32g4::stm32g431 as pac;
 
 use super::Esc1Config;
-use super::clocks::SYSCLK_HZ;
-use super::over_current::{over_current_dac_code, over_current_trip_clamped};
+use super::over_current::write_thresholds;
 use crate::board::PowerStage;
-
-/// Default PWM carrier frequency (Hz): 10 kHz, i.e. 100 us period.
-pub const DEFAULT_PWM_HZ: u32 = 10_000;
-/// Default dead time (ns). 800 ns = DTG 0x84 at 170 MHz: MCSDK's value for this board
-/// (power_stage_parameters.h HW_DEAD_TIME_NS 800), as the pat92fr ESC1 CubeMX project (DTG=128
-/// at 160 MHz); NuttX uses 500 ns.
-pub const DEFAULT_DEAD_TIME_NS: u32 = 800;
+use crate::board::esc1_settings::{
+    CarrierTimer, DeadTime, Esc1InitError, OverCurrentThresholds, SYSCLK_HZ, align_update_to_valley,
+    over_current_thresholds, pwm_arr,
+};
 
 // =================================================================================================
 // TIM1 PWM — RM0440 ch. 28 "Advanced-control timers (TIM1/TIM8/TIM20)": §28.3.3 repetition
@@ -28,7 +24,9 @@ pub const DEFAULT_DEAD_TIME_NS: u32 = 800;
 /// Channels use **PWM mode 2** (OCxREF active while CNT > CCRx), so the high side is on around
 /// the counter *peak* and the low sides conduct around the *valley* (CNT = 0) — the instant at
 /// which the update event, TRGO and TRGO2 (ADC trigger) fire once per period (RCR = 1, phase
-/// verified at init). High-side on time = 2·(ARR − CCR) ticks, so CCR = ARR·(1 − duty).
+/// set and confirmed at init by [`align_update_to_valley`]: initialisation fails rather than
+/// go on with the trigger at the peak). High-side on time = 2·(ARR − CCR) ticks, so
+/// CCR = ARR·(1 − duty).
 ///
 /// Break: COMP1/2/4 (the hardware over-current trip) and the system break sources (core
 /// LOCKUP, HSE clock failure when the HSE runs) clear MOE in hardware. The break inputs act on
@@ -43,60 +41,10 @@ pub struct Esc1PowerStage {
     comp: pac::COMP,
     arr: u32,
     dtg: u8,
-    trip_a: f32,
+    /// The comparators' zero-current levels U, V, W (DAC counts), measured at init.
+    zero_current_codes: [u16; 3],
+    thresholds: OverCurrentThresholds,
     tripped: bool,
-}
-
-/// Result of the dead-time computation (for logging / tests).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct DeadTime {
-    /// TIMx_BDTR.DTG code.
-    pub dtg: u8,
-    /// Dead time actually obtained (timer ticks of 1/170 MHz).
-    pub ticks: u32,
-}
-
-/// Encodes a dead time of at least `ns` nanoseconds at timer clock `f_hz` (tDTS = 1/f_hz, CKD = 0)
-/// into TIMx_BDTR.DTG (RM0440 TIMx_BDTR `DTG[7:0]`); saturates at the maximum (1008 ticks).
-/// `f_hz` is used in whole MHz (exact for 170 MHz); 32-bit math only (no u64 division helper).
-pub const fn dead_time_dtg(ns: u32, f_hz: u32) -> DeadTime {
-    let ns = if ns > 100_000 { 100_000 } else { ns };
-    let f_mhz = f_hz / 1_000_000;
-    // ticks = ceil(ns * f_MHz / 1000); <= 100_000 * 4294 fits u32 for any f_hz.
-    let t = (ns * f_mhz).div_ceil(1000);
-    if t <= 127 {
-        DeadTime { dtg: t as u8, ticks: t }
-    } else if t <= 254 {
-        // 10xxxxxx: (64 + DTG[5:0]) * 2
-        let x = (t.div_ceil(2) - 64) as u8;
-        DeadTime { dtg: 0x80 | x, ticks: (64 + x as u32) * 2 }
-    } else if t <= 504 {
-        // 110xxxxx: (32 + DTG[4:0]) * 8
-        let x = (t.div_ceil(8) - 32) as u8;
-        DeadTime { dtg: 0xC0 | x, ticks: (32 + x as u32) * 8 }
-    } else {
-        // 111xxxxx: (32 + DTG[4:0]) * 16, saturating at 63 * 16 = 1008 ticks.
-        let mut x = t.div_ceil(16);
-        if x > 63 {
-            x = 63;
-        }
-        let x = (x - 32) as u8;
-        DeadTime { dtg: 0xE0 | x, ticks: (32 + x as u32) * 16 }
-    }
-}
-
-/// Half-period register value ARR for a centre-aligned carrier of `f_pwm_hz` (timer ticks),
-/// clamped to 100..=65534 (so that CCR = ARR + 1 still fits the 16-bit compare register).
-pub const fn pwm_arr(f_pwm_hz: u32, f_tim_hz: u32) -> u32 {
-    let f = if f_pwm_hz == 0 { 1 } else { f_pwm_hz };
-    let arr = f_tim_hz / (2 * f);
-    if arr < 100 {
-        100
-    } else if arr > 65_534 {
-        65_534
-    } else {
-        arr
-    }
 }
 
 /// Highest high-side duty applied (fraction of the period). The phase currents are sampled at
@@ -128,15 +76,22 @@ pub fn duty_to_ccr(d: f32, arr: u32) -> u32 {
 }
 
 impl Esc1PowerStage {
+    /// TIM1 set up with the bridge off (MOE = 0, break armed on COMP1/2/4), started with its
+    /// update event aligned to the carrier valley and confirmed there.
+    ///
+    /// # Errors
+    /// [`Esc1InitError::CarrierNotCounting`] or [`Esc1InitError::TriggerNotAtValley`] from
+    /// [`align_update_to_valley`]; TIM1 then runs with MOE = 0 and drives no pin.
     pub(super) fn new(
         tim: pac::TIM1,
         dac: pac::DAC3,
         comp: pac::COMP,
         config: &Esc1Config,
-        trip_a: f32,
-    ) -> Self {
+        dt: DeadTime,
+        zero_current_codes: [u16; 3],
+        thresholds: OverCurrentThresholds,
+    ) -> Result<Self, Esc1InitError> {
         let arr = pwm_arr(config.pwm_frequency_hz, SYSCLK_HZ);
-        let dt = dead_time_dtg(config.dead_time_ns, SYSCLK_HZ);
 
         tim.cr1().write(|w| {
             w.cms().center_aligned1();
@@ -218,13 +173,19 @@ impl Esc1PowerStage {
         tim.egr().write(|w| w.ug().set_bit());
         tim.sr().write(|w| w.uif().clear());
 
-        let mut s = Self { tim, dac, comp, arr, dtg: dt.dtg, trip_a, tripped: false };
-        s.align_update_to_valley();
+        align_update_to_valley(&mut Tim1Carrier(&tim), arr)?;
+        let mut s = Self { tim, dac, comp, arr, dtg: dt.dtg, zero_current_codes, thresholds, tripped: false };
         // Break flags set while the comparators and the DAC came up (MOE was 0 throughout):
         // cleared; a break input that is *still* active stays latched (the drive then
         // reports it at its first step and never switches on).
         s.clear_hardware_trip();
-        s
+        Ok(s)
+    }
+
+    /// `CR1.DIR` (`true`: counting down) and `CNT` now: where in the carrier period the
+    /// caller is (the end-of-conversion check at init).
+    pub(super) fn carrier_now(&self) -> (bool, u32) {
+        (self.tim.cr1().read().dir().bit_is_set(), u32::from(self.tim.cnt().read().cnt().bits()))
     }
 
     /// Whether a break (over-current comparators or a system break) has fired since the last
@@ -244,48 +205,27 @@ impl Esc1PowerStage {
         ]
     }
 
-    /// Hardware over-current trip in use (A, down a low-side shunt).
-    pub fn over_current_trip_a(&self) -> f32 {
-        self.trip_a
+    /// The hardware over-current thresholds in use: DAC3 codes and the trip each phase gets
+    /// (A, down its low-side shunt).
+    pub fn over_current_thresholds(&self) -> OverCurrentThresholds {
+        self.thresholds
     }
 
-    /// Sets the hardware over-current trip (A, clamped to [`OVER_CURRENT_TRIP_MIN_A`](super::OVER_CURRENT_TRIP_MIN_A)..=
-    /// [`OVER_CURRENT_TRIP_MAX_A`](super::OVER_CURRENT_TRIP_MAX_A)) and returns the value in use: rewrites both DAC3 channels.
-    /// Lower it to the motor's needs before enabling the bridge.
-    pub fn set_over_current_trip_a(&mut self, trip_a: f32) -> f32 {
-        self.trip_a = over_current_trip_clamped(trip_a);
-        let code = over_current_dac_code(self.trip_a);
-        self.dac.dhr12r1().write(|w| w.daccdhr().set(code));
-        self.dac.dhr12r2().write(|w| w.daccdhr().set(code));
-        self.trip_a
+    /// The comparators' zero-current levels U, V, W measured at init (DAC counts; volts:
+    /// [`dac_code_volts`](super::dac_code_volts)).
+    pub fn zero_current_codes(&self) -> [u16; 3] {
+        self.zero_current_codes
     }
 
-    /// Starts the counter and arranges RCR = 1 so the single update event per period (which
-    /// also loads the preloaded CCRs and fires TRGO/TRGO2) happens at the underflow (valley).
-    ///
-    /// Mechanism (RM0440 §28.3.3): in centre-aligned mode the repetition down-counter is
-    /// decremented at every over- *and* underflow and UEV fires when it is 0, so with RCR = 1 the
-    /// parity depends on the moment RCR is loaded. We start with RCR = 0 (UEV at both ends), wait
-    /// for an overflow (counter now counting down, CR1.DIR = 1) and only then write RCR = 1: it is
-    /// loaded at the next UEV (the coming underflow), after which UEV occurs at every underflow.
-    fn align_update_to_valley(&mut self) {
-        let tim = &self.tim;
-        tim.cr1().modify(|_, w| w.cen().set_bit());
-        // Up to a few periods; the bound avoids a hang if the timer were not clocked.
-        let mut tries = 0u32;
-        loop {
-            tim.sr().write(|w| w.uif().clear()); // rc_w0: other flags are written 1 = untouched
-            let mut spins = 0u32;
-            while tim.sr().read().uif().bit_is_clear() && spins < 1_000_000 {
-                spins += 1;
-            }
-            tries += 1;
-            if tim.cr1().read().dir().bit_is_set() || tries > 8 {
-                break; // just passed the peak (now counting down)
-            }
-        }
-        tim.rcr().write(|w| w.rep().set(1));
-        tim.sr().write(|w| w.uif().clear());
+    /// Sets the hardware over-current trip (A, clamped to
+    /// [`OVER_CURRENT_TRIP_MIN_A`](super::OVER_CURRENT_TRIP_MIN_A)..=[`OVER_CURRENT_TRIP_MAX_A`](super::OVER_CURRENT_TRIP_MAX_A))
+    /// above the zero-current levels measured at init ([`over_current_thresholds`]), rewrites
+    /// both DAC3 channels and returns the thresholds in use. Lower it to the motor's needs
+    /// before enabling the bridge.
+    pub fn set_over_current_trip_a(&mut self, trip_a: f32) -> OverCurrentThresholds {
+        self.thresholds = over_current_thresholds(trip_a, self.zero_current_codes);
+        write_thresholds(&self.dac, &self.thresholds);
+        self.thresholds
     }
 
     /// Half-period ARR (timer ticks). The carrier period is 2·ARR ticks of 1/170 MHz.
@@ -299,7 +239,7 @@ impl Esc1PowerStage {
         (2 * self.arr * 1000) / (SYSCLK_HZ / 1_000_000)
     }
 
-    /// BDTR.DTG code in use (see [`dead_time_dtg`]).
+    /// BDTR.DTG code in use (see [`dead_time_setting`](super::dead_time_setting)).
     pub fn dtg(&self) -> u8 {
         self.dtg
     }
@@ -351,5 +291,44 @@ impl PowerStage for Esc1PowerStage {
         // the cause is still there and the trip stays latched.
         self.tim.sr().write(|w| w.bif().clear().sbif().clear()); // rc_w0: others written 1
         self.tripped = self.break_seen();
+    }
+}
+
+/// TIM1 as the [`CarrierTimer`] that [`align_update_to_valley`] runs on: `CR1.CEN`,
+/// `RCR.REP`, `SR.UIF`, `CR1.DIR`, `CNT`.
+struct Tim1Carrier<'a>(&'a pac::TIM1);
+
+/// Polls of `SR.UIF` before an update event counts as missing: several periods of the
+/// slowest carrier (65 534 · 2 ticks) at a few cycles per poll.
+const UPDATE_SPINS: u32 = 1_000_000;
+
+impl CarrierTimer for Tim1Carrier<'_> {
+    fn start(&mut self) {
+        self.0.cr1().modify(|_, w| w.cen().set_bit());
+    }
+
+    fn set_repetition(&mut self, rep: u8) {
+        self.0.rcr().write(|w| w.rep().set(u16::from(rep)));
+    }
+
+    fn wait_update(&mut self) -> bool {
+        // rc_w0: the other flags are written 1, i.e. left as they are.
+        self.0.sr().write(|w| w.uif().clear());
+        let mut spins = 0u32;
+        while self.0.sr().read().uif().bit_is_clear() {
+            spins += 1;
+            if spins > UPDATE_SPINS {
+                return false;
+            }
+        }
+        true
+    }
+
+    fn counting_down(&self) -> bool {
+        self.0.cr1().read().dir().bit_is_set()
+    }
+
+    fn count(&self) -> u32 {
+        u32::from(self.0.cnt().read().cnt().bits())
     }
 }

@@ -79,9 +79,11 @@ fn panic(info: &core::panic::PanicInfo) -> ! {
 }
 
 /// An image that cannot run before its control interrupt is on (an initialisation that
-/// cannot complete): bridge off ([`safe_state_and_stop`]; it was never switched on),
-/// the reason over defmt, then sleep for good.
-pub fn stop(why: &str) -> ! {
+/// cannot complete, e.g. [`init`](super::init)'s [`Esc1InitError`](super::Esc1InitError),
+/// logged by its derived `defmt::Format`, variant and fields, without `core::fmt`): bridge
+/// off ([`safe_state_and_stop`]; it was never switched on), the reason over defmt, then
+/// sleep for good.
+pub fn stop(why: impl defmt::Format) -> ! {
     safe_state_and_stop();
     defmt::error!("cannot run: {}", why);
     loop {

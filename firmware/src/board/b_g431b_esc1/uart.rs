@@ -3,8 +3,8 @@
 use stm32g4::stm32g431 as pac;
 
 use super::DEFAULT_BAUD;
-use super::clocks::SYSCLK_HZ;
 use super::pins::{PIN_UART_RX, PIN_UART_TX};
+use crate::board::esc1_settings::SYSCLK_HZ;
 
 /// Interrupt of the UART (RX-not-empty when enabled with [`Esc1Uart::listen_rx`]).
 pub const UART_IRQ: pac::Interrupt = pac::Interrupt::USART2;
