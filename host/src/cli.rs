@@ -76,6 +76,41 @@ pub enum Command {
     /// error on the simulated plant of a motor (`--sim`), prints identified against true
     /// values and writes the identified motor file (`-o`).
     Identify(IdentifyArgs),
+    /// The README's tables: render one from the tools' output into `results/NAME.md`,
+    /// or copy every `results/NAME.md` into its README block (`--check`: compare only).
+    Results(ResultsArgs),
+}
+
+/// Arguments of `dcfo results` (`dcfo_host::results`).
+#[derive(Debug, Clone, Args)]
+pub struct ResultsArgs {
+    /// What to do.
+    #[command(subcommand)]
+    pub action: ResultsAction,
+    /// The workspace root, where `README.md` and `results/` are.
+    #[arg(long, value_name = "DIR", default_value = ".", global = true)]
+    pub root: PathBuf,
+    /// Compare with the committed files and fail on a difference; write nothing.
+    #[arg(long, global = true)]
+    pub check: bool,
+}
+
+/// What `dcfo results` does.
+#[derive(Debug, Clone, Subcommand)]
+pub enum ResultsAction {
+    /// Render the table NAME (paper, acquire, sim, replay, stroke, identify, faults, hil,
+    /// board, cost) from tool outputs into `results/NAME.md`.
+    Render {
+        /// The table's name.
+        #[arg(value_name = "NAME")]
+        table: String,
+        /// The tool outputs it is rendered from (JSON, or text whose last line is JSON),
+        /// as FILE or LABEL=FILE (sim: the motor; replay: the observer).
+        #[arg(value_name = "INPUT", required = true)]
+        inputs: Vec<String>,
+    },
+    /// Copy every `results/NAME.md` into the README's block `<!-- generated:NAME -->`.
+    Readme,
 }
 
 /// Where a command that talks to a firmware image runs it: on QEMU (`--qemu`, `--cpu`,
@@ -651,6 +686,19 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                 check: a.check,
             })?;
             Ok(ExitCode::SUCCESS)
+        }
+        Command::Results(a) => {
+            let params = match a.action {
+                ResultsAction::Render { table, inputs } => {
+                    let Some(table) = crate::results::Table::from_name(&table) else {
+                        let names = crate::results::Table::ALL.map(crate::results::Table::name);
+                        bail!("no table `{table}` (tables: {})", names.join(", "))
+                    };
+                    crate::results::Params::Render { root: a.root, table, inputs, check: a.check }
+                }
+                ResultsAction::Readme => crate::results::Params::Readme { root: a.root, check: a.check },
+            };
+            Ok(if crate::results::run_command(&params)? { ExitCode::SUCCESS } else { ExitCode::FAILURE })
         }
         Command::Identify(a) => {
             use crate::identify::Where;

@@ -17,6 +17,7 @@ pub mod plot;
 pub mod progress;
 pub mod qemu;
 pub mod replay;
+pub mod results;
 pub mod scenario_file;
 pub mod sim;
 pub mod stroke;
