@@ -34,7 +34,8 @@ use crate::summary::DEFAULT_SETTLE_S;
 observer (DCFO): simulate the closed-loop drive and reproduce the paper's experiments (dcfo paper, \
 dcfo sim), and replay recorded or simulated traces through the drive's estimator (dcfo replay).\n\n\
 All quantities are SI: seconds, volts, amperes, webers, metres, m/s; angles are electrical \
-radians in files and electrical degrees in summaries. File formats: shared/trace-format.md."
+radians in files and electrical degrees in summaries. File formats: docs/trace-format.md and \
+docs/motor-format.md."
 )]
 pub struct Cli {
     /// The subcommand to run.
@@ -161,7 +162,7 @@ pub struct BoardArgs {
     /// QEMU or a serial port.
     #[command(flatten)]
     pub target: TargetArgs,
-    /// Download the capture into this trace (CSV, shared trace format: t [s], u_alpha and
+    /// Download the capture into this trace (CSV, docs/trace-format.md: t [s], u_alpha and
     /// u_beta [V], i_alpha and i_beta [A], alpha_e_ref [rad/s^2]; comment lines name the
     /// drive's number type, f32 or q24: replay with `dcfo replay --numeric` of it) once it
     /// is over; the capture is armed on connect and starts at the drive's next start.
@@ -225,7 +226,7 @@ pub struct IdentifyArgs {
     /// Seed of the plant's sensor noise.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
-    /// Write the identified motor (shared motor-file format) to this file.
+    /// Write the identified motor (a motor file, docs/motor-format.md) to this file.
     #[arg(short = 'o', long = "output", value_name = "FILE")]
     pub output: Option<PathBuf>,
     /// Write the identified motor, the nominal bus and the identified inverter
@@ -271,7 +272,7 @@ impl NotchArg {
 /// (`dcfo::drive::CompensationSigns`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
 pub enum CompensationSignsArg {
-    /// The measured current (README, "Inverter compensation: what was tried").
+    /// The measured current (docs/inverter-compensation.md).
     Measured,
     /// The current reference where it is clear of the sensors' noise, the measured
     /// current near zero (the drive's default).
@@ -291,7 +292,7 @@ impl CompensationSignsArg {
 /// Arguments of `dcfo stroke`.
 #[derive(Debug, Clone, Args)]
 pub struct StrokeArgs {
-    /// Motor: a preset name (`paper`) or a motor TOML file in the shared format. The
+    /// Motor: a preset name (`paper`) or a motor TOML file (docs/motor-format.md). The
     /// drive's tuning derives from it; the plant deviates from it (R +20 %, L -5 %).
     #[arg(long, default_value = "paper")]
     pub motor: String,
@@ -373,7 +374,7 @@ pub struct AcquireArgs {
 /// Arguments of `dcfo motor-image`.
 #[derive(Debug, Clone, Args)]
 pub struct MotorImageArgs {
-    /// Motor: a preset name (`paper`) or a TOML motor file (shared/trace-format.md).
+    /// Motor: a preset name (`paper`) or a TOML motor file (docs/motor-format.md).
     #[arg(long, value_name = "FILE|PRESET")]
     pub motor: String,
     /// Nominal DC-bus voltage of the board, V (e.g. 24 on the B-G431B-ESC1).
@@ -563,7 +564,7 @@ pub struct SimArgs {
     #[arg(long, value_name = "NAME|FILE")]
     pub scenario: String,
 
-    /// The motor: a preset (`paper`) or a motor file (TOML, shared trace-format.md). The
+    /// The motor: a preset (`paper`) or a motor file (TOML, docs/motor-format.md). The
     /// drive tunes itself from it, and a paper experiment is scaled to it: speeds to the
     /// same electrical frequencies, the axis to the paper axis's mass per rated thrust
     /// (a payload), load steps to the same electrical deceleration, offsets by its rated
