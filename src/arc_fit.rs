@@ -12,11 +12,11 @@
 //! ```
 //!
 //! `p` runs on a circle of radius `|psi|` whose centre is `-psi(0)`: an offset as large
-//! as the flux itself. The DCFO removes it through its slowest pole, `-0.26 w` (digest
-//! §3; [`crate::observer::Dcfo`]): about 1.5 electrical periods to bring the angle
+//! as the flux itself. The DCFO removes it through its slowest pole (`docs/method.md`
+//! §3; [`crate::observer::Dcfo`]): more than an electrical period to bring the angle
 //! error under 5 deg, of a budget of 2, and the FLL that tunes the notch meanwhile reads
 //! the observer's own correction `(h / Ls) d` as a ripple of about `0.2 w` on the
-//! frequency (measured: the notch 16 % off at the hand-over at 0.3 m/s). The offset is
+//! frequency (enough to put the notch well off the mover at the hand-over). The offset is
 //! the one unknown of a known geometry, so it is fitted instead of waited for.
 //!
 //! ## The fit
@@ -41,15 +41,15 @@
 //! ## What the chord cannot see, and the guards
 //! - A DC error in `u` or `i` (an offset, a wrong `Rs` under load) makes `p` drift and
 //!   bends the fit. Fitting the drift as well (five unknowns) was tried: over a third of
-//!   a period it is too poorly conditioned (481 of 576 cold starts over budget against
-//!   294 without a fit). The back-EMF's circle sees it (below).
+//!   a period it is too poorly conditioned (more cold starts missed their budget than
+//!   with no fit at all; `docs/acquisition.md`). The back-EMF's circle sees it (below).
 //! - The fitted radius `|c|` must lie within [`RADIUS_RANGE`] of the magnet flux, the
 //!   chord within [`MAX_CHORD_SHARE`] of it (a drift of more than the flux is not an
 //!   arc), and the fit must come within [`MAX_FIT_TURNS`] periods of the notch floor;
 //!   otherwise the fit gives up and the estimator acquires as it would without it.
 //! - The radius is fitted rather than taken from the motor file: a seed at the file's
-//!   `psi_f` gave the same results (240 against 237 of 576 over budget) and depends on
-//!   the file being right.
+//!   `psi_f` gave the same results and depends on the
+//!   file being right.
 //!
 //! ## DC errors: the back-EMF's circle
 //! The back-EMF `e = (u - Rs i) - Ls di/dt` with a DC error `du` in it (a voltage
@@ -115,28 +115,15 @@
 //! thousand updates that half-LSB bias moved the back-EMF circle's centre enough to
 //! turn Q8.24's fitted angle by up to 1 deg on exact data.
 //!
-//! Measured on `dcfo acquire` (576 cold starts; 2026-11-26): **no start over budget**
-//! (51 before the back-EMF fit, and one never locked), the longest 0.49 s of a 0.6 s
-//! budget at 0.1 m/s, no false lock; the +2 V starts at 0.1 m/s took 2.1 budgets in the
-//! median before, 0.4 now. With the mean (2026-11-27): the longest 0.50 s, Q8.24 within
-//! 0.20 deg of f32 (1.37 before, in one start at -0.1 m/s with +2 V). The example
-//! motors (over budget of 576): salient 62 -> 12 (the rest is mostly its steady error at
-//! 3.3-6.7 Hz), low-R 13 -> 1 (616 ms of 600 at 3.3 Hz). The later seed leaves the
-//! drive ringing more after a flying restart (README).
-//!
-//! With the noise taken out (2026-11-26, eighth session; over budget / never locked of
-//! 576, sensor seed 1): paper motor 0 / 0 as before (the longest 0.56 s instead of 0.50,
-//! Q8.24 within 0.13 deg); salient 12 / 1 -> 6 / 0 (seeds 2 and 3: 17 / 1 -> 6 / 0,
-//! 13 / 1 -> 6 / 0); `motors/salient_high_l.toml` (Lq/Ld 2; the back-EMF's noise 1.5
-//! times the back-EMF at 3.3 Hz) 43 / 0 -> 7 / 0; but low-R 1 / 0 -> 9 / 0, at 3.3 Hz
-//! with an offset: there the back-EMF's circle is up to a quarter larger than `w psi_f`
-//! (the inverter's error along the current), the chord's check above refuses the fit
-//! the noise's bias had bent into passing, and the chord's own fit, bent by the offset,
-//! seeds up to 23 deg off. Checking the chord against the flux the back-EMF fit measured
-//! (its radius over its frequency) took low-R to 0 and both salient motors to 4, but
-//! then the flying restart lost the mover: at zero current the inverter's error makes a
-//! circle of 0.86 `w psi_f` that the chord agrees with, and only the file's flux (by
-//! 0.041 Wb against 0.040) refused it (README, "The current sensors' noise").
+//! ## Accuracy
+//! `dcfo acquire` measures what the fits give a cold start (every start's lock time
+//! against its budget, false locks, Q8.24 against f32; `--motor` for other motors,
+//! `--plant ideal` without the inverter's and sensors' errors). Where the back-EMF's
+//! circle is not `w psi_f` (at light load the inverter's error along the current
+//! enlarges it by up to a quarter at 3.3 Hz, and shrinks it at zero current), the
+//! chord's check against the motor file's flux refuses the fit and the chord's own fit,
+//! bent by any offset, seeds instead; checking the chord against the flux the back-EMF
+//! fit measured instead lost the drive's flying restart (`docs/acquisition.md`).
 #![forbid(unsafe_code)]
 
 use crate::num::{Angle, Scalar};
@@ -1170,7 +1157,7 @@ mod tests {
         // Of the 32 (direction, start, axis of the error) a DC error 1 V off passes 10
         // times, 1.5 V off twice (its drift along the chord over 67 ms, 0.6 of the magnet
         // flux, can leave the chord's length and turn within tolerance), 2 V and more
-        // never (measured, 2026-11-26).
+        // never.
         assert!(passed[0] <= 10 && passed[1] <= 2, "{passed:?}");
         assert_eq!(passed[2..], [0, 0], "{passed:?}");
     }

@@ -36,10 +36,10 @@
 //! middle leg, `(Ts / 6L) |u_min|` (about 0.07 A on the paper motor at 1.2 m/s, a
 //! third of a 0.2 A light-load current amplitude, i.e. +-20 deg of every zero
 //! crossing), and it is not symmetric about the crossing (its `e_k` term changes
-//! sign there), so the misplaced compensation has a component across the current:
-//! measured in `dcfo acquire`'s recordings, a d-axis voltage error growing with the
-//! speed to 3.5 V at 2 m/s (2.7-4.5 deg of angle bias from 0.8 m/s up), 0.2-0.5 V
-//! with this model.
+//! sign there), so the misplaced compensation has a component across the current: in
+//! `dcfo acquire`'s recordings a d-axis voltage error that grew with the speed to
+//! degrees of angle bias, and a tenth of it with this model
+//! (`docs/inverter-compensation.md`).
 //!
 //! ## The compensation
 //! Per leg, `(Td/Ts) Vdc (s(i - delta) + s(i + delta)) / 2 + V_drop s_drop(i)`, with
@@ -51,35 +51,18 @@
 //! ## Where the formula holds
 //! The formula leaves out the dead time's own shift of the edges (`Td` after every
 //! turn-on), which is small only while the active vectors are long against it, i.e.
-//! while the duty spread `d_max - d_min` is many `Td / Ts`. Measured in `dcfo acquire`'s
-//! sensored recorder with noise-free sensors, the mean inverter error the compensation
-//! leaves (V, across / along the current; at 10 N, 0.2 A, and at 3 N, 0.06 A):
-//!
-//! | speed (spread in `Td/Ts`) | `sign(i)`, 10 N | ripple, 10 N | `sign(i)`, 3 N | ripple, 3 N |
-//! |---|--:|--:|--:|--:|
-//! | 0.3 m/s (2.8) | 0.05 / -0.03 | 0.19 / -0.09 | -0.03 / 0.01 | 0.03 / -0.51 |
-//! | 0.6 m/s (5.6) | 0.81 / -0.20 | 0.23 / -0.14 | 1.03 / 1.48 | 0.19 / -0.85 |
-//! | 1.2 m/s (11) | 3.13 / 0.20 | 0.28 / -0.16 | 1.12 / 0.64 | 0.08 / -0.21 |
-//! | 2.0 m/s (19) | 3.46 / 0.79 | 0.23 / -0.21 | 0.83 / -1.27 | 0.07 / -0.02 |
-//!
-//! Across the current (what turns the flux estimate, `dU_d / (w psi_f)`) the ripple
-//! wins from about 4 dead times of spread on. Along it, at light load and a small spread,
-//! the ripple's error *falls* as the current rises (0.3 m/s with the realistic sensors:
-//! -0.69 V at 3 N, -0.24 V at 10 N), an inverter that seems to lose less the more current
-//! it carries: a negative incremental resistance in the current loop. In the
-//! closed-loop drive that made the speed loop hunt through zero thrust current at the
-//! electrical frequency: the paper's steady 0.3 m/s with the ripple in full 9.0 deg
-//! (1.7 with `sign(i)`); faded in from 3 dead times, a 65 % bus sag at 0.3 m/s (4.3
-//! dead times) 5.8 deg and an estimator reset at speed 6.1 (`dcfo faults`; 3.6 and 1.7
-//! with `sign(i)`); from 5, 3.9 and 3.7. Correcting the edges for the dead time's delay
-//! halved the 0.3 m/s error along the current but not its slope. So the ripple fades
-//! in with the spread from [`RIPPLE_FROM_DEAD_TIMES`] (6) to that plus
-//! [`RIPPLE_FADE_DEAD_TIMES`] (3) dead times: the spread is `sqrt(3) |u| / Vdc` in the
-//! linear range, so on the paper motor at light load from 0.65 to 0.95 m/s, and on
-//! another motor wherever its voltage takes it. Paper axis, `dcfo sim --scenario`, max /
-//! rms deg, `sign(i)` -> faded ripple: a long steady run at 1.0 m/s 10.6 / 2.3 -> 1.8 /
-//! 0.6, at 1.5 m/s 6.6 / 2.1 -> 1.2 / 0.3; the 0.3 m/s scenarios, below the fade, only
-//! change realisation.
+//! while the duty spread `d_max - d_min` is many `Td / Ts`. Across the current (what
+//! turns the flux estimate, `dU_d / (w psi_f)`) the edge model beats `sign(i)` from about
+//! 4 dead times of spread on. Along the current, at light load and a small spread, the
+//! edge model's error *falls* as the current rises: an inverter that seems to lose less
+//! the more current it carries, a negative incremental resistance in the current loop,
+//! which in the closed-loop drive made the speed loop hunt through zero thrust current.
+//! Correcting the edges for the dead time's delay halved that error but not its slope.
+//! So the ripple fades in with the spread from [`RIPPLE_FROM_DEAD_TIMES`] (6) to that
+//! plus [`RIPPLE_FADE_DEAD_TIMES`] (3) dead times: the spread is `sqrt(3) |u| / Vdc` in
+//! the linear range, so on the paper motor at light load from 0.65 to 0.95 m/s, and on
+//! another motor wherever its voltage takes it. The measurements behind the thresholds
+//! are in `docs/inverter-compensation.md`.
 #![forbid(unsafe_code)]
 
 use crate::drive::DeadTimeCompensation;

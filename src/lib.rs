@@ -2,11 +2,11 @@
 //!
 //! The algorithms of a sensorless field-oriented drive for a permanent-magnet
 //! synchronous linear motor, built around the *disturbance compensated flux observer*
-//! (DCFO) of Liu, Yin, Bai and Yuan (see `../shared/paper/digest.md`, the method with
-//! the paper's typos corrected). `no_std`, no allocation, no `unsafe`, no panics in
-//! per-sample code.
+//! (DCFO) of Liu, Yin, Bai and Yuan (`docs/method.md`: the method in this project's
+//! notation, the paper cited and its slips corrected). `no_std`, no allocation, no
+//! `unsafe`, no panics in per-sample code.
 //!
-//! | module | digest | contents |
+//! | module | `docs/method.md` | contents |
 //! |---|---|---|
 //! | [`num`] | — | the [`Scalar`](num::Scalar) trait (f32, f64, [`Q24`](num::Q24)) and the binary [`Angle`](num::Angle) |
 //! | [`units`] | — | SI or per-unit working units |

@@ -1,6 +1,6 @@
 //! Motor parameters, with units in their names, validated when built.
 //!
-//! Field names are the keys of the shared motor file (`../shared/trace-format.md`).
+//! Field names are the keys of the motor file (`docs/motor-format.md`).
 //! Values are SI and `f32`: this is configuration, converted once into the numeric
 //! type and unit system of the control code (see [`crate::units`]).
 
@@ -99,7 +99,7 @@ impl MotorParams {
         Ok(params)
     }
 
-    /// The paper's test motor (digest §1), preset name `paper`. Pole pitch is
+    /// The paper's test motor (docs/method.md §1), preset name `paper`. Pole pitch is
     /// 0.015 m so that 0.3 m/s is 10 Hz electrical, as the experiments state.
     pub const fn paper() -> Self {
         MotorParams {

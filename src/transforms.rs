@@ -1,6 +1,6 @@
 //! Reference-frame transforms: Clarke (amplitude-invariant) and Park, with inverses.
 //!
-//! Conventions (`../shared/trace-format.md`): a balanced set of phase quantities of peak
+//! Conventions (`docs/trace-format.md`): a balanced set of phase quantities of peak
 //! `X` gives `|x_alphabeta| = X`; the rotor (dq) frame has d along the magnet flux, at
 //! electrical angle `theta` from the alpha axis. Units are whatever the inputs carry
 //! (V, A, Wb, or per-unit): the transforms are linear and dimensionless.

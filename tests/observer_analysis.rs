@@ -1,4 +1,4 @@
-//! The flux observers measured against the digest's analysis (§2-3), in f64.
+//! The flux observers measured against the analysis of docs/method.md §2-3, in f64.
 //!
 //! Each test drives the discrete observer with synthetic inputs whose true mover flux is
 //! known exactly, and compares what it measures with a closed-form expectation.
@@ -30,7 +30,8 @@ fn dcfo() -> Dcfo<f64> {
     Dcfo::new(motor(), &cfg, &Base::SI).unwrap()
 }
 
-/// The digest's H(s) = psi_hat / x at s = j w_eval, notch at w, h = eta Ls w.
+/// The DCFO's H(s) = psi_hat / x (docs/method.md §3) at s = j w_eval, notch at w,
+/// h = eta Ls w.
 fn h_analytic(w_eval: f64, w: f64) -> (f64, f64) {
     let h = eta_h() * LS * w;
     // s = j we: s^2 = -we^2, s^3 = -j we^3

@@ -1,4 +1,4 @@
-//! The PLL of digest §4 on a clean rotating flux.
+//! The PLL of docs/method.md §4 on a clean rotating flux.
 
 mod common;
 

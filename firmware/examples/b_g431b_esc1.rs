@@ -75,7 +75,7 @@ mod firmware {
     /// USART2 rate, bit/s (the host's `--baud` default).
     const BAUD: u32 = 921_600;
     /// Capture capacity, samples (36 B each: 4.6 KB), 12.8 ms at 10 kHz: what keeps the
-    /// image's static RAM within the board's 8 KiB goal (README, "Cost on the target").
+    /// image's static RAM within the board's 8 KiB goal (`bench_qemu --check`).
     pub const CAPTURE_SAMPLES: usize = 128;
     /// Control periods without a command frame after which a running drive is disabled.
     const COMMAND_TIMEOUT_PERIODS: u32 = DEFAULT_PWM_HZ / 2;

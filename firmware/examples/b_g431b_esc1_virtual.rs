@@ -9,7 +9,7 @@
 //! the image a positioning drive moving the axis's payload, which takes moves over the
 //! board link; without one a speed drive, and the virtual axis carries the paper axis's
 //! 10 kg carriage (`PAPER_AXIS_PAYLOAD_KG`) besides the motor's own mass (a bare mover
-//! trips after the I/f hand-over: README, "Other motors").
+//! trips after the I/f hand-over: docs/low-speed-operation.md).
 //!
 //! | context | priority | work | budget |
 //! |---|---|---|---|

@@ -34,7 +34,8 @@ use crate::summary::DEFAULT_SETTLE_S;
 observer (DCFO): simulate the closed-loop drive and reproduce the paper's experiments (dcfo paper, \
 dcfo sim), and replay recorded or simulated traces through the drive's estimator (dcfo replay).\n\n\
 All quantities are SI: seconds, volts, amperes, webers, metres, m/s; angles are electrical \
-radians in files and electrical degrees in summaries. File formats: shared/trace-format.md."
+radians in files and electrical degrees in summaries. File formats: docs/trace-format.md and \
+docs/motor-format.md."
 )]
 pub struct Cli {
     /// The subcommand to run.
@@ -80,6 +81,41 @@ pub enum Command {
     /// error on the simulated plant of a motor (`--sim`), prints identified against true
     /// values and writes the identified motor file (`-o`).
     Identify(IdentifyArgs),
+    /// The README's tables: render one from the tools' output into `results/NAME.md`,
+    /// or copy every `results/NAME.md` into its README block (`--check`: compare only).
+    Results(ResultsArgs),
+}
+
+/// Arguments of `dcfo results` (`dcfo_host::results`).
+#[derive(Debug, Clone, Args)]
+pub struct ResultsArgs {
+    /// What to do.
+    #[command(subcommand)]
+    pub action: ResultsAction,
+    /// The workspace root, where `README.md` and `results/` are.
+    #[arg(long, value_name = "DIR", default_value = ".", global = true)]
+    pub root: PathBuf,
+    /// Compare with the committed files and fail on a difference; write nothing.
+    #[arg(long, global = true)]
+    pub check: bool,
+}
+
+/// What `dcfo results` does.
+#[derive(Debug, Clone, Subcommand)]
+pub enum ResultsAction {
+    /// Render the table NAME (paper, acquire, sim, replay, stroke, identify, faults, hil,
+    /// board, cost) from tool outputs into `results/NAME.md`.
+    Render {
+        /// The table's name.
+        #[arg(value_name = "NAME")]
+        table: String,
+        /// The tool outputs it is rendered from (JSON, or text whose last line is JSON),
+        /// as FILE or LABEL=FILE (sim: the motor; replay: the observer).
+        #[arg(value_name = "INPUT", required = true)]
+        inputs: Vec<String>,
+    },
+    /// Copy every `results/NAME.md` into the README's block `<!-- generated:NAME -->`.
+    Readme,
 }
 
 /// Where a command that talks to a firmware image runs it: on QEMU (`--qemu`, `--cpu`,
@@ -130,7 +166,7 @@ pub struct BoardArgs {
     /// QEMU or a serial port.
     #[command(flatten)]
     pub target: TargetArgs,
-    /// Download the capture into this trace (CSV, shared trace format: t [s], u_alpha and
+    /// Download the capture into this trace (CSV, docs/trace-format.md: t [s], u_alpha and
     /// u_beta [V], i_alpha and i_beta [A], alpha_e_ref [rad/s^2]; comment lines name the
     /// drive's number type, f32 or q24: replay with `dcfo replay --numeric` of it) once it
     /// is over; the capture is armed on connect and starts at the drive's next start.
@@ -194,7 +230,7 @@ pub struct IdentifyArgs {
     /// Seed of the plant's sensor noise.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
-    /// Write the identified motor (shared motor-file format) to this file.
+    /// Write the identified motor (a motor file, docs/motor-format.md) to this file.
     #[arg(short = 'o', long = "output", value_name = "FILE")]
     pub output: Option<PathBuf>,
     /// Write the identified motor, the nominal bus and the identified inverter
@@ -240,7 +276,7 @@ impl NotchArg {
 /// (`dcfo::drive::CompensationSigns`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
 pub enum CompensationSignsArg {
-    /// The measured current (README, "Inverter compensation: what was tried").
+    /// The measured current (docs/inverter-compensation.md).
     Measured,
     /// The current reference where it is clear of the sensors' noise, the measured
     /// current near zero (the drive's default).
@@ -260,7 +296,7 @@ impl CompensationSignsArg {
 /// Arguments of `dcfo stroke`.
 #[derive(Debug, Clone, Args)]
 pub struct StrokeArgs {
-    /// Motor: a preset name (`paper`) or a motor TOML file in the shared format. The
+    /// Motor: a preset name (`paper`) or a motor TOML file (docs/motor-format.md). The
     /// drive's tuning derives from it; the plant deviates from it (R +20 %, L -5 %).
     #[arg(long, default_value = "paper")]
     pub motor: String,
@@ -355,7 +391,7 @@ pub struct TrackArgs {
 /// Arguments of `dcfo motor-image`.
 #[derive(Debug, Clone, Args)]
 pub struct MotorImageArgs {
-    /// Motor: a preset name (`paper`) or a TOML motor file (shared/trace-format.md).
+    /// Motor: a preset name (`paper`) or a TOML motor file (docs/motor-format.md).
     #[arg(long, value_name = "FILE|PRESET")]
     pub motor: String,
     /// Nominal DC-bus voltage of the board, V (e.g. 24 on the B-G431B-ESC1).
@@ -545,7 +581,7 @@ pub struct SimArgs {
     #[arg(long, value_name = "NAME|FILE")]
     pub scenario: String,
 
-    /// The motor: a preset (`paper`) or a motor file (TOML, shared trace-format.md). The
+    /// The motor: a preset (`paper`) or a motor file (TOML, docs/motor-format.md). The
     /// drive tunes itself from it, and a paper experiment is scaled to it: speeds to the
     /// same electrical frequencies, the axis to the paper axis's mass per rated thrust
     /// (a payload), load steps to the same electrical deceleration, offsets by its rated
@@ -672,6 +708,19 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                 check: a.check,
             })?;
             Ok(ExitCode::SUCCESS)
+        }
+        Command::Results(a) => {
+            let params = match a.action {
+                ResultsAction::Render { table, inputs } => {
+                    let Some(table) = crate::results::Table::from_name(&table) else {
+                        let names = crate::results::Table::ALL.map(crate::results::Table::name);
+                        bail!("no table `{table}` (tables: {})", names.join(", "))
+                    };
+                    crate::results::Params::Render { root: a.root, table, inputs, check: a.check }
+                }
+                ResultsAction::Readme => crate::results::Params::Readme { root: a.root, check: a.check },
+            };
+            Ok(if crate::results::run_command(&params)? { ExitCode::SUCCESS } else { ExitCode::FAILURE })
         }
         Command::Identify(a) => {
             use crate::identify::Where;

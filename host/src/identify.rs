@@ -353,7 +353,7 @@ pub fn table(r: &IdentifyReport) -> String {
     s
 }
 
-/// The identified motor as a motor file (shared format), with the ratings and pole pitch
+/// The identified motor as a motor file (docs/motor-format.md), with the ratings and pole pitch
 /// the drive was told; mass and friction are not identified and left out (readers default
 /// them). The inverter compensation is noted in comments.
 pub fn motor_toml(r: &IdentifyReport, motor: &MotorParams) -> Result<String, IdentifyError> {
@@ -512,7 +512,7 @@ pub struct Params {
     pub motor: String,
     /// Seed of the plant's sensor noise.
     pub seed: u64,
-    /// Write the identified motor (shared motor-file format) to this file.
+    /// Write the identified motor (a motor file, docs/motor-format.md) to this file.
     pub output: Option<std::path::PathBuf>,
     /// Write the identified motor, the nominal bus and the identified inverter
     /// compensation as a motor image (the board's flash record) to this file.

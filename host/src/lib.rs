@@ -18,6 +18,7 @@ pub mod progress;
 pub mod qemu;
 pub mod recorder;
 pub mod replay;
+pub mod results;
 pub mod scenario_file;
 pub mod sim;
 pub mod stroke;

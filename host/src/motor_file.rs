@@ -1,8 +1,8 @@
 //! Motor files (TOML) and presets, read into [`dcfo::motor::MotorParams`].
 //!
-//! The format is the project's interchange contract, `trace-format.md` ("Motor file:
-//! TOML"): top-level keys, SI units, integers accepted where a number is expected
-//! (`rs_ohm = 5` is 5.0 ohm).
+//! The format is the project's interchange contract, `docs/motor-format.md`: top-level
+//! keys, SI units, integers accepted where a number is expected (`rs_ohm = 5` is 5.0
+//! ohm).
 //!
 //! | key | unit | required |
 //! |---|---|---|

@@ -70,7 +70,7 @@ impl AxisArgs {
 /// What `dcfo motor-image` is asked to write.
 #[derive(Debug, Clone)]
 pub struct Params {
-    /// Motor: a preset name (`paper`) or a TOML motor file (shared/trace-format.md).
+    /// Motor: a preset name (`paper`) or a TOML motor file (docs/motor-format.md).
     pub motor: String,
     /// Nominal DC-bus voltage of the board, V.
     pub bus_v: f32,

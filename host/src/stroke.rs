@@ -120,7 +120,7 @@ pub struct StrokeSummary {
 /// (`L_q / L_d >= 1.15`, an interior-magnet design, whose iron saturates along the
 /// magnet) a d axis whose incremental inductance is 10 % lower at the rated peak
 /// current ([`PlantParams::d_saturation_for`]), which its HFI polarity test reads. The
-/// surface-magnet motors' plants stay linear (their figures are those of before).
+/// surface-magnet motors' plants stay linear.
 pub fn plant_for(motor: &MotorParams) -> SimParams {
     let mut p = SimParams::from_motor(motor);
     if motor.lq_h >= dcfo::hfi::MIN_SALIENCY * motor.ld_h {

@@ -75,7 +75,7 @@ fn on_ideal_inputs_the_estimator_locks_well_within_budget() {
 /// the ripple at the switching edges (`dcfo::dead_time`) and the reference's signs
 /// removes most of it.
 ///
-/// The DCFO passes the fundamental with unity gain and zero phase (digest §3,
+/// The DCFO passes the fundamental with unity gain and zero phase (docs/method.md §3,
 /// `tests/observer_analysis.rs`), so an error `dU_d` the estimator is not told turns the
 /// flux estimate by `dU_d / (w psi_f)`: [`dcfo_host::acquire::Start::inverter_bias_deg`],
 /// computed from the plant's period-average voltages, predicts the mean error the

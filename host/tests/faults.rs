@@ -7,7 +7,7 @@ use dcfo::observer::ObserverKind;
 use dcfo_host::faults::{Expected, cases, run_all};
 use dcfo_host::sim::Setup;
 
-/// Cases that do not meet the expectation stated before measuring (README, Status):
+/// Cases that do not meet the expectation stated before measuring:
 /// their floors (no silent failure, a named fault and the bridge off within a period on
 /// any trip, no trip on a ride-through) are still asserted. None since the overload
 /// supervision (`load-400N` tripped CURRENT_CONTROL after 320 ms, at 7.4 A, before it;

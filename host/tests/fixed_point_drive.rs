@@ -74,12 +74,11 @@ fn q24_drive_runs_the_paper_scenarios_like_the_f32_drive() {
     let setup = Setup::paper(ObserverKind::Dcfo);
     // The two closed loops round differently, so they are two realisations of the same
     // run: a transient's maximum depends on where in the electrical and mechanical cycle
-    // the event hits (README: e.g. the speed step 4.1-5.8 deg over eight instants), and
-    // single runs of the two drives can differ by more than the arithmetic does (the
-    // open-loop test above: 0.08 deg). So each scenario runs with its event at eight
-    // instants 18 ms apart (four, until 2026-11-26, left the medians a realisation
-    // apart: load step Q24 7.58 vs f32 6.55 over four, 7.16 vs 6.60 over eight), and
-    // the medians are compared: the Q24 drive must be no
+    // the event hits (`paper_phases` prints the spread), and single runs of the two
+    // drives can differ by more than the arithmetic does (the open-loop test above:
+    // 0.08 deg). So each scenario runs with its event at eight instants 18 ms apart
+    // (four left the medians a realisation apart), and the medians are compared: the Q24
+    // drive must be no
     // worse than 1 degree of max error and within 0.5 degree of rms (measured medians of
     // the max, Q24 against f32: speed step 4.8 vs 4.7, load step 12.7 vs 12.8 deg; one
     // Q24 speed-step run reached 8.6 deg, 0.5 s after the ramp, at 0.45 m/s).

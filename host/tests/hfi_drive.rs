@@ -188,7 +188,7 @@ fn starts_from_an_unknown_position_without_moving_to_align() {
                 assert!((reached - f64::from(target)).abs() < 0.005, "{x0}: {reached}");
                 assert_eq!(end.state, DriveState::LowSpeed, "{x0}");
                 // How close the mover settles at the start in the last 0.3 s is the loops'
-                // stiffness (printed, not asserted; README Status).
+                // stiffness (printed, not asserted).
             }
         }
     }

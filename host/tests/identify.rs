@@ -153,8 +153,8 @@ fn commissioning_through_qemu(cpu: dcfo_host::qemu::QemuCpu) {
         "QEMU {cpu:?}: commissioning took {:.1} s of wall time; deepest stack {stack} bytes",
         run.wall_s
     );
-    // The start request builds the told drive in the receive interrupt (README, stack
-    // figures): measured 11,704 B (M3) and 11,804 B (M4F), against 992 and 2,496 B for
+    // The start request builds the told drive in the receive interrupt
+    // (docs/reliability.md, "Stack"): measured 11,704 B (M3) and 11,804 B (M4F), against 992 and 2,496 B for
     // the steady scenario (host/tests/qemu_hil.rs, budget 4,096 B). A budget that
     // catches growth beyond that.
     assert!(

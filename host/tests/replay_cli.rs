@@ -167,7 +167,7 @@ fn ideal_synthetic_trace_dcfo_converges_and_cfo_shows_its_phase_lead() {
     // From a cold start (the estimator's zero state) the circle fit seeds the estimator
     // within about a third of a period (`dcfo::arc_fit`), so by 0.5 s it has converged:
     // measured rms 3.2e-4 deg (2026-11-27). Before the fit the DCFO + PLL pair was still
-    // acquiring at 0.5 s (digest §8: 0.5-1 s at 8-10 Hz; the PLL's slow pole at -0.13 w),
+    // acquiring at 0.5 s (docs/method.md §8; the PLL's slow pole at -0.13 w),
     // rms 5.0 deg, and this check was that it converged tenfold by 1.3 s; two figures
     // at the numbers' floor no longer tell that.
     let rms_half_second = num(&d, "theta_err_rms_deg");

@@ -61,7 +61,7 @@ fn a_bare_mover_is_handed_over_from_the_damped_i_f_start_on_every_example_motor(
     // The I/f vector is a spring on the mover; undamped, a bare mover (no payload) swung
     // about the open-loop speed and, with the speed loop starting from zero thrust at the
     // hand-over, was stopped by friction and tripped LOCK_LOST on all three motor files
-    // (README, Status). Damped and preset, each reaches sensorless operation and follows
+    // (docs/low-speed-operation.md). Damped and preset, each reaches sensorless operation and follows
     // a speed step without a fault (measured 11.8, 6.4 and 4.9 deg max from 2.5 s on,
     // the paper mover's during the 0.4 -> 0.8 m/s step).
     for motor in ["paper", &repo("motors/salient.toml"), &repo("motors/low_r.toml")] {

@@ -50,10 +50,9 @@ fn salient_motor_stroke_meets_the_floors() {
     assert!(m.params.lq_h / m.params.ld_h >= 1.15);
     // At rest the salient motor's position comes from HFI, whose standstill angle budget
     // is 10 deg electrical (src/hfi.rs: 7.3 deg measured over 16 positions): the final
-    // error is held to that, tau / 18. The tau / 60 (3 deg) is not met with HFI:
-    // 0.30 mm of 0.33 when HFI was merged, 0.42 mm after the FLL's band on the PLL moved
-    // the trajectory, 0.27 mm since the angle's phase compensation (README, Status):
-    // where the mover stops decides it, not a bound; the current vector met it (0.12 mm).
+    // error is held to that, tau / 18. The tau / 60 (3 deg) is not a bound with
+    // HFI: where the mover stops decides whether it is met (it has been, and has not,
+    // as the estimator changed the trajectory); the current vector meets it.
     let tau = f64::from(m.params.pole_pitch_m);
     check_with_final("salient", &m.params, tau / 18.0);
 }

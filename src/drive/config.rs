@@ -24,7 +24,7 @@ pub struct StartupConfig {
     /// Speed at which the drive hands over to the estimator, m/s (> 0).
     pub handover_speed_m_per_s: f32,
     /// Minimum time at the hand-over speed before handing over, s (lets the observer
-    /// and PLL converge; digest §8: 0.5-1 s from cold at 8-10 Hz).
+    /// and PLL converge; docs/method.md §8: 0.5-1 s from cold at 8-10 Hz).
     pub dwell_s: f32,
     /// After hand-over, time over which the d-axis current of the start-up vector is
     /// ramped to zero, s (> 0).
@@ -41,13 +41,13 @@ pub struct StartupConfig {
     pub timeout_dwells: u16,
     /// Shortest start-up timeout, s (> 0; default 1 s): with a short (or zero) dwell,
     /// `timeout_dwells` dwells would not leave the observer and PLL time to converge
-    /// (0.5-1 s from cold, digest §8).
+    /// (0.5-1 s from cold, docs/method.md §8).
     pub min_timeout_s: f32,
 }
 
 /// Compensation of the inverter's dead time and device drops, added to the voltage
-/// command per phase as `(dead_time / Ts * Vdc + device_drop) * sign(i)` (digest §8),
-/// the sign smoothed over `current_band_a` and, where the duties spread far enough,
+/// command per phase as `(dead_time / Ts * Vdc + device_drop) * sign(i)`
+/// (`docs/method.md` §8, `docs/inverter-compensation.md`), the sign smoothed over `current_band_a` and, where the duties spread far enough,
 /// taken at the switching edges through the PWM ripple ([`crate::dead_time`]).
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -70,12 +70,10 @@ pub enum CompensationSigns {
     Measured,
     /// The current reference where it is clear of the sensors' noise (above
     /// [`super::COMPENSATION_REFERENCE_FROM_BANDS`] bands, fully from twice that), the
-    /// measured current near zero: the default since 2026-11-26, when the compensation
-    /// took the PWM ripple at the switching edges into account ([`crate::dead_time`]).
-    /// Against [`Self::Measured`] on the paper axis (max deg): steady 0.3 m/s 0.70 / 0.25
-    /// against 1.23 / 0.54, 0.6 m/s 3.5 against 7.9, 1.0 m/s 1.5 against 1.8; `dcfo
-    /// acquire` 52 cold starts over budget against 178 (README, "Inverter compensation:
-    /// what was tried"). Before the ripple it lost at 1.0-1.5 m/s (11.1 and 9.2 deg).
+    /// measured current near zero: the default. It needs the PWM ripple at the switching
+    /// edges modelled ([`crate::dead_time`]), without which it loses at 1.0-1.5 m/s; with
+    /// it, it beats [`Self::Measured`] on the paper axis's steady state at every speed and
+    /// in the cold starts (`docs/inverter-compensation.md`).
     ReferenceAboveNoise,
 }
 

@@ -1,5 +1,6 @@
 //! The drive: one control step per PWM period, composing the library blocks into the
-//! sensorless FOC loop of digest §5, with its start-up and protection state machine.
+//! sensorless FOC loop of `docs/method.md` §5, with its start-up and protection state
+//! machine.
 //!
 //! ```text
 //! samples -> offsets -> Clarke -> estimator (observer + PLL) -> Park -> current PIs
@@ -710,10 +711,10 @@ impl<T: Scalar> Drive<T> {
     /// holds the last answered duties). The estimator then integrates the whole time
     /// since the previous step, `(1 + n) dt`, on the voltages the plant applied in it:
     /// the command of two steps back for one period and the last one for `n`. Without
-    /// that the angle falls behind by `n w dt` (the fault campaign's corrupted frames:
-    /// one period in 20 lost, 5.0 deg against its 5 deg floor). Gaps beyond
-    /// [`MAX_BRIDGED_PERIODS`] are stepped as one period, as before: a host that loses
-    /// that many frames is the link watchdog's business.
+    /// that the angle falls behind by `n w dt` (with one period in 20 lost, enough to
+    /// fail the fault campaign's corrupted-frames case). Gaps beyond
+    /// [`MAX_BRIDGED_PERIODS`] are stepped as one period: a host that loses that many
+    /// frames is the link watchdog's business.
     pub fn step_after_missed(&mut self, m: &Measurements<T>, missed_periods: u16) -> StepOutput<T> {
         self.step_bridging(m, if missed_periods <= MAX_BRIDGED_PERIODS { missed_periods } else { 0 })
     }
@@ -1092,24 +1093,21 @@ impl<T: Scalar> Drive<T> {
     /// winding's voltage. Read from the measured current, it puts the current sensors'
     /// noise on the winding: at light load the phase currents spend part of every period
     /// within a few noise sigmas of zero, and the noise switches the compensation's full
-    /// `(Td/Ts) Vdc` back and forth there. Without that noise the paper axis's steady
-    /// error is 1.02 / 0.38 deg instead of 1.56 / 0.62, and the salient motor's axis swings
-    /// at 5 Hz by +-3 % (10.5 deg; 1.4 without the noise; the speed loop at 14 rad/s
-    /// instead of 20 also stops it). The reference is noise-free and what the current
-    /// loop makes flow. Near zero it is not: there the three currents lie within the PWM
-    /// ripple at the switching edges, the inverter loses almost nothing, and the
-    /// reference's clean sign commands the full amplitude anyway (after an estimator
-    /// reset at speed, a 5 Hz swing through zero thrust current, 7.1 deg over the last
-    /// 0.5 s against 1.7 with the measured signs); the measured current's noise averages
-    /// the compensation to about what the inverter loses there. Measured (2026-11-26; the
-    /// blend from 4 to 8 bands, against 2 to 4 and the reference alone): `dcfo paper`
-    /// steady 0.65 / 0.25 deg (0.61 / 0.25, 0.63 / 0.25), the reset at speed 1.45 (3.20,
-    /// 7.14). The default since the compensation took the PWM ripple at the switching
-    /// edges into account ([`crate::dead_time`]); before, it lost at 1.0-1.5 m/s (README,
-    /// "Inverter compensation: what was tried"). Filtering the measured current instead
-    /// (at the current loop's bandwidth, in a frame turning with it) made the steady
-    /// error 18 deg: a lag inside that 600 V/A path. The result is carried forward to the
-    /// application window and handed to the inverter model per phase.
+    /// `(Td/Ts) Vdc` back and forth there (on the simulated axes that noise is most of the
+    /// light-load steady error, and drives a 5 Hz speed swing on the salient motor's
+    /// axis). The reference is noise-free and what the current loop makes flow. Near zero
+    /// it is not: there the three currents lie within the PWM ripple at the switching
+    /// edges, the inverter loses almost nothing, and the reference's clean sign would
+    /// command the full amplitude anyway (after an estimator reset at speed, a 5 Hz swing
+    /// through zero thrust current); the measured current's noise averages the
+    /// compensation to about what the inverter loses there. The blend from 4 to 8 bands
+    /// did better on the paper axis than 2 to 4 or the reference alone. It relies on the
+    /// PWM ripple at the switching edges being modelled ([`crate::dead_time`]); without
+    /// that the reference's signs lost at 1.0-1.5 m/s. Filtering the measured current
+    /// instead (at the current loop's bandwidth, in a frame turning with it) puts a lag
+    /// inside that 600 V/A path and lost the steady state. `docs/inverter-compensation.md`
+    /// has the measurements. The result is carried forward to the application window and
+    /// handed to the inverter model per phase.
     fn compensation_current(&self, model: &InverterErrorModel<T>, i_measured: Dq<T>) -> Dq<T> {
         let k = &self.k;
         if !k.signs_from_reference {

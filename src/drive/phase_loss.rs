@@ -7,9 +7,9 @@
 //! loops' voltage sits on the bridge's limit with the current off its reference. At
 //! light load an open phase does not saturate the voltage: the two remaining phases
 //! carry a current vector on a line, the flux estimate is corrupted by it, and the drive
-//! pushed on a wrong angle until the over-current trip (`dcfo faults`, open phase at
-//! 0.3 m/s: `OVER_CURRENT` after 242 ms at 10.1 A; a stuck sensor after 76 ms with
-//! 20.3 A behind it).
+//! pushed on a wrong angle until the over-current trip (`dcfo faults`: an open phase at
+//! 0.3 m/s took a quarter of a second to trip, and a stuck sensor had several times the
+//! rated current behind it by then).
 //!
 //! ## The check
 //! Per phase `k`, the magnitudes of the measured current `|i_k|` and of the reference
@@ -28,15 +28,14 @@
 //!   starves, and the saturation check is the one that speaks.
 //! - A phase with no reference "carries" (`0 >= 0`). Requiring a reference of its own
 //!   too (a quarter of the starved phase's) let the current behind a stuck sensor grow
-//!   from 5.5 to 11.3 A before the trip (`dcfo faults`), and the case it would exclude,
+//!   to twice as much before the trip (`dcfo faults`), and the case it would exclude,
 //!   a current vector across two phases that the loops deliver short at standstill, has
 //!   the loops' voltage on its limit: the saturation check names it the same.
 //! - After a phase opens, `m_k` decays from about `r_k` as `(1 - Ts/tau)^n`: it is below
 //!   a quarter after `tau ln 4` (13.9 ms for `tau` = 10 ms), and the trip follows
-//!   `current_error_s` later, provided the reference averages above the threshold.
-//!   Measured in `dcfo faults` (2026-11-26): open phase `CURRENT_CONTROL` after 60.8 ms
-//!   with 0.89 A peak (the reference first has to grow above 10 % of rated peak), stuck
-//!   sensor after 38.8 ms with 5.5 A behind it.
+//!   `current_error_s` later, provided the reference averages above the threshold (at
+//!   light load the reference first has to grow above it; `dcfo faults` prints the open
+//!   phase's and the stuck sensor's trip times).
 //!
 //! The drive runs it wherever its current loops run (not while HFI aligns, when the
 //! loops are held), on the currents its loops see (with HFI the fundamental).

@@ -9,7 +9,7 @@ use dcfo::transforms::AlphaBeta;
 use dcfo::units::Base;
 use std::f64::consts::PI;
 
-/// Paper motor constants (digest §1).
+/// Paper motor constants (docs/method.md §1).
 pub const RS: f64 = 5.0;
 pub const LS: f64 = 0.0085;
 pub const PSI_F: f64 = 0.16;

@@ -2,7 +2,7 @@
 //!
 //! What it simulates:
 //!
-//! - **Motor** in the rotor (dq) frame, digest §1: `u_d = Rs i_d + Ld di_d/dt -
+//! - **Motor** in the rotor (dq) frame, docs/method.md §1: `u_d = Rs i_d + Ld di_d/dt -
 //!   omega_e Lq i_q`, `u_q = Rs i_q + Lq di_q/dt + omega_e (Ld i_d + psi_f)`,
 //!   thrust `F_e = 1.5 (pi/tau) (psi_f i_q + (Ld - Lq) i_d i_q)`,
 //!   `omega_e = pi v / tau`, `theta_e = pi x / tau + theta_offset`. Park and Clarke

@@ -69,7 +69,7 @@ fn ceil_125(x: f64) -> f64 {
     10.0 * decade
 }
 
-/// PMSLM and mechanical load: the dq model of digest §1 plus Coulomb/static
+/// PMSLM and mechanical load: the dq model of docs/method.md §1 plus Coulomb/static
 /// friction and end-effect thrust ripple.
 ///
 /// Mechanics: `M dv/dt = F_e - B v - F_c sign(v) - F_load - F_em cos(2 pi x / tau)`,

@@ -2,7 +2,7 @@
 //! from back-EMF `e` (V) to flux estimate `psi_hat` (Wb), so magnitudes are in Wb/V
 //! (= s) and a perfect integrator is `1/s`.
 //!
-//! - DCFO (digest §3): `psi_hat = H(s) x` with `x = e/s` the open-loop flux, so
+//! - DCFO (docs/method.md §3): `psi_hat = H(s) x` with `x = e/s` the open-loop flux, so
 //!   `psi_hat / e = H(s)/s = 2 zeta w Ls s / (Ls s^3 + (2 zeta w Ls - h) s^2 + w^2 Ls s - h w^2)`
 //!   with the notch at `w` and `h = h_per_ls_omega * Ls * w` (ohm). At `s = j w` this is
 //!   exactly `1/(j w)`: the integrator's gain and phase (-90 deg) at the fundamental.

@@ -1,5 +1,5 @@
-//! The paper's experiments (digest §6) as named scenarios, and the figures measured on
-//! each run.
+//! The paper's experiments (`docs/method.md` §6) as named scenarios, and the figures
+//! measured on each run.
 
 use super::{Run, Sample, theta_err_deg};
 use crate::plant::rated_thrust_n;
