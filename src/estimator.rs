@@ -51,7 +51,7 @@
 //! up to 17 % above it and the flux estimate leads by 11 deg, while the PLL's full
 //! frequency `omega_hat = integral + kp eps` (the integrator plus its phase correction)
 //! follows the mover to within 1 rad/s. The notch's phase error is known to first
-//! order, `(w_notch - w) / (zeta w)` (digest §8), so `(w_notch - omega_hat) / (zeta
+//! order, `(w_notch - w) / (zeta w)` (docs/method.md §8), so `(w_notch - omega_hat) / (zeta
 //! |w_notch|)` estimates it. It cannot tune the notch or drive the PLL: that closes the
 //! loop the [`crate::pll`] docs analyse (`c kp = 8 > 1`, unstable). It *can* correct the
 //! angle the estimator reports, an open path with no stability question: the output

@@ -1,4 +1,4 @@
-//! Phase-locked loop on the mover-flux estimate (digest §4): angle and speed.
+//! Phase-locked loop on the mover-flux estimate (docs/method.md §4): angle and speed.
 //!
 //! ```text
 //! eps   = -psi_a sin(theta_hat) + psi_b cos(theta_hat) = |psi| sin(theta - theta_hat)
@@ -16,7 +16,7 @@
 //!
 //! ## Tuning the DCFO's notch: use [`Pll::omega_integral`]
 //! The DCFO's phase at the fundamental moves by about `1/(zeta w)` rad per rad/s of
-//! notch-frequency error (digest §8), so the PLL and the notch form a loop. With an
+//! notch-frequency error (docs/method.md §8), so the PLL and the notch form a loop. With an
 //! instantaneous phase shift `c (w_notch - w)`, `c = 1/(zeta w)`:
 //! - notch at the full `omega_hat = kp eps_n + integral`: characteristic polynomial
 //!   `(1 - c kp) s^2 + (kp - c ki) s + ki`, which needs `2 zeta_p w_p < zeta w` — a PLL

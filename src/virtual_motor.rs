@@ -13,7 +13,7 @@
 //! `PhaseSensors` and `PowerStage` traits as the real boards, so the control loop cannot
 //! tell it from a power stage.
 //!
-//! # Model (the shared trace format's conventions)
+//! # Model (the trace format's conventions, docs/trace-format.md)
 //! Rotor (dq) frame at the electrical angle `θ = π x / τ`, amplitude-invariant:
 //!
 //! ```text

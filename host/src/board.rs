@@ -16,7 +16,7 @@
 //! drive whose periods stop coming ([`DRIVE_STALL_LIMIT`]).
 //!
 //! A downloaded capture ([`CaptureData`]: the drive's own words and their
-//! [`CaptureFormat`]) becomes a trace in the shared format (`t`, `u_alpha`, `u_beta`,
+//! [`CaptureFormat`]) becomes a trace in the trace format (docs/trace-format.md) (`t`, `u_alpha`, `u_beta`,
 //! `i_alpha`, `i_beta` and the commanded acceleration `alpha_e_ref`, see
 //! [`crate::trace::COMMANDED_ACCEL_COLUMN`]; SI as `f64`, which for Q8.24 words converts
 //! back to the same bits; comment lines name the number type) starting at the
@@ -436,7 +436,7 @@ pub fn capture_comments(data: &CaptureData, motor: &MotorParams) -> Vec<String> 
     ]
 }
 
-/// The capture as a trace in the shared format: row `k` at `t = k Ts` (the estimator's
+/// The capture as a trace in the trace format (docs/trace-format.md): row `k` at `t = k Ts` (the estimator's
 /// first step is `t = 0`), in SI ([`CaptureFormat::to_si`] in the working units of
 /// `motor`), with the commanded acceleration column.
 ///
@@ -1221,7 +1221,7 @@ fn finish_download(
 pub struct Params {
     /// The drive image: QEMU or a board on a serial port.
     pub target: Target,
-    /// Download the capture into this trace (CSV, shared trace format) once it is over.
+    /// Download the capture into this trace (CSV, docs/trace-format.md) once it is over.
     pub record: Option<PathBuf>,
     /// Non-interactive: connect, arm the capture, enable at `speed_m_per_s`, wait until
     /// the drive runs and the capture is over, download it, replay it, disable.

@@ -279,7 +279,7 @@ pub struct Params {
     pub motor: String,
     /// Flux observer feeding the PLL.
     pub observer: ObserverKind,
-    /// Input trace (CSV, shared trace format).
+    /// Input trace (CSV, docs/trace-format.md).
     pub trace: PathBuf,
     /// Output trace (CSV), written atomically.
     pub output: PathBuf,

@@ -1,4 +1,4 @@
-//! The disturbance compensated flux observer (DCFO), digest §3.
+//! The disturbance compensated flux observer (DCFO), docs/method.md §3.
 //!
 //! Per axis, with `psi_i` the integrator state and `d` the disturbance estimate:
 //!
@@ -75,7 +75,7 @@
 //! 40 N load step (9.2 deg median against 7.5). A lower `zeta` therefore needs a notch
 //! tuning that a DC step does not move; until then the default stays at 1.0.
 //!
-//! How much is at stake (2026-11-26, README "The notch's tuning"): with the closed-loop
+//! How much is at stake (docs/notch-tuning.md): with the closed-loop
 //! sim handing the notch the plant's true speed and the phase compensation off, `zeta =
 //! 0.5 / eta_h = -0.3` gives over eight event phases (median / max) +2 V 9.2 / 10.9 deg,
 //! +0.2 A 4.5 / 5.2, load step 1.9 / 2.4, speed step 3.1 / 3.5 and steady 1.02 / 1.10:
@@ -143,7 +143,7 @@ pub struct DcfoConfig {
     /// inductive reactance at the notch frequency. `h >= 0` is refused.
     pub h_per_ls_omega: f32,
     /// Lowest notch frequency (rad/s, > 0). Below it the notch stays at the floor: the
-    /// observer has no information at standstill (digest §3).
+    /// observer has no information at standstill (docs/method.md §3).
     pub omega_floor_rad_s: f32,
     /// Gain `p` of the radial feedback (dimensionless, >= 0; 0 is the paper's DCFO):
     /// the integrator is fed `-p w (|psi_hat| - rho) / rho` along `psi_hat`, `rho` the
@@ -175,7 +175,7 @@ impl Default for DcfoConfig {
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum DcfoConfigError {
-    /// `h_per_ls_omega >= 0` (or NaN): the observer would be unstable (digest §3, Routh).
+    /// `h_per_ls_omega >= 0` (or NaN): the observer would be unstable (docs/method.md §3, Routh).
     GainNotNegative,
     /// `zeta` is not a valid positive number.
     BadDamping,

@@ -1,4 +1,4 @@
-//! Flux observers (digest §2–3): estimate the mover (magnet) flux vector `psi_f_ab`
+//! Flux observers (docs/method.md §2–3): estimate the mover (magnet) flux vector `psi_f_ab`
 //! from the stator voltage and current, behind one interface.
 //!
 //! All of them integrate the back-EMF side of the voltage equation, `u - Rs i`, and

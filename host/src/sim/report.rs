@@ -71,7 +71,7 @@ pub fn series(run: &Run, sc: &Scenario, value: impl Fn(&super::Sample) -> f64) -
 }
 
 /// The trace rows of a run (observer inputs and ground truth) and its estimates, in
-/// the shared trace format.
+/// the trace format (docs/trace-format.md).
 pub fn trace_of(run: &Run) -> Result<(InputTrace, Vec<Estimate>)> {
     let rows = run.samples.iter().map(|s| s.row).collect();
     let mut trace = InputTrace::from_rows(rows, &run.scenario).context("simulated trace")?;
