@@ -346,20 +346,9 @@ mod firmware {
         stack_depth(|| server.on_byte(black_box(last), &mut tx))
     }
 
-    /// The drive states, in the order of their index in the tallies.
-    const STATES: [DriveState; 8] = [
-        DriveState::Disabled,
-        DriveState::Calibrating,
-        DriveState::Starting,
-        DriveState::Running,
-        DriveState::Fault,
-        DriveState::Reacquiring,
-        DriveState::LowSpeed,
-        DriveState::Commissioning,
-    ];
-
+    /// A state's index in the tallies: its telemetry code (`DriveState::ALL` order).
     fn state_index(s: DriveState) -> usize {
-        STATES.iter().position(|&x| x == s).unwrap_or(0)
+        usize::from(s.code())
     }
 
     fn state_name(s: DriveState) -> &'static str {
@@ -528,7 +517,7 @@ mod firmware {
 
         fn report(&self) {
             let (ty, name) = (self.ty, self.name);
-            for (k, s) in STATES.iter().enumerate() {
+            for (k, s) in DriveState::ALL.iter().enumerate() {
                 if let Some(t) = self.steps.get(k).filter(|t| t.count > 0) {
                     println!("STEPS {ty} {name} {} {} {} {}", state_name(*s), t.count, t.sum, t.max);
                 }
