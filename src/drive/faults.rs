@@ -36,10 +36,13 @@ impl Faults {
     /// Commissioning stopped: a named error of its own, or a protection of the drive
     /// while it ran ([`super::Drive::commissioning_result`]).
     pub const COMMISSIONING: Faults = Faults(1 << 10);
-    /// The axis needs more thrust than the current limit gives: the speed loop pushed
-    /// on the thrust-current limit towards its reference, the speed off it by more than
-    /// the hand-over's tolerance, for longer than [`super::FaultConfig::overload_s`] (the
-    /// mover overpowered: stopped, or pushed back by the load).
+    /// The axis needs more thrust than the drive gives: the speed loop (running, or a
+    /// positioning drive's low-speed mode on HFI) pushed on the thrust-current limit
+    /// towards its reference, the speed off it by more than the hand-over's tolerance,
+    /// for longer than [`super::FaultConfig::overload_s`] (the mover overpowered:
+    /// stopped, or pushed back by the load); or, in the low-speed mode on the current
+    /// vector, the back-EMF read a mover faster than the vector's spring lets it swing
+    /// (it slips poles under a load the vector cannot hold).
     pub const OVERLOAD: Faults = Faults(1 << 11);
 
     /// Every fault bit with its name (as the constants are called), for logs and

@@ -519,6 +519,11 @@ impl<T: Scalar> Drive<T> {
                     ),
                     None => None,
                 },
+                // A held swing of a radian on the spring reaches w_n; the inverter's
+                // error reads as up to the low-speed threshold's speed.
+                slip_margin_rad_s: wn + m.low_speed_m_per_s * omega_per_speed,
+                slip_settle_s: 2.0 * core::f32::consts::TAU / wn,
+                slip_guard_s: 0.0,
                 hold_bandwidth_rad_s: m
                     .hfi
                     .map_or(0.0, |h| HOLD_BANDWIDTH_SHARE * HOLD_OBSERVER_SHARE * h.bandwidth_rad_s),
@@ -1228,21 +1233,10 @@ impl<T: Scalar> Drive<T> {
             if d > T::ZERO { (d - k.id_ramp_step).max(T::ZERO) } else { (d + k.id_ramp_step).min(T::ZERO) };
         let limit = k.current_limit;
         self.i_dq_ref.q = self.i_dq_ref.q.clamp_to(-limit, limit);
-        // Overload supervision: pushing on the current limit towards the reference while
-        // the speed is off it by more than the hand-over's tolerance (of the reference,
-        // or of the hand-over speed near zero). An axis that follows its ramp or profile
-        // at the limit lags by less; a load that stops the mover or drives it back, by
-        // the whole reference.
-        let q = self.i_dq_ref.q;
-        let speed_error = self.omega_ref - self.omega_filtered;
-        let tolerance = k.handover_tolerance * self.omega_ref.abs().max(k.handover_omega);
-        let pushing = (q >= k.overload_level && speed_error > tolerance)
-            || (q <= -k.overload_level && speed_error < -tolerance);
-        self.overload_count = if pushing { self.overload_count.saturating_add(1) } else { 0 };
-        if self.overload_count > k.overload_samples {
-            self.trip(Faults::OVERLOAD);
+        if self.supervise_overload() {
             return (estimate.theta_e, estimate.omega_e);
         }
+        let k = &self.k;
         if estimate.tracking {
             self.counter = 0;
         } else {
@@ -1253,9 +1247,14 @@ impl<T: Scalar> Drive<T> {
             if lost && self.positioning.is_some() {
                 // A positioning drive has a reference to follow: back to the low-speed
                 // mode (the vector on the reference position) until the estimate,
-                // seeded again from the trajectory, tracks.
+                // seeded again from the trajectory, tracks. The lost estimate's angle is
+                // no place to start from (a reset estimator reads 0): the low-speed frame
+                // starts on the last control angle, at the commanded speed, so neither
+                // the current vector nor the position estimate jumps.
                 self.counter = 0;
-                return self.enter_low_speed(estimate);
+                let speed_m_per_s =
+                    self.omega_ref.to_f32() * self.k.base.omega_rad_s / self.k.omega_per_speed;
+                return self.enter_low_speed(self.theta_previous, self.omega_ref, speed_m_per_s);
             }
             if lost {
                 // Flying restart: stop pushing on an angle that is not trusted, and
@@ -1272,6 +1271,29 @@ impl<T: Scalar> Drive<T> {
             }
         }
         (estimate.theta_e, estimate.omega_e)
+    }
+
+    /// Overload supervision of a drive on its speed loop (`Running`, and the low-speed
+    /// mode on HFI): pushing on the current limit towards the speed reference while the
+    /// speed is off it by more than the hand-over's tolerance (of the reference, or of the
+    /// hand-over speed near zero), for longer than `FaultConfig::overload_s`, trips
+    /// `OVERLOAD`. An axis that follows its ramp or profile at the limit lags by less; a
+    /// load that stops the mover or drives it back, by the whole reference. Returns
+    /// `true` when it tripped. Not inlined: one copy for its two callers.
+    #[inline(never)]
+    fn supervise_overload(&mut self) -> bool {
+        let k = &self.k;
+        let q = self.i_dq_ref.q;
+        let speed_error = self.omega_ref - self.omega_filtered;
+        let tolerance = k.handover_tolerance * self.omega_ref.abs().max(k.handover_omega);
+        let pushing = (q >= k.overload_level && speed_error > tolerance)
+            || (q <= -k.overload_level && speed_error < -tolerance);
+        self.overload_count = if pushing { self.overload_count.saturating_add(1) } else { 0 };
+        if self.overload_count > k.overload_samples {
+            self.trip(Faults::OVERLOAD);
+            return true;
+        }
+        false
     }
 
     /// Reacquiring: zero current references (the current loops hold zero current on the

@@ -33,9 +33,9 @@
 //!   the loops' voltage on its limit: the saturation check names it the same.
 //! - After a phase opens, `m_k` decays from about `r_k` as `(1 - Ts/tau)^n`: it is below
 //!   a quarter after `tau ln 4` (13.9 ms for `tau` = 10 ms), and the trip follows
-//!   `current_error_s` later, provided the reference averages above the threshold (at
-//!   light load the reference first has to grow above it; `dcfo faults` prints the open
-//!   phase's and the stuck sensor's trip times).
+//!   `current_error_s` later, provided the reference averages above the threshold (an
+//!   open phase at light load waits for the reference to grow above 10 % of rated peak).
+//!   `dcfo faults` prints the detection times of an open phase and a stuck sensor.
 //!
 //! The drive runs it wherever its current loops run (not while HFI aligns, when the
 //! loops are held), on the currents its loops see (with HFI the fundamental).

@@ -21,12 +21,21 @@
 //!   - At rest a decaying dither of the vector (twice the learned friction's load angle,
 //!     0.8 `w_n`, over three periods) frees the mover from where friction stopped it.
 //!   - The estimator keeps running and is told the commanded acceleration.
+//!   - Slip supervision: a load beyond `K_f I` pushes the mover off the vector, pole
+//!     after pole, while the position estimate follows the vector. The q voltage's
+//!     speed reading `w cos(delta)` shows it once the mover outruns the inverter's error
+//!     (`w_ls`): moving, a reading against the reference's direction (the mover past
+//!     the spring's peak, 90 deg from the vector); at rest, a reading beyond a held
+//!     swing (`w_n + w_ls`). `OVERLOAD` then, not an unannounced runaway. (Not before
+//!     the mover moves: at rest a non-salient motor shows no sign of where it sits on
+//!     the spring.)
 //! - **Sensorless** ([`DriveState::Running`]) above `low_speed_exit_ratio` times the
 //!   threshold: the position loop `v_cmd = v_ref + k_x (x_ref - x_hat)` feeds the speed
 //!   loop; the profile's acceleration is fed forward as thrust current (`M a_ref / K_f`,
 //!   slewed) and to the estimator's notch. The thrust the axis needs beyond that
 //!   (friction, load) is learned here, along the motion. A lock loss falls back to the
-//!   low-speed mode.
+//!   low-speed mode, its frame starting on the last control angle (the lost estimate's
+//!   angle is no reference).
 //!
 //! - **With HFI** (salient motors, [`MotionConfig::hfi`]): the
 //!   low-speed mode is closed loop on the [`crate::hfi`] estimate instead of the current
@@ -46,7 +55,9 @@
 //!   integrator that wound up against static friction (stick-slip hunting of ±5 mm with
 //!   the speed PI it replaced; a 50 % load step deflected 12.9 mm, now 2.8 mm). Moving,
 //!   the running drive's loops (stiff ones disturbed the hand-overs: lock lost after
-//!   reversals); the speed loop takes over from the hold's output. Leaving the band, the
+//!   reversals); the speed loop takes over from the hold's output. Moving or holding,
+//!   the overload supervision of `Running` applies (thrust on the current limit, the
+//!   speed off its command). Leaving the band, the
 //!   estimator is seeded from the HFI angle; entering
 //!   it, HFI is preset from the estimate.
 //!
@@ -129,6 +140,13 @@ pub(super) struct Positioning<T> {
     /// (slewed), thrust current (working units).
     pub(super) speed_loop_out: T,
     pub(super) accel_ff_applied: T,
+    /// The low-speed mode's slip supervision: the speed reading beyond which a mover at
+    /// rest is off the vector's spring (rad/s, SI: `w_n + w_ls`), and the time an
+    /// alignment on enable is given to settle before the supervision binds (s: two of
+    /// the spring's periods) with what is left of it.
+    pub(super) slip_margin_rad_s: f32,
+    pub(super) slip_settle_s: f32,
+    pub(super) slip_guard_s: f32,
     /// Expected mover angle relative to the low-speed frame (rad), filtered, and the
     /// filter's rate per period (the spring's natural frequency times the period).
     pub(super) mover_offset_rad: f32,
@@ -226,6 +244,7 @@ impl<T: Scalar> Drive<T> {
             p.profile.hold_at(x);
             p.speed_error_rad_s = 0.0;
             p.mover_offset_rad = 0.0;
+            p.slip_guard_s = p.slip_settle_s;
             p.anchor_angle = self.theta_previous;
             p.anchor_x_m = x;
             p.seeded = false;
@@ -277,6 +296,30 @@ impl<T: Scalar> Drive<T> {
         let error_rad_s = (omega_mover - omega_ref).to_f32() * k.base.omega_rad_s;
         if error_rad_s.is_finite() {
             p.speed_error_rad_s += p.speed_filter_rate * (error_rad_s - p.speed_error_rad_s);
+        }
+        // Slip: a mover off the vector's spring, pushed pole after pole by a load the
+        // vector cannot hold while the position estimate, the vector's, follows the
+        // reference. The q voltage's reading `w cos(delta)` (filtered above as the speed
+        // error) shows it once the mover moves faster than the inverter's error reads as
+        // (`w_ls`): moving, a reading against the reference's direction puts the mover
+        // beyond 90 deg from the vector, past the spring's peak force (a held mover reads
+        // along the motion); at rest, a reading beyond a held swing of a radian at `w_n`
+        // is a mover running away. Not while an alignment on enable settles (a mover
+        // found half a pole pitch off swings faster, up to `2 w_n`).
+        if p.aligned {
+            p.slip_guard_s = if p.slip_guard_s > dt_s { p.slip_guard_s - dt_s } else { 0.0 };
+        }
+        let omega_ref_rad_s = sp.speed_m_per_s * p.rad_per_m;
+        let reading = p.speed_error_rad_s + omega_ref_rad_s;
+        let readable = p.enter_m_per_s * p.rad_per_m;
+        let slipping = if omega_ref_rad_s == 0.0 {
+            libm::fabsf(reading) > p.slip_margin_rad_s
+        } else {
+            reading * omega_ref_rad_s < 0.0 && libm::fabsf(reading) > readable
+        };
+        if p.slip_guard_s == 0.0 && slipping {
+            self.trip(crate::drive::Faults::OVERLOAD);
+            return (self.theta_previous, T::ZERO);
         }
         // The vector trails the reference position by damping_s times the speed error:
         // a thrust against the mover's swing on the current vector's spring.
@@ -368,12 +411,12 @@ impl<T: Scalar> Drive<T> {
         (omega_cmd, iq_ff)
     }
 
-    /// Into the low-speed mode on the estimated angle: the frame does not jump (the
-    /// current reference keeps its value and slews from there), the decoupling
+    /// Into the low-speed mode on the control frame at `theta` turning at `omega`
+    /// (electrical, working units; the mover at `speed_m_per_s`): the estimated angle as
+    /// the reference slows, the last control angle after a lock loss. The frame does not
+    /// jump (the current reference keeps its value and slews from there), the decoupling
     /// feed-forward moves into the integrators, the position estimate continues.
-    pub(super) fn enter_low_speed(&mut self, estimate: &Estimate<T>) -> (Angle, T) {
-        let theta = estimate.theta_e;
-        let omega = estimate.omega_e;
+    pub(super) fn enter_low_speed(&mut self, theta: Angle, omega: T, speed_m_per_s: f32) -> (Angle, T) {
         if let Some(p) = &mut self.positioning {
             p.anchor_angle = theta;
             p.anchor_x_m = p.profile.setpoint().position_m;
@@ -395,7 +438,7 @@ impl<T: Scalar> Drive<T> {
             // HFI takes over from the estimated angle and speed; the polarity is known.
             h.preset(theta, omega, true);
         }
-        let (x_m, v_m_per_s) = (self.position_m(), estimate.speed_m_per_s.to_f32());
+        let (x_m, v_m_per_s) = (self.position_m(), speed_m_per_s);
         if let Some(p) = &mut self.positioning
             && p.hfi.is_some()
         {
@@ -418,7 +461,11 @@ impl<T: Scalar> Drive<T> {
         let p = self.positioning.as_mut()?;
         let sp = p.profile.step(dt_s);
         if sp.speed_m_per_s.abs() < p.enter_m_per_s {
-            return Some(self.enter_low_speed(estimate));
+            return Some(self.enter_low_speed(
+                estimate.theta_e,
+                estimate.omega_e,
+                estimate.speed_m_per_s.to_f32(),
+            ));
         }
         let alpha =
             T::from_f32(sp.accel_m_per_s2 * p.rad_per_m * self.k.inv_omega_base * self.k.inv_omega_base);
@@ -599,6 +646,14 @@ impl<T: Scalar> Drive<T> {
         let d = self.i_dq_ref.d;
         self.i_dq_ref.d = if d > T::ZERO { (d - slew).max(T::ZERO) } else { (d + slew).min(T::ZERO) };
         let omega = o.omega_e;
+        // A load beyond the current limit pushes the mover off its reference, moving or
+        // holding, with HFI reading where it goes: the overload supervision of `Running`.
+        if self.supervise_overload() {
+            return Some((theta, omega, step));
+        }
+        let Some(p) = &mut self.positioning else {
+            return Some((theta, omega, step));
+        };
         if sp.speed_m_per_s.abs() <= p.exit_m_per_s {
             p.seeded = false;
             return Some((theta, omega, step));

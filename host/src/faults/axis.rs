@@ -4,9 +4,16 @@
 //! the firmware's receive path) whose byte stream can go silent, be corrupted or carry
 //! replayed frames. One period at a time, as in `crate::sim`: sample, control step,
 //! the plant runs the period with the duties of the step before.
+//!
+//! A positioning drive is fed its moves as `dcfo stroke` feeds them
+//! (`crate::stroke::run_with`): one per sensor frame while the drive's last report shows
+//! room in its queue; a move it refuses is counted, not retried.
 
-use dcfo::drive::{Drive, DriveState, Faults, StepOutput};
+use std::collections::VecDeque;
+
+use dcfo::drive::{Drive, DriveState, Faults, MOVE_QUEUE, StepOutput};
 use dcfo::link::{self, ActuationFrame, LinkServer, SensorFrame};
+use dcfo::motion::Move;
 use dcfo::units::Base;
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64;
@@ -16,9 +23,9 @@ use crate::plant::{Plant, PlantError, SimParams};
 /// The fault a case injects (at the injection time unless said otherwise).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Injection {
-    /// Phase a's connection opens: its current is zero from then on (the b-c loop
-    /// carries the current alone; for a motor with `Ld = Lq` the beta axis of the plant
-    /// is exactly that loop, so holding `i_alpha = 0` after every period models it).
+    /// Phase a's connection opens: its current is zero from then on, the b-c loop
+    /// carries the current alone (the plant's open phase, `Plant::set_open_phase`: exact
+    /// for `Ld = Lq`, an approximation with saliency).
     OpenPhase,
     /// Phase terminals a and b short together through `SHORT_OHM` and `SHORT_H`: the
     /// current through the short flows in the sensors of legs a and b (the motor's
@@ -65,6 +72,9 @@ pub enum Injection {
         /// Factor on the magnet flux.
         psi_f: f64,
     },
+    /// A positioning drive is sent a move to this target (m), ahead of the moves still
+    /// to send, with no dwell.
+    MoveTo(f64),
 }
 
 impl Injection {
@@ -78,6 +88,15 @@ impl Injection {
     pub fn from_start(self) -> bool {
         matches!(self, Injection::PlantRs(_) | Injection::MotorFile { .. })
     }
+}
+
+/// A positioning axis's moves: those still to send, the room in the drive's queue as
+/// its last report gave it, and the moves it refused.
+#[derive(Clone, Debug)]
+struct MoveFeed {
+    to_send: VecDeque<Move>,
+    queue_room: usize,
+    rejected: u16,
 }
 
 /// Resistance of the phase-to-phase short, ohm.
@@ -99,6 +118,8 @@ pub struct Period {
     pub locked: bool,
     /// True speed, m/s.
     pub v_m_per_s: f64,
+    /// The drive's speed estimate, m/s (NaN when it reported none this period).
+    pub v_hat_m_per_s: f64,
     /// Largest true phase current magnitude, A.
     pub i_true_max_a: f64,
     /// The three current readings the drive got, A.
@@ -114,6 +135,19 @@ pub struct Period {
     /// A sensor frame was delivered to the drive and answered this period (always for
     /// an in-process drive).
     pub answered: bool,
+    /// True mover position, m (from where it started).
+    pub x_m: f64,
+    /// A positioning drive's position estimate, m (NaN for a speed drive, or without an
+    /// answer).
+    pub x_hat_m: f64,
+    /// A positioning drive's reference position, m (NaN as `x_hat_m`).
+    pub x_ref_m: f64,
+    /// A positioning drive's reference speed, m/s (NaN as `x_hat_m`).
+    pub v_ref_m_per_s: f64,
+    /// A positioning drive: no move active, queued or still to send.
+    pub motion_done: bool,
+    /// Moves the drive refused so far.
+    pub moves_rejected: u16,
 }
 
 /// What the link-fault checks counted.
@@ -150,6 +184,8 @@ enum Controller {
 struct Answer {
     out: Option<StepOutput<f32>>,
     frame: Option<ActuationFrame>,
+    /// Moves the in-process drive refused so far (over the link: the answer's count).
+    rejected: u16,
 }
 
 /// The axis: plant, drive and the fault state.
@@ -164,6 +200,7 @@ pub struct Axis {
     speed_ref: f64,
     load_n: f64,
     injection: Option<Injection>,
+    moves: Option<MoveFeed>,
     stuck_b: Option<f64>,
     short_a: f64,
     full_scale_a: f64,
@@ -193,6 +230,7 @@ impl Axis {
             speed_ref,
             load_n: 0.0,
             injection: None,
+            moves: None,
             stuck_b: None,
             short_a: 0.0,
             full_scale_a: sim.sensors.current_full_scale_a,
@@ -200,6 +238,15 @@ impl Axis {
             rng: Pcg64::seed_from_u64(11),
             link: LinkChecks::default(),
         })
+    }
+
+    /// A positioning axis: a plant from `sim` and the positioning `drive` in process,
+    /// enabled, to be sent `moves` in order.
+    pub fn positioning(sim: &SimParams, drive: Drive<f32>, moves: &[Move]) -> Result<Self, PlantError> {
+        let mut axis = Axis::new(sim, drive, 0.0, false)?;
+        axis.moves =
+            Some(MoveFeed { to_send: moves.iter().copied().collect(), queue_room: MOVE_QUEUE, rejected: 0 });
+        Ok(axis)
     }
 
     /// Moves an in-process drive behind the link server, as it is (for link faults
@@ -237,21 +284,18 @@ impl Axis {
             Injection::Blocked => self.plant.set_speed_clamp(Some(0.0))?,
             Injection::Load(f) => self.load_n = f,
             Injection::EstimatorReset => self.drive_mut().reset_estimator(),
-            Injection::OpenPhase => self.open_phase_a()?,
+            Injection::OpenPhase => self.plant.set_open_phase(Some(0)),
             Injection::LinkSilent | Injection::LinkCorrupt { .. } | Injection::LinkReplay { .. } => {
                 self.put_behind_link()
+            }
+            Injection::MoveTo(target_m) => {
+                if let Some(feed) = &mut self.moves {
+                    feed.to_send.push_front(Move { target_m: target_m as f32, dwell_s: 0.0 });
+                }
             }
             _ => {}
         }
         Ok(())
-    }
-
-    /// Holds phase a's current at zero: `i_alpha = i_a = 0`, `i_beta` kept.
-    fn open_phase_a(&mut self) -> Result<(), PlantError> {
-        let s = self.plant.state();
-        let (sin, cos) = s.theta_e_rad.sin_cos();
-        // i_alpha = 0: i_d = sin * i_beta, i_q = cos * i_beta.
-        self.plant.set_currents_dq(sin * s.i_beta_a, cos * s.i_beta_a)
     }
 
     /// A current as the ADC returns it (clipped to its codes).
@@ -282,6 +326,8 @@ impl Axis {
         }
         // Two sensors: the third current is computed from the two readings.
         let c = -(a + b);
+        let move_to =
+            self.moves.as_mut().and_then(|f| if f.queue_room > 0 { f.to_send.pop_front() } else { None });
         let sensor = SensorFrame {
             sequence: self.k as u16,
             i_a: a as f32,
@@ -291,7 +337,7 @@ impl Axis {
             speed_ref: self.speed_ref as f32,
             enable: true,
             clear_faults: false,
-            move_to: None,
+            move_to,
         };
         let answer = self.control(&sensor);
         let bridge_on = self.pending_on;
@@ -300,10 +346,6 @@ impl Axis {
             self.plant.step(applied, self.load_n);
         } else {
             self.plant.step_open(self.load_n);
-        }
-        if self.injection == Some(Injection::OpenPhase) {
-            // Set from finite plant state: cannot fail.
-            let _ = self.open_phase_a();
         }
         if self.injection == Some(Injection::PhaseShort) {
             // di/dt = (v_ab - R i) / L over the period, v_ab the period's mean line
@@ -342,22 +384,35 @@ impl Axis {
                 }
             }
         }
-        let (theta_hat, locked) = match (&answer.out, &answer.frame) {
+        let (theta_hat, v_hat, locked) = match (&answer.out, &answer.frame) {
             (Some(out), _) => match out.estimate {
-                Some(e) => (e.theta_e.to_radians::<f64>(), e.locked),
-                None => (f64::NAN, false),
+                Some(e) => (e.theta_e.to_radians::<f64>(), f64::from(e.speed_m_per_s), e.locked),
+                None => (f64::NAN, f64::NAN, false),
             },
             (None, Some(f)) => match f.estimate {
-                Some(e) => (f64::from(e.theta_hat), f.state() == DriveState::Running),
-                None => (f64::NAN, false),
+                Some(e) => (f64::from(e.theta_hat), f64::from(e.speed), f.state() == DriveState::Running),
+                None => (f64::NAN, f64::NAN, false),
             },
-            (None, None) => (f64::NAN, false),
+            (None, None) => (f64::NAN, f64::NAN, false),
         };
+        // The position report: the drive's own for an in-process drive, the answer's over
+        // the link.
+        let position = match (&answer.out, &answer.frame) {
+            (Some(_), _) => dcfo::link::PositionReport::of(self.drive(), answer.rejected),
+            (None, Some(f)) => f.position,
+            (None, None) => None,
+        };
+        if let (Some(feed), Some(p)) = (&mut self.moves, position) {
+            feed.queue_room = MOVE_QUEUE.saturating_sub(usize::from(p.moves_queued));
+            feed.rejected = p.moves_rejected;
+        }
+        let nan = f64::NAN;
         self.k += 1;
         Period {
             t_s: t,
             theta_rad: truth.theta_e_rad,
             theta_hat_rad: theta_hat,
+            v_hat_m_per_s: v_hat,
             locked,
             v_m_per_s: truth.v_m_per_s,
             i_true_max_a: truth.i_abc_a.iter().fold(0.0f64, |m, i| m.max(i.abs())),
@@ -367,23 +422,32 @@ impl Axis {
             faults: self.drive().faults(),
             bridge_on,
             answered: answer.out.is_some() || answer.frame.is_some(),
+            x_m: truth.x_m,
+            x_hat_m: position.map_or(nan, |p| f64::from(p.x_hat_m)),
+            x_ref_m: position.map_or(nan, |p| f64::from(p.x_ref_m)),
+            v_ref_m_per_s: position.map_or(nan, |p| f64::from(p.v_ref_m_per_s)),
+            motion_done: self.moves.as_ref().is_some_and(|f| f.to_send.is_empty())
+                && position.is_some_and(|p| p.idle),
+            moves_rejected: self.moves.as_ref().map_or(0, |f| f.rejected),
         }
     }
 
     /// The drive's step on this period's sensor frame, directly or over the link.
     fn control(&mut self, sensor: &SensorFrame) -> Answer {
         let injection = self.injection;
+        let rejected = self.moves.as_ref().map_or(0, |f| f.rejected);
         match &mut self.controller {
             Controller::Local(drive) => {
-                // The calls the firmware makes on a received frame.
-                // (The axis sends no moves: a speed drive, nothing to refuse.)
-                let _ = sensor.apply_commands(drive);
+                // The calls the firmware makes on a received frame, counting a refused
+                // move as the link server does.
+                let rejected =
+                    if sensor.apply_commands(drive).is_err() { rejected.wrapping_add(1) } else { rejected };
                 let out = drive.step(&sensor.measurements(&Base::SI));
-                Answer { out: Some(out), frame: None }
+                Answer { out: Some(out), frame: None, rejected }
             }
             Controller::Linked { drive, server, sent } => {
                 let mut wire = [0u8; SensorFrame::WIRE_LEN];
-                let mut answer = Answer { out: None, frame: None };
+                let mut answer = Answer { out: None, frame: None, rejected };
                 let Ok(n) = link::encode(sensor, &mut wire) else {
                     // A frame the host cannot encode (a non-finite value) is not sent.
                     server.silent_period(drive);
