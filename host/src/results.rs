@@ -502,8 +502,13 @@ fn fault_case(input: &Input, results: &[Value], i: usize) -> Result<FaultCase> {
         let after = opt_num_in(input, results, i, "detect_s")?;
         format!("{faults}{}", after.map_or_else(String::new, |t| format!(" after {:.1} ms", t * 1e3)))
     } else {
-        let err = opt_num_in(input, results, i, "steady_err_deg")?;
-        format!("{} {}", str_in(input, results, i, "faults")?, or_dash(err, |d| format!("{d:.1}°")))
+        // The speed drive's angle error over the last 0.5 s, or the positioning drive's
+        // distance from its target at the end.
+        let err = match opt_num_in(input, results, i, "steady_err_deg")? {
+            Some(deg) => Some(format!("{deg:.1}°")),
+            None => opt_num_in(input, results, i, "x_off_target_m")?.map(|m| format!("{:.2} mm", m * 1e3)),
+        };
+        format!("{} {}", str_in(input, results, i, "faults")?, err.unwrap_or_else(|| "—".to_owned()))
             .trim_start_matches("none ")
             .to_owned()
     };
@@ -518,7 +523,7 @@ fn faults(input: &Input) -> Result<String> {
     let cases = (0..results.len()).map(|i| fault_case(input, results, i)).collect::<Result<Vec<_>>>()?;
     let (trips, rides): (Vec<&FaultCase>, Vec<&FaultCase>) = cases.iter().partition(|c| c.trip);
     let mut s = String::from(
-        "| trips | latched, detected after | rides through | error over the last 0.5 s (bound) |\n\
+        "| trips | latched, detected after | rides through | angle error over the last 0.5 s, or distance off target at the end (bound) |\n\
          |---|---|---|--:|\n",
     );
     for k in 0..trips.len().max(rides.len()) {
@@ -956,10 +961,12 @@ mod tests {
         let input = Input::from_value(
             None,
             "faults.json",
-            json!({"cases": 3, "unmet": 1, "silent_failures": 0, "max_bridge_off_periods": 1, "results": [
+            json!({"cases": 4, "unmet": 1, "silent_failures": 0, "max_bridge_off_periods": 1, "results": [
                 case("open-phase", "trip CURRENT_CONTROL <= 1 period", "CURRENT_CONTROL", json!(0.0776), Value::Null, true),
                 case("lock-loss", "ride through, <= 5 deg", "none", Value::Null, json!(1.26), true),
                 case("load-400N", "trip OVERLOAD <= 1 period", "LOCK_LOST", json!(0.3), Value::Null, false),
+                json!({"name": "stroke-load-20N", "expected": "complete, <= 3.75 mm", "faults": "none",
+                       "detect_s": null, "steady_err_deg": null, "x_off_target_m": 0.0021, "met": true}),
             ]}),
         );
         let t = Table::Faults.render(&[input]).unwrap();
@@ -970,10 +977,10 @@ mod tests {
         );
         assert_eq!(
             rows[3],
-            "| `load-400N` | **LOCK_LOST after 300.0 ms, expected trip OVERLOAD <= 1 period** |  |  |",
+            "| `load-400N` | **LOCK_LOST after 300.0 ms, expected trip OVERLOAD <= 1 period** | `stroke-load-20N` | 2.10 mm (3.75 mm) |",
             "{t}"
         );
-        assert!(t.contains("3 cases, 1 not as expected, 0 silent failures"), "{t}");
+        assert!(t.contains("4 cases, 1 not as expected, 0 silent failures"), "{t}");
     }
 
     #[test]
