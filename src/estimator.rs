@@ -12,9 +12,11 @@
 //!            reset / reacquire()
 //!                   |
 //!                   v
-//!   FLL steers: notch = FLL, PLL fed forward with the FLL's frequency
-//!      |  PLL locked and FLL frequency settled: PLL integrator := FLL frequency
-//!      v
+//!   FLL steers: notch = FLL, PLL fed forward with the FLL's frequency  <---------+
+//!      |  PLL locked, FLL frequency settled, above 1.5 notch floors (and,         |
+//!      |  after zero speed, not accelerating): PLL integrator := FLL frequency     |
+//!      v                                                     FLL below 1.25 notch |
+//!                                                            floors --------------+
 //!   PLL steers: notch = PLL integrator (the paper's loop, see crate::pll)
 //!               + its lag on the ramp the drive commands (set_commanded_acceleration),
 //!               the integrator held within zeta * NOTCH_PHASE_BUDGET_RAD (7 %) of a
@@ -44,6 +46,28 @@
 //! 32.4 -> 17.6 deg, 40 N load step 12.5 -> 11.7, speed step 4.6 -> 4.6, +0.2 A
 //! 10.0 -> 10.0, R = 2 Rs 6.8 -> 7.3, steady 1.53 -> 1.46; `dcfo acquire` 292 of 576
 //! cold starts over budget (340 before), 7 never locked (5).
+//!
+//! ## Through zero speed
+//! Near zero speed the flux turns too slowly for the PLL's integrator to tune the notch:
+//! through a reversal it lags the mover by the whole speed change, and the notch, at
+//! its floor, passes a flux that no longer turns at the PLL's frequency, so the estimate
+//! stayed 180 degrees off after the reversal. The FLL reads the rotation whatever its
+//! rate and direction. So when the FLL reads below [`ZERO_SPEED_PER_NOTCH_FLOOR`] notch
+//! floors, the FLL takes the notch again and feeds the PLL forward (its integrator
+//! cleared, so the PLL's frequency does not jump), exactly as while acquiring but
+//! without the circle fit (a mover passing through zero speed accelerates: it draws no
+//! circle) and without [`Estimate::acquiring`] (the frequency is known: a drive need
+//! not treat it as a lost estimate). The PLL takes the notch back above
+//! [`HANDOVER_PER_NOTCH_FLOOR`] notch floors once the FLL's frequency agrees with its
+//! mean within the agreement tolerance: a mover still accelerating out of the reversal
+//! (at the rated thrust, `a / w^2` near 1) would leave the integrator behind. `dcfo
+//! track`, the estimator alone from zero state: within 10 degrees 1.3 to 1.7 electrical
+//! periods after `|v|` reaches the back-EMF floor on every reversal of the repository's
+//! motors, f32 and Q8.24 alike, no false lock; `dcfo paper`, `dcfo acquire` and the
+//! fault campaign as without it. An open phase makes the FLL's reading swing below the
+//! floor too; were that reported as `acquiring`, the drive would drop its current
+//! reference at once and the phase-loss check would not see the evidence (`dcfo faults`: LOCK_LOST after
+//! 605 ms instead of CURRENT_CONTROL after 79 ms); not reported, it trips as before.
 //!
 //! ## Phase compensation of the angle output
 //! The notch tuned by the PLL's integrator lags a speed change nobody commanded: on the
@@ -253,6 +277,18 @@ pub const MAX_DISTURBANCE_DRIFT: f32 = 0.05;
 /// 15.5), a narrower one lets the FLL's ripple under a DC current offset into the notch
 /// (0.05: +0.2 A step 11.8 deg, steady 1.75 deg).
 pub const NOTCH_PHASE_BUDGET_RAD: f32 = 0.07;
+
+/// Frequency, in notch floors (dimensionless), below which the FLL tunes the notch and
+/// feeds the PLL forward again (module docs, "Through zero speed"): there the flux turns
+/// too slowly for the PLL's integrator to follow a reversal, while the FLL reads the
+/// rotation whatever its rate and direction.
+pub const ZERO_SPEED_PER_NOTCH_FLOOR: f32 = 1.25;
+
+/// Frequency, in notch floors (dimensionless), above which the PLL may take the notch
+/// back: above [`ZERO_SPEED_PER_NOTCH_FLOOR`], so that a mover near that speed does not
+/// hand the notch to and fro, and below the lowest speed a cold start is asked to lock
+/// at (`dcfo acquire`: 0.1 m/s on the paper motor, 1.7 notch floors).
+pub const HANDOVER_PER_NOTCH_FLOOR: f32 = 1.5;
 
 /// Rate at which the PLL's integrator is brought back into the FLL's band, per rad/s of
 /// the frequency (dimensionless): the FLL's own tracker rate `4 w` (`crate::fll`).
@@ -489,7 +525,9 @@ pub struct Estimate<T> {
     /// `true` while the estimate can be trusted: the PLL is locked and, for the DCFO
     /// with an FLL, the FLL agrees (see the module docs).
     pub locked: bool,
-    /// `true` while the FLL tunes the notch (acquiring, or [`NotchTuning::Fll`]).
+    /// `true` while the FLL tunes the notch to find a frequency not yet known (from reset
+    /// or [`Estimator::reacquire`], or always with [`NotchTuning::Fll`]); not while it
+    /// carries a known frequency through zero speed (module docs).
     pub acquiring: bool,
     /// `true` while the loops track the flux: the PLL is locked and, with an FLL, the
     /// frequencies agree. Weaker than `locked` (it does not wait for the flux estimate
@@ -532,6 +570,17 @@ pub struct Estimator<T> {
     /// The FLL tunes the notch and feeds the PLL forward (the PLL's integrator then holds
     /// only what the feed-forward misses).
     fll_steers: bool,
+    /// [`ZERO_SPEED_PER_NOTCH_FLOOR`] notch floors (rad/s).
+    zero_speed: T,
+    /// [`HANDOVER_PER_NOTCH_FLOOR`] notch floors (rad/s).
+    handover_floor: T,
+    /// The FLL read the frequency below `zero_speed` on an undisturbed flux at the last
+    /// sample: it takes the notch at this one.
+    passing_zero: bool,
+    /// The FLL carries the estimate through zero speed (it took the notch below the
+    /// zero-speed floor, not from reset or [`Estimator::reacquire`]): the frequency is
+    /// known, the estimate is not [acquiring](Estimate::acquiring).
+    through_zero: bool,
     /// Relative frequency disagreement that counts (dimensionless).
     agreement_tolerance: T,
     /// The smallest frequency the agreement is measured against (rad/s).
@@ -670,6 +719,10 @@ impl<T: Scalar> Estimator<T> {
             fll,
             tuning: config.notch_tuning,
             fll_steers,
+            zero_speed: base.omega(ZERO_SPEED_PER_NOTCH_FLOOR * config.fll.floor_rad_s),
+            handover_floor: base.omega(HANDOVER_PER_NOTCH_FLOOR * config.fll.floor_rad_s),
+            passing_zero: false,
+            through_zero: false,
             agreement_tolerance: T::from_f32(2.0 * config.fll.settle_tolerance),
             agreement_floor: base.omega(config.fll.floor_rad_s),
             notch_band: T::from_f32(config.dcfo.zeta * NOTCH_PHASE_BUDGET_RAD),
@@ -768,6 +821,16 @@ impl<T: Scalar> Estimator<T> {
         } else {
             self.advance_ramp_model(dt);
         }
+        // Through zero speed (module docs): below the floor the FLL carries the estimate,
+        // the PLL fed forward with its frequency; the circle fit is not asked again (a
+        // mover passing through zero speed accelerates: it draws no circle).
+        if self.passing_zero && !self.fll_steers && self.tuning == NotchTuning::AcquireWithFll {
+            self.passing_zero = false;
+            self.pll.set_integral(T::ZERO);
+            self.fll_steers = true;
+            self.through_zero = true;
+            self.clear_compensation();
+        }
         let (Some(fll), Some(increment)) = (&mut self.fll, flux.flux_increment_ab) else {
             let out = self.pll.update(flux.psi_ab, dt).map_err(EstimatorFault::Pll)?;
             return Ok(Estimate::from_parts(&out, flux, out.locked, out.locked, false));
@@ -806,14 +869,23 @@ impl<T: Scalar> Estimator<T> {
             T::ZERO
         };
         let calm = self.calm_angle >= self.calm_needed;
-        let acquiring = self.fll_steers;
+        let acquiring = self.fll_steers && !self.through_zero;
         let (out, locked, tracking) = if self.fll_steers {
             let out = self
                 .pll
                 .update_with_feedforward(flux.psi_ab, f.omega_e, f.notch_omega, dt)
                 .map_err(EstimatorFault::Pll)?;
             let tracking = out.locked && f.frequency_settled;
-            if tracking && self.tuning == NotchTuning::AcquireWithFll {
+            // Through zero speed the PLL takes the notch back only once the mover no
+            // longer accelerates (the FLL's reading within the agreement tolerance of
+            // its mean): its integrator lags an acceleration the feed-forward follows.
+            let steady = !self.through_zero
+                || (f.omega_e - fll.omega_mean()).abs() <= self.agreement_tolerance * f.omega_e.abs();
+            if tracking
+                && steady
+                && self.tuning == NotchTuning::AcquireWithFll
+                && f.omega_e.abs() >= self.handover_floor
+            {
                 // Hand the notch to the PLL: its integrator takes the FLL's frequency (the
                 // notch does not jump; the residual it held was the feed-forward's error).
                 // After a seed by the circle fit the FLL's reading ripples at `w` while the
@@ -825,10 +897,15 @@ impl<T: Scalar> Estimator<T> {
                 self.pll.set_integral(omega);
                 self.fitted = false;
                 self.fll_steers = false;
+                self.through_zero = false;
                 self.clear_compensation();
             }
             (out, out.locked && f.settled && calm, tracking)
         } else {
+            // Below the zero-speed floor on an undisturbed flux, the FLL takes the notch
+            // at the next sample (a disturbed flux, e.g. an open phase, reads a wrong
+            // frequency: the PLL keeps the notch).
+            self.passing_zero = f.omega_e.abs() < self.zero_speed;
             // The FLL reads the frequency whatever the notch's tuning; the PLL's integrator
             // lags a speed change nobody commanded (a load step). A notch off by `dw`
             // turns the observer's phase by `dw / (zeta w)`, so the PLL-tuned notch is
@@ -1094,6 +1171,7 @@ impl<T: Scalar> Estimator<T> {
     /// lock is declared again only once both loops agree. For a drive that has lost
     /// lock with the mover still moving (flying restart). No effect without an FLL.
     pub fn reacquire(&mut self) {
+        self.through_zero = false;
         self.fitted = false;
         if let Some(fit) = &mut self.arc_fit {
             fit.restart();
@@ -1110,6 +1188,8 @@ impl<T: Scalar> Estimator<T> {
 
     /// Back to the initial state; clears latched faults.
     pub fn reset(&mut self) {
+        self.passing_zero = false;
+        self.through_zero = false;
         self.clear_ramp_model();
         self.commanded_accel = T::ZERO;
         self.observer.reset();
