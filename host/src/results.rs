@@ -136,6 +136,8 @@ pub enum Table {
     Sim,
     /// `dcfo replay --json`, `OBSERVER=FILE` each: one trace through each observer.
     Replay,
+    /// `dcfo track --json`, one per motor.
+    Track,
     /// `dcfo stroke --json`, one per motor.
     Stroke,
     /// `dcfo identify --sim --json`, one per motor.
@@ -152,11 +154,12 @@ pub enum Table {
 
 impl Table {
     /// Every table, in the README's order.
-    pub const ALL: [Table; 10] = [
+    pub const ALL: [Table; 11] = [
         Table::Paper,
         Table::Acquire,
         Table::Sim,
         Table::Replay,
+        Table::Track,
         Table::Stroke,
         Table::Identify,
         Table::Faults,
@@ -172,6 +175,7 @@ impl Table {
             Table::Acquire => "acquire",
             Table::Sim => "sim",
             Table::Replay => "replay",
+            Table::Track => "track",
             Table::Stroke => "stroke",
             Table::Identify => "identify",
             Table::Faults => "faults",
@@ -204,6 +208,7 @@ impl Table {
             Table::Acquire => acquire(single(self, inputs)?),
             Table::Sim => sim(inputs),
             Table::Replay => replay(inputs),
+            Table::Track => track(inputs),
             Table::Stroke => stroke(inputs),
             Table::Identify => identify(inputs),
             Table::Faults => faults(single(self, inputs)?),
@@ -435,6 +440,57 @@ fn replay(inputs: &[Input]) -> Result<String> {
             write!(s, " {} |", thousands(i.num("false_lock_samples")? as u64))?;
         }
         s.push('\n');
+    }
+    Ok(s)
+}
+
+/// `dcfo track`: per motor, the f32 estimator's re-lock after a reversal and its error
+/// through the sharp steps, the false locks of both number types, and how far Q8.24's
+/// transient error is from f32's.
+fn track(inputs: &[Input]) -> Result<String> {
+    let mut s = String::from(
+        "| motor | re-lock after a fast reversal / on a stroke (periods, ≤ 2) | error through a sharp / a wide step (°, ≤ 8) | false-lock samples | Q8.24 − f32, transient (°) |\n\
+         |---|--:|--:|--:|--:|\n",
+    );
+    for input in inputs {
+        let profiles = list(input, "profiles")?;
+        let find = |name: &str, numeric: &str| -> Result<usize> {
+            (0..profiles.len())
+                .find(|&i| {
+                    profiles[i].get("profile").and_then(Value::as_str) == Some(name)
+                        && profiles[i].get("numeric").and_then(Value::as_str) == Some(numeric)
+                })
+                .ok_or_else(|| anyhow!("{}: no `{name}` profile in {numeric}", input.path.display()))
+        };
+        let relock = |name: &str| -> Result<String> {
+            let i = find(name, "f32")?;
+            Ok(opt_num_in(input, profiles, i, "relock_periods_max")?
+                .map_or_else(|| "never".to_owned(), |p| format!("{p:.2}")))
+        };
+        let transient = |name: &str| -> Result<f64> {
+            num_in(input, profiles, find(name, "f32")?, "transient_err_max_deg")
+        };
+        let mut false_locks = 0.0;
+        let mut q24_gap: f64 = 0.0;
+        for i in 0..profiles.len() {
+            false_locks += num_in(input, profiles, i, "false_lock_samples")?;
+            if str_in(input, profiles, i, "numeric")? == "q24" {
+                let name = str_in(input, profiles, i, "profile")?;
+                let f32_err = transient(name)?;
+                q24_gap = q24_gap.max((num_in(input, profiles, i, "transient_err_max_deg")? - f32_err).abs());
+            }
+        }
+        writeln!(
+            s,
+            "| {} | {} / {} | {} / {} | {} | {} |",
+            motor_name(input.text("motor")?),
+            relock("reversal")?,
+            relock("stroke")?,
+            deg(transient("step")?),
+            deg(transient("step-wide")?),
+            false_locks,
+            deg(q24_gap),
+        )?;
     }
     Ok(s)
 }
@@ -981,6 +1037,33 @@ mod tests {
             "{t}"
         );
         assert!(t.contains("4 cases, 1 not as expected, 0 silent failures"), "{t}");
+    }
+
+    #[test]
+    fn the_track_table_takes_f32_figures_and_the_largest_q24_gap() {
+        let fig = |profile: &str, numeric: &str, relock: Value, transient: f64, false_locks: u64| {
+            json!({"profile": profile, "numeric": numeric, "relock_periods_max": relock,
+                   "transient_err_max_deg": transient, "false_lock_samples": false_locks})
+        };
+        let input = Input::from_value(
+            None,
+            "track.json",
+            json!({"motor": "motors/salient.toml", "profiles": [
+                fig("reversal", "f32", json!(1.57), 41.4, 0),
+                fig("reversal", "q24", json!(1.6), 41.0, 0),
+                fig("stroke", "f32", Value::Null, 10.0, 2),
+                fig("stroke", "q24", json!(1.3), 10.0, 1),
+                fig("step", "f32", Value::Null, 11.4, 0),
+                fig("step", "q24", Value::Null, 11.5, 0),
+                fig("step-wide", "f32", Value::Null, 6.5, 0),
+                fig("step-wide", "q24", Value::Null, 7.25, 0),
+            ]}),
+        );
+        let t = Table::Track.render(&[input]).unwrap();
+        assert_eq!(t.lines().nth(2), Some("| salient | 1.57 / never | 11.4 / 6.50 | 3 | 0.75 |"), "{t}");
+        let missing = Input::from_value(None, "t.json", json!({"motor": "paper", "profiles": []}));
+        let e = Table::Track.render(&[missing]).unwrap_err().to_string();
+        assert!(e.contains("t.json") && e.contains("reversal"), "{e}");
     }
 
     #[test]
