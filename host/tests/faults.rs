@@ -19,14 +19,9 @@ const SHORTFALLS: [(&str, &str); 1] = [(
 
 /// Floors the campaign misses on a motor file, by motor and case, and why (found by
 /// `dcfo faults --motor`, not the positioning cases' concern): the test fails on any
-/// other.
-const KNOWN_FLOOR_MISSES: [(&str, &str, &str); 1] = [(
-    "low-r-high-current",
-    "R-x2",
-    "silent failure during the I/f start-up: with the plant's resistance doubled the \
-     estimator reports locked 42 deg off the mover for 0.1 s before the hand-over \
-     (the drive runs open loop then, and rides through afterwards)",
-)];
+/// other. None since the estimator's hand-over waits for 1.5 notch floors (the low-R
+/// motor's `R-x2` claimed lock 42 deg off the mover for 0.1 s of the I/f start-up).
+const KNOWN_FLOOR_MISSES: [(&str, &str, &str); 0] = [];
 
 /// The floors of every campaign, and each case's expectation unless it is a known
 /// shortfall.
