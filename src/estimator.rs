@@ -1171,6 +1171,9 @@ impl<T: Scalar> Estimator<T> {
     /// lock is declared again only once both loops agree. For a drive that has lost
     /// lock with the mover still moving (flying restart). No effect without an FLL.
     pub fn reacquire(&mut self) {
+        // A zero-speed reading pending from the last sample must not hand the notch back
+        // to the FLL right after the PLL takes it again.
+        self.passing_zero = false;
         self.through_zero = false;
         self.fitted = false;
         if let Some(fit) = &mut self.arc_fit {
