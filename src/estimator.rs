@@ -66,8 +66,9 @@
 //! motors, f32 and Q8.24 alike, no false lock; `dcfo paper`, `dcfo acquire` and the
 //! fault campaign as without it. An open phase makes the FLL's reading swing below the
 //! floor too; were that reported as `acquiring`, the drive would drop its current
-//! reference at once and the phase-loss check would not see the evidence (`dcfo faults`: LOCK_LOST after
-//! 605 ms instead of CURRENT_CONTROL after 79 ms); not reported, it trips as before.
+//! reference at once and the phase-loss check would not see the evidence (`dcfo
+//! faults`: LOCK_LOST after 605 ms instead of CURRENT_CONTROL after 79 ms); not
+//! reported, it trips as before.
 //!
 //! ## Phase compensation of the angle output
 //! The notch tuned by the PLL's integrator lags a speed change nobody commanded: on the
@@ -574,9 +575,6 @@ pub struct Estimator<T> {
     zero_speed: T,
     /// [`HANDOVER_PER_NOTCH_FLOOR`] notch floors (rad/s).
     handover_floor: T,
-    /// The FLL read the frequency below `zero_speed` on an undisturbed flux at the last
-    /// sample: it takes the notch at this one.
-    passing_zero: bool,
     /// The FLL carries the estimate through zero speed (it took the notch below the
     /// zero-speed floor, not from reset or [`Estimator::reacquire`]): the frequency is
     /// known, the estimate is not [acquiring](Estimate::acquiring).
@@ -721,7 +719,6 @@ impl<T: Scalar> Estimator<T> {
             fll_steers,
             zero_speed: base.omega(ZERO_SPEED_PER_NOTCH_FLOOR * config.fll.floor_rad_s),
             handover_floor: base.omega(HANDOVER_PER_NOTCH_FLOOR * config.fll.floor_rad_s),
-            passing_zero: false,
             through_zero: false,
             agreement_tolerance: T::from_f32(2.0 * config.fll.settle_tolerance),
             agreement_floor: base.omega(config.fll.floor_rad_s),
@@ -821,16 +818,6 @@ impl<T: Scalar> Estimator<T> {
         } else {
             self.advance_ramp_model(dt);
         }
-        // Through zero speed (module docs): below the floor the FLL carries the estimate,
-        // the PLL fed forward with its frequency; the circle fit is not asked again (a
-        // mover passing through zero speed accelerates: it draws no circle).
-        if self.passing_zero && !self.fll_steers && self.tuning == NotchTuning::AcquireWithFll {
-            self.passing_zero = false;
-            self.pll.set_integral(T::ZERO);
-            self.fll_steers = true;
-            self.through_zero = true;
-            self.clear_compensation();
-        }
         let (Some(fll), Some(increment)) = (&mut self.fll, flux.flux_increment_ab) else {
             let out = self.pll.update(flux.psi_ab, dt).map_err(EstimatorFault::Pll)?;
             return Ok(Estimate::from_parts(&out, flux, out.locked, out.locked, false));
@@ -902,10 +889,6 @@ impl<T: Scalar> Estimator<T> {
             }
             (out, out.locked && f.settled && calm, tracking)
         } else {
-            // Below the zero-speed floor on an undisturbed flux, the FLL takes the notch
-            // at the next sample (a disturbed flux, e.g. an open phase, reads a wrong
-            // frequency: the PLL keeps the notch).
-            self.passing_zero = f.omega_e.abs() < self.zero_speed;
             // The FLL reads the frequency whatever the notch's tuning; the PLL's integrator
             // lags a speed change nobody commanded (a load step). A notch off by `dw`
             // turns the observer's phase by `dw / (zeta w)`, so the PLL-tuned notch is
@@ -962,6 +945,17 @@ impl<T: Scalar> Estimator<T> {
             if locked {
                 self.compensation_armed =
                     (self.compensation_armed + notch.abs() * dt * self.compensation_arm_rate).min(T::ONE);
+            }
+            // Through zero speed (module docs): below the floor the FLL takes the notch
+            // from the next sample on, the PLL fed forward with its frequency (the
+            // integrator cleared: the PLL's frequency does not jump); the circle fit is
+            // not asked again (a mover passing through zero speed accelerates: it draws
+            // no circle).
+            if f.omega_e.abs() < self.zero_speed && self.tuning == NotchTuning::AcquireWithFll {
+                self.pll.set_integral(T::ZERO);
+                self.fll_steers = true;
+                self.through_zero = true;
+                self.clear_compensation();
             }
             (out, locked, out.locked && agree)
         };
@@ -1171,9 +1165,6 @@ impl<T: Scalar> Estimator<T> {
     /// lock is declared again only once both loops agree. For a drive that has lost
     /// lock with the mover still moving (flying restart). No effect without an FLL.
     pub fn reacquire(&mut self) {
-        // A zero-speed reading pending from the last sample must not hand the notch back
-        // to the FLL right after the PLL takes it again.
-        self.passing_zero = false;
         self.through_zero = false;
         self.fitted = false;
         if let Some(fit) = &mut self.arc_fit {
@@ -1191,7 +1182,6 @@ impl<T: Scalar> Estimator<T> {
 
     /// Back to the initial state; clears latched faults.
     pub fn reset(&mut self) {
-        self.passing_zero = false;
         self.through_zero = false;
         self.clear_ramp_model();
         self.commanded_accel = T::ZERO;
