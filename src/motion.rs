@@ -22,6 +22,11 @@
 //! (a new target during a move is taken once the present one is reached and its dwell
 //! has passed).
 //!
+//! A profile can also *follow a speed* instead of a queue ([`Profile::follow_speed`]):
+//! the reference speed ramps towards a target speed at `a_max` and the position is its
+//! integral, with no stroke. The speed drive uses it for its passages through the
+//! low-speed mode (a reversal, a stop), so that mode has one kind of reference.
+//!
 //! Everything is SI `f32`: the profile is a planner that runs beside the control step;
 //! the drive converts its speed and acceleration into working units.
 //! Bounded time, no allocation, no panics: the queue is a [`heapless::Deque`] (fixed
@@ -153,6 +158,9 @@ pub struct Profile<const N: usize> {
     /// Dwell time left at the reached target, s.
     dwell_left_s: f32,
     setpoint: Setpoint,
+    /// Following a speed: the target speed, m/s ([`Profile::follow_speed`]); `None`
+    /// runs the queue.
+    speed_target_m_per_s: Option<f32>,
 }
 
 impl<const N: usize> Profile<N> {
@@ -165,6 +173,7 @@ impl<const N: usize> Profile<N> {
             active: None,
             dwell_left_s: 0.0,
             setpoint: Setpoint::default(),
+            speed_target_m_per_s: None,
         };
         p.reset(position_m);
         Ok(p)
@@ -196,6 +205,7 @@ impl<const N: usize> Profile<N> {
         self.queue.clear();
         self.active = None;
         self.dwell_left_s = 0.0;
+        self.speed_target_m_per_s = None;
         let x = if position_m.is_finite() { position_m } else { 0.0 };
         self.setpoint = Setpoint { position_m: x, speed_m_per_s: 0.0, accel_m_per_s2: 0.0 };
     }
@@ -206,13 +216,41 @@ impl<const N: usize> Profile<N> {
     pub fn hold_at(&mut self, position_m: f32) {
         self.active = None;
         self.dwell_left_s = 0.0;
+        self.speed_target_m_per_s = None;
         let x = if position_m.is_finite() { position_m } else { 0.0 };
         self.setpoint = Setpoint { position_m: x, speed_m_per_s: 0.0, accel_m_per_s2: 0.0 };
     }
 
     /// `true` when no move is active or queued and the reference is at rest.
     pub fn is_idle(&self) -> bool {
-        self.active.is_none() && self.queue.is_empty()
+        self.active.is_none() && self.queue.is_empty() && self.speed_target_m_per_s.is_none()
+    }
+
+    /// Follows a speed from now on: the reference starts at `position_m` (m) moving at
+    /// `speed_m_per_s` (m/s) and ramps towards `target_m_per_s` (m/s, clamped to the
+    /// speed limit) at the acceleration limit; the queue is dropped. Values that are not
+    /// finite count as 0. [`Profile::set_speed_target`] moves the target,
+    /// [`Profile::reset`] and [`Profile::hold_at`] end it.
+    pub fn follow_speed(&mut self, position_m: f32, speed_m_per_s: f32, target_m_per_s: f32) {
+        self.reset(position_m);
+        self.setpoint.speed_m_per_s = if speed_m_per_s.is_finite() { speed_m_per_s } else { 0.0 };
+        self.set_speed_target(target_m_per_s);
+    }
+
+    /// The speed the reference ramps to while following a speed, m/s (clamped to the
+    /// speed limit; not finite counts as 0). No effect on a profile running its queue.
+    pub fn set_speed_target(&mut self, target_m_per_s: f32) {
+        if self.speed_target_m_per_s.is_none() && !self.is_idle() {
+            return;
+        }
+        let top = self.limits.max_speed_m_per_s;
+        let v = if target_m_per_s.is_finite() { target_m_per_s } else { 0.0 };
+        self.speed_target_m_per_s = Some(v.clamp_to(-top, top));
+    }
+
+    /// The target speed while following a speed (m/s), `None` while running the queue.
+    pub fn speed_target(&self) -> Option<f32> {
+        self.speed_target_m_per_s
     }
 
     /// Number of moves waiting (not counting the active one).
@@ -228,6 +266,17 @@ impl<const N: usize> Profile<N> {
     /// Advances the reference by `dt_s` (s, > 0; anything else leaves it unchanged).
     pub fn step(&mut self, dt_s: f32) -> Setpoint {
         if !(dt_s.is_finite() && dt_s > 0.0) {
+            return self.setpoint;
+        }
+        if let Some(target) = self.speed_target_m_per_s {
+            let dv_max = self.limits.max_accel_m_per_s2 * dt_s;
+            let v = self.setpoint.speed_m_per_s;
+            let v_new = v + (target - v).clamp_to(-dv_max, dv_max);
+            self.setpoint = Setpoint {
+                position_m: self.setpoint.position_m + 0.5 * (v + v_new) * dt_s,
+                speed_m_per_s: v_new,
+                accel_m_per_s2: (v_new - v) / dt_s,
+            };
             return self.setpoint;
         }
         if self.active.is_none() {
@@ -360,6 +409,42 @@ mod tests {
         assert!((t - expected).abs() < 0.01, "{t} vs {expected}");
         // The landing snaps absorb only sub-micrometre residuals.
         assert!((integral - 0.15).abs() < 1e-4, "{integral}");
+    }
+
+    #[test]
+    fn following_a_speed_ramps_at_the_limit_through_zero_and_integrates_the_position() {
+        let dt = 1e-4f32;
+        let mut p: Profile<2> = Profile::new(limits(), 0.0).unwrap();
+        // From 0.4 m/s towards -0.4 at the 3 m/s^2 limit.
+        p.push(Move { target_m: 0.2, dwell_s: 0.0 }).unwrap();
+        p.follow_speed(0.1, 0.4, -0.4);
+        assert!(!p.is_idle());
+        assert_eq!(p.queued(), 0, "following a speed drops the queue");
+        let (mut x, mut v) = (0.1f64, 0.4f64);
+        let mut crossed_at = None;
+        for k in 1..=4000 {
+            let s = p.step(dt);
+            let v_new = (v - 3.0 * f64::from(dt)).max(-0.4);
+            x += 0.5 * (v + v_new) * f64::from(dt);
+            v = v_new;
+            assert!((f64::from(s.speed_m_per_s) - v).abs() < 1e-5, "step {k}");
+            assert!(s.accel_m_per_s2.abs() <= 3.0 * (1.0 + 1e-4));
+            if crossed_at.is_none() && s.speed_m_per_s <= 0.0 {
+                crossed_at = Some(k);
+            }
+        }
+        // 0.4 m/s at 3 m/s^2: zero after 0.1333 s; -0.4 after 0.2667 s; then constant.
+        assert!((crossed_at.unwrap() as f32 * dt - 0.4 / 3.0).abs() < 2.0 * dt);
+        assert_eq!(p.setpoint().speed_m_per_s, -0.4);
+        assert!((f64::from(p.setpoint().position_m) - x).abs() < 1e-5, "{} vs {x}", p.setpoint().position_m);
+        // Analytic: 0.1 + 0.4^2/(2*3) - 0.4^2/(2*3) - 0.4 (0.4 - 0.2667) = 0.1 - 0.05333.
+        assert!((x - (0.1 - 0.4 * (0.4 - 0.8 / 3.0))).abs() < 1e-4, "{x}");
+        // A target beyond the limit is clamped to it; hold_at ends the following.
+        p.set_speed_target(-2.0);
+        assert_eq!(p.speed_target(), Some(-0.5));
+        p.hold_at(0.0);
+        assert_eq!(p.speed_target(), None);
+        assert_eq!(p.step(dt).speed_m_per_s, 0.0);
     }
 
     #[test]

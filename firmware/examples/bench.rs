@@ -89,10 +89,12 @@ mod firmware {
     /// Control period of the drives and the virtual motor (s): 10 kHz.
     const TS: f32 = 1e-4;
     /// The speed drive's reference (m/s) and how long it runs (s) before the lock loss
-    /// and after it: start-up, acquisition and hand-over fit in the first, the
-    /// re-acquisition in the second.
-    const SPEED_M_PER_S: f32 = 0.3;
-    const SPEED_RUN_S: f32 = 2.2;
+    /// and after it: start-up, acquisition, hand-over and the ramp to the reference fit
+    /// in the first, the re-acquisition in the second. The reference lies above the
+    /// salient motor's low-speed band (left at 0.41 m/s on the simulated inverter's bus),
+    /// where the speed drive runs sensorless; inside it, it would run the low-speed mode.
+    const SPEED_M_PER_S: f32 = 0.6;
+    const SPEED_RUN_S: f32 = 3.0;
     const REACQUIRE_RUN_S: f32 = 1.0;
     /// The positioning drive: time for calibration and HFI's alignment before the first
     /// move (s), the two moves (m from the start; the second reverses through zero speed

@@ -18,10 +18,23 @@ const SHORTFALLS: [(&str, &str); 1] = [(
 )];
 
 /// Floors the campaign misses on a motor file, by motor and case, and why (found by
-/// `dcfo faults --motor`, not the positioning cases' concern): the test fails on any
-/// other. None since the estimator's hand-over waits for 1.5 notch floors (the low-R
-/// motor's `R-x2` claimed lock 42 deg off the mover for 0.1 s of the I/f start-up).
-const KNOWN_FLOOR_MISSES: [(&str, &str, &str); 0] = [];
+/// `dcfo faults --motor`): the test fails on any other.
+const KNOWN_FLOOR_MISSES: [(&str, &str, &str); 2] = [
+    (
+        "high-inductance",
+        "high-inductance-stroke-load-118N-holding",
+        "a load a little beyond the vector's hold creeps the mover off pole by pole; at rest the \
+         low-speed mode's slip supervision reads a slip only beyond w_n + w_ls, 1.8 m/s on this \
+         motor, whose back-EMF floor is 0.9 m/s: OVERLOAD after 1.2 s, the position wrong for \
+         0.18 s before it",
+    ),
+    (
+        "high-inductance",
+        "high-inductance-stroke-overload-237N-holding",
+        "as the 118 N hold: OVERLOAD after 0.24 s, the position wrong for longer than the silent \
+         limit before it",
+    ),
+];
 
 /// The floors of every campaign, and each case's expectation unless it is a known
 /// shortfall.

@@ -217,6 +217,10 @@ fn nominal_bus_v(drive: &DriveConfig) -> f32 {
     0.5 * (drive.faults.bus_min_v / 0.6 + drive.faults.bus_max_v / 1.3)
 }
 
+/// The default hysteresis of the low-speed band ([`MotionConfig::low_speed_exit_ratio`],
+/// dimensionless): the band is left at 1.25 times the speed it is entered below.
+pub const LOW_SPEED_EXIT_RATIO: f32 = 1.25;
+
 /// The back-EMF floor of `motor` in `drive`, m/s: the speed at which the back-EMF `w
 /// psi_f` equals the inverter's voltage error before compensation (`dead_time / Ts *
 /// V_bus + drop`, at the bus the fault limits centre on), or four times the DCFO's notch
@@ -266,7 +270,7 @@ impl MotionConfig {
         MotionConfig {
             limits,
             low_speed_m_per_s: back_emf_floor_m_per_s(motor, drive),
-            low_speed_exit_ratio: 1.25,
+            low_speed_exit_ratio: LOW_SPEED_EXIT_RATIO,
             low_speed_current_a,
             exit_current_a: (2.0 * accel_current).max(0.5 * rated_peak).min(low_speed_current_a),
             current_slew_a_per_s: rated_peak / 0.005,
@@ -406,13 +410,19 @@ impl DriveConfig {
         if !below(accel_current, self.current_limit_a) {
             return Err(ProfileField::MaxAccel);
         }
-        let omega_per_speed = core::f32::consts::PI / motor.pole_pitch_m;
-        let emf_v = limits.max_speed_m_per_s * omega_per_speed * motor.psi_f_wb;
-        let max_phase_v = self.faults.bus_min_v * self.modulation_limit * 0.577_350_26;
-        if !below(emf_v, max_phase_v) {
+        if !below(limits.max_speed_m_per_s, self.bus_speed_limit_m_per_s(motor)) {
             return Err(ProfileField::MaxSpeed);
         }
         Ok(())
+    }
+
+    /// The speed at which `motor`'s back-EMF takes the whole phase voltage the lowest
+    /// allowed bus drives in the linear range (`bus_min_v * modulation_limit / sqrt 3`),
+    /// m/s: no profile may reach it.
+    pub fn bus_speed_limit_m_per_s(&self, motor: &MotorParams) -> f32 {
+        let omega_per_speed = core::f32::consts::PI / motor.pole_pitch_m;
+        let max_phase_v = self.faults.bus_min_v * self.modulation_limit * 0.577_350_26;
+        max_phase_v / (omega_per_speed * motor.psi_f_wb)
     }
 
     /// The drive a board runs for a motor image, the one function every drive image

@@ -29,7 +29,12 @@
 //! hand-over from I/f waits for it); when it is lost while running, the drive goes to
 //! `Reacquiring` (no thrust, the estimator re-acquires) and back to `Running` from the
 //! estimated speed, instead of tripping: `Running <-> Reacquiring -> Fault` only after
-//! `faults.reacquire_timeout_s` without the estimate tracking again.
+//! `faults.reacquire_timeout_s` without the estimate tracking again. Where its
+//! rate-limited reference falls below the motor's back-EMF floor and stays there (a stop,
+//! a reversal, a target inside that band), a speed drive runs the positioning drive's
+//! low-speed mode, its profile following the speed reference, and hands back to `Running`
+//! once the reference is above the band again and the estimate tracks: `Running <->
+//! LowSpeed`.
 //!
 //! A *positioning* drive ([`DriveConfig::motion`]) replaces the I/f start by an
 //! alignment and the speed reference by queued moves: `Calibrating -> LowSpeed (align,
@@ -63,7 +68,8 @@ pub use commissioning::{
     IF_FREQUENCY_HZ, SWEEP_FRACTIONS, SWEEP_LEVELS, VoltageErrorPoint,
 };
 pub use config::{
-    CompensationSigns, DeadTimeCompensation, DriveConfig, DriveConfigError, FaultConfig, MotionConfig,
+    CompensationSigns, DeadTimeCompensation, DriveConfig, DriveConfigError, FaultConfig, LOW_SPEED_EXIT_RATIO,
+    MotionConfig,
     PAPER_AXIS_BUS_V, PAPER_AXIS_PAYLOAD_KG, STROKE_AXIS_LIMITS, STROKE_AXIS_STROKE_M, StartupConfig,
     back_emf_floor_m_per_s,
 };
@@ -101,9 +107,11 @@ pub enum DriveState {
     /// and the drive resumes `Running` from the estimated speed once it tracks again, or
     /// trips `LOCK_LOST` after [`FaultConfig::reacquire_timeout_s`] (flying restart).
     Reacquiring,
-    /// Positioning drives only: below the low-speed threshold the current vector follows
-    /// the reference position (and holds it at rest); see the `positioning` docs of
-    /// [`Drive`]. Also the alignment on enable.
+    /// Below the low-speed threshold the current vector follows the reference position
+    /// (and holds it at rest), or HFI closes the loops on a salient motor; see the
+    /// `positioning` docs of [`Drive`]. A positioning drive's alignment on enable, and a
+    /// speed drive's passages through zero speed (its reference then follows the speed
+    /// reference).
     LowSpeed,
     /// Identifying the motor and the inverter ([`Drive::start_commissioning`], the
     /// `commissioning` module): the bridge applies the commissioning's test voltages, with
@@ -273,7 +281,8 @@ pub struct Drive<T> {
     /// Offsets added to the observer's voltage and current inputs only (V, A).
     observer_u_offset: AlphaBeta<T>,
     observer_i_offset: AlphaBeta<T>,
-    /// Positioning state (`None` for a speed drive).
+    /// Positioning state, and a speed drive's low-speed mode (always `Some` once built;
+    /// [`Positioning::follows_speed`] on a speed drive).
     positioning: Option<Positioning<T>>,
     /// Unwrapped control angle (binary-angle counts, 2^32 per electrical turn): the
     /// position estimate.
@@ -458,11 +467,26 @@ impl<T: Scalar> Drive<T> {
                 (5.0 * libm::sqrtf(stiffness / config.moving_mass_kg) * ts).min(1.0)
             },
         };
-        let positioning = config.motion.map(|m| -> Result<Positioning<T>, DriveConfigError> {
+        // A speed drive passes through zero speed (a reversal, a stop) in the same
+        // low-speed mode, its profile following the speed reference: the defaults of
+        // `MotionConfig::for_drive` with the speed reference's acceleration limit and the
+        // speed the bus can drive (no stroke: the profile follows a speed, no targets).
+        let follows_speed = config.motion.is_none();
+        let motion = config.motion.unwrap_or_else(|| {
+            MotionConfig::for_drive(motor, config, crate::motion::ProfileLimits {
+                max_speed_m_per_s: config.bus_speed_limit_m_per_s(motor),
+                max_accel_m_per_s2: config.accel_limit_m_per_s2,
+                stroke_min_m: f32::MIN,
+                stroke_max_m: f32::MAX,
+            })
+        });
+        let positioning = Some(motion).map(|m| -> Result<Positioning<T>, DriveConfigError> {
             // A profile the motor cannot follow is refused (`DriveConfig::check_profile`).
-            config
-                .check_profile(motor, &m.limits)
-                .map_err(|f| DriveConfigError { field: f.config_path() })?;
+            if !follows_speed {
+                config
+                    .check_profile(motor, &m.limits)
+                    .map_err(|f| DriveConfigError { field: f.config_path() })?;
+            }
             // The low-speed vector at rest is a spring of stiffness K_f I pi / tau (N/m)
             // on the moving mass: its natural frequency w_n (rad/s) sets the damping,
             // the filters and the dither of the low-speed mode (`positioning` docs).
@@ -472,6 +496,8 @@ impl<T: Scalar> Drive<T> {
                 .map_err(|_| DriveConfigError { field: "motion.limits" })?;
             Ok(Positioning {
                 profile,
+                follows_speed,
+                enter_omega: base.omega(m.low_speed_m_per_s * omega_per_speed),
                 enter_m_per_s: m.low_speed_m_per_s,
                 exit_m_per_s: m.low_speed_m_per_s * m.low_speed_exit_ratio,
                 low_speed_current: base.current(m.low_speed_current_a),
@@ -484,6 +510,9 @@ impl<T: Scalar> Drive<T> {
                 rad_per_m: omega_per_speed,
                 speed_filter_rate: (5.0 * wn * ts).min(1.0),
                 speed_error_rad_s: 0.0,
+                retard_rad: 0.0,
+                retard_rate_rad_s: 0.0,
+                current_loop_rate: (config.current_bandwidth_rad_s * ts).min(1.0),
                 mass_kg: config.moving_mass_kg,
                 thrust_n_per_a: motor.thrust_constant_n_per_a(),
                 load_force_n: 0.0,
@@ -857,7 +886,7 @@ impl<T: Scalar> Drive<T> {
             return;
         }
         self.start();
-        if self.positioning.is_none() && self.k.catch_probe_samples > 0 {
+        if !self.is_positioning() && self.k.catch_probe_samples > 0 {
             // Catch a mover that is already moving: hold zero current (the current loops
             // regulate it, so the voltage they apply is the back-EMF) and let the
             // estimator acquire, as in a flying restart.
@@ -931,7 +960,7 @@ impl<T: Scalar> Drive<T> {
         self.current_error_count = 0;
         self.phase_loss.reset();
         self.startup_speed_error_rad_s = 0.0;
-        if self.positioning.is_some() {
+        if self.is_positioning() {
             self.start_positioning();
         }
     }
@@ -1211,7 +1240,7 @@ impl<T: Scalar> Drive<T> {
     /// Sensorless: rate-limited speed reference, speed loop at its divided rate, d-axis
     /// current ramped to zero, lock supervision.
     fn running_references(&mut self, estimate: &Estimate<T>) -> (Angle, T) {
-        if self.positioning.is_some() {
+        if self.is_positioning() {
             if let Some(low_speed) = self.positioning_references(estimate) {
                 return low_speed;
             }
@@ -1221,6 +1250,10 @@ impl<T: Scalar> Drive<T> {
             self.omega_ref = self.omega_ref + diff;
             // The ramp is commanded, so known: the estimator's notch leads by its lag.
             self.estimator.set_commanded_acceleration(diff * k.inv_dt);
+            if let Some(low_speed) = self.speed_reference_low_speed(estimate) {
+                return low_speed;
+            }
+            let k = &self.k;
             self.speed_divider_count += 1;
             if self.speed_divider_count >= k.speed_loop_divider {
                 self.speed_divider_count = 0;
@@ -1244,7 +1277,7 @@ impl<T: Scalar> Drive<T> {
             // An estimator that has lost the frequency too (acquiring) has no angle to
             // ride through on: stop pushing at once. Otherwise allow `lock_loss_s`.
             let lost = self.counter > k.lock_loss_samples || estimate.acquiring;
-            if lost && self.positioning.is_some() {
+            if lost && self.is_positioning() {
                 // A positioning drive has a reference to follow: back to the low-speed
                 // mode (the vector on the reference position) until the estimate,
                 // seeded again from the trajectory, tracks. The lost estimate's angle is

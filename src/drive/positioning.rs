@@ -14,10 +14,17 @@
 //!     error turns into an estimator angle error of `dR I_d / (w psi_f)`.
 //!   - Damping: the spring and the moving mass ring at `w_n = sqrt(K_f I pi / (tau M))`
 //!     (8.6 Hz on the paper axis at 5.9 A) with nothing but friction to damp them. The
-//!     mover's speed is read from the q voltage (in the frame turning at the reference
-//!     speed `u_q = Rs i_q + w_ref Ld i_d + w psi_f cos(delta)`; the inverter's error
-//!     lies along the current, d), and the vector is retarded by `1.4 / w_n` times the
-//!     speed error: damping ratio 0.7.
+//!     mover's speed is read from the q voltage (in the frame turning at `w_frame`,
+//!     `u_q = Rs i_q + w_frame Ld i_d + w psi_f cos(delta)`; the inverter's error lies
+//!     along the current, d), and the vector is retarded by `1.4 / w_n` times the speed
+//!     error: damping ratio 0.7. The frame turns at the reference speed less the
+//!     retard's rate, filtered at the current loop's bandwidth (the rate at which the
+//!     loop turns the current with the frame): without that term a change of the retard
+//!     reads as a speed `Ld I / psi_f` times its rate, a loop from the retard through the
+//!     current loop back to the retard whose gain above the speed filter's corner is
+//!     `(1.4 / w_n) 5 w_n Ld I / psi_f = 7 Ld I / psi_f` (2.2 on the paper motor, 24 on
+//!     `motors/high_inductance.toml`, where it oscillated at the voltage limit and
+//!     tripped `CURRENT_CONTROL`).
 //!   - At rest a decaying dither of the vector (twice the learned friction's load angle,
 //!     0.8 `w_n`, over three periods) frees the mover from where friction stopped it.
 //!   - The estimator keeps running and is told the commanded acceleration.
@@ -61,6 +68,14 @@
 //!   estimator is seeded from the HFI angle; entering
 //!   it, HFI is preset from the estimate.
 //!
+//! - **A speed drive** has the same low-speed mode, without moves or a position loop:
+//!   its profile follows the speed reference ([`Profile::follow_speed`]) from the
+//!   estimated position when the rate-limited reference falls below the threshold and
+//!   stays there (its target inside the band, zero, or of the other sign), and the drive
+//!   hands back to its speed loop as below once the reference is past the exit and the
+//!   estimate tracks. Its thresholds and currents are [`MotionConfig::for_drive`]'s
+//!   defaults, with the speed reference's acceleration limit.
+//!
 //! ## Transitions (bumpless)
 //! Every change of the current reference is slewed at
 //! [`MotionConfig::current_slew_a_per_s`].
@@ -91,6 +106,8 @@ use super::{Drive, DriveState};
 use crate::estimator::Estimate;
 use crate::hfi::Hfi;
 use crate::motion::{MotionError, Move, Profile, Setpoint};
+#[cfg(doc)]
+use super::MotionConfig;
 use crate::num::{Angle, Scalar, asin, sin_cos};
 use crate::transforms::{AlphaBeta, Dq};
 
@@ -101,6 +118,11 @@ pub const MOVE_QUEUE: usize = 8;
 #[derive(Clone, Debug)]
 pub(super) struct Positioning<T> {
     pub(super) profile: Profile<MOVE_QUEUE>,
+    /// A speed drive's low-speed mode: the profile follows the speed reference
+    /// ([`Profile::follow_speed`]) through the band, no moves, no position loop.
+    pub(super) follows_speed: bool,
+    /// [`Positioning::enter_m_per_s`] as an electrical speed (working units).
+    pub(super) enter_omega: T,
     /// Enter the low-speed mode below this reference speed, m/s.
     pub(super) enter_m_per_s: f32,
     /// Leave it above this reference speed, m/s.
@@ -124,6 +146,14 @@ pub(super) struct Positioning<T> {
     pub(super) speed_filter_rate: f32,
     /// Filtered electrical speed error of the mover against the reference (rad/s, SI).
     pub(super) speed_error_rad_s: f32,
+    /// The vector's retard behind the reference position in the last step (rad), and
+    /// its rate (rad/s) filtered at the current loop's bandwidth: the speed at which the
+    /// current loop turns the current with the frame, beyond the reference speed.
+    pub(super) retard_rad: f32,
+    pub(super) retard_rate_rad_s: f32,
+    /// The current loop's bandwidth times the period (dimensionless, <= 1): that filter's
+    /// rate per period.
+    pub(super) current_loop_rate: f32,
     /// Moving mass (kg) and thrust constant (N/A), for the expected load angle.
     pub(super) mass_kg: f32,
     pub(super) thrust_n_per_a: f32,
@@ -171,6 +201,18 @@ pub(super) struct Positioning<T> {
     pub(super) hold_bandwidth_rad_s: f32,
 }
 
+impl<T> Positioning<T> {
+    /// `true` once the reference at `sp` is fast enough to leave the low-speed mode:
+    /// beyond the exit threshold, or, following a speed, at a target the band's
+    /// threshold or faster (a target inside the hysteresis would otherwise keep the
+    /// drive in the band).
+    fn past_exit(&self, sp: &Setpoint) -> bool {
+        let v = sp.speed_m_per_s.abs();
+        v > self.exit_m_per_s
+            || self.profile.speed_target().is_some_and(|t| t.abs() >= self.enter_m_per_s && v >= t.abs())
+    }
+}
+
 /// What HFI contributes to one step of the low-speed mode (working units).
 #[derive(Clone, Copy, Debug)]
 pub(super) struct HfiStep<T> {
@@ -184,29 +226,75 @@ pub(super) struct HfiStep<T> {
 }
 
 impl<T: Scalar> Drive<T> {
+    /// A positioning drive's state (`None` on a speed drive, whose low-speed mode shares
+    /// the type).
+    fn stroke(&self) -> Option<&Positioning<T>> {
+        self.positioning.as_ref().filter(|p| !p.follows_speed)
+    }
+
+    /// `true` for a positioning drive ([`DriveConfig::motion`](super::DriveConfig)).
+    pub fn is_positioning(&self) -> bool {
+        self.stroke().is_some()
+    }
+
     /// Queues a move (positioning drives only: `Err(Unreachable)` on a speed drive).
     /// Targets are in the position estimate's frame (m, see [`Drive::position_m`]).
     pub fn push_move(&mut self, m: Move) -> Result<(), MotionError> {
         match &mut self.positioning {
-            Some(p) => p.profile.push(m),
-            None => Err(MotionError::Unreachable),
+            Some(p) if !p.follows_speed => p.profile.push(m),
+            _ => Err(MotionError::Unreachable),
         }
     }
 
     /// The present reference of the motion profile (SI), for a positioning drive.
     pub fn setpoint(&self) -> Option<Setpoint> {
-        self.positioning.as_ref().map(|p| p.profile.setpoint())
+        self.stroke().map(|p| p.profile.setpoint())
     }
 
     /// Moves waiting in the queue, not counting the active one (`None` on a speed drive).
     pub fn moves_queued(&self) -> Option<usize> {
-        self.positioning.as_ref().map(|p| p.profile.queued())
+        self.stroke().map(|p| p.profile.queued())
     }
 
     /// `true` when a positioning drive has no move active or queued (its reference is at
     /// rest); `false` while it moves and on a speed drive.
     pub fn motion_idle(&self) -> bool {
-        self.positioning.as_ref().is_some_and(|p| p.profile.is_idle())
+        self.stroke().is_some_and(|p| p.profile.is_idle())
+    }
+
+    /// `true` for a speed drive (its profile follows the speed reference in the
+    /// low-speed mode).
+    fn follows_speed(&self) -> bool {
+        self.positioning.as_ref().is_some_and(|p| p.follows_speed)
+    }
+
+    /// A speed drive's speed target (m/s) for its profile in the low-speed mode.
+    fn speed_target_m_per_s(&self) -> f32 {
+        self.omega_target.to_f32() * self.k.base.omega_rad_s / self.k.omega_per_speed
+    }
+
+    /// A speed drive whose rate-limited reference is slower than the low-speed threshold
+    /// and stays there (its target inside the band, or zero, or of the other sign: a
+    /// stop or a reversal) enters the low-speed mode, as a positioning drive does when
+    /// its reference slows: the profile follows the speed reference from the estimated
+    /// position, and the drive hands back to `Running` once the reference is fast again
+    /// and the estimate tracks. A reference only passing the band's edge on its way up
+    /// (the I/f start's hand-over speed below the threshold) does not. `None` (nothing
+    /// changed) otherwise, and on a positioning drive.
+    pub(super) fn speed_reference_low_speed(&mut self, estimate: &Estimate<T>) -> Option<(Angle, T)> {
+        let p = self.positioning.as_ref().filter(|p| p.follows_speed)?;
+        let (target, reference) = (self.omega_target, self.omega_ref);
+        let stays = target.abs() < p.enter_omega || (target < T::ZERO) != (reference < T::ZERO);
+        if !(stays && reference.abs() < p.enter_omega) {
+            return None;
+        }
+        let to_m_per_s = self.k.base.omega_rad_s / self.k.omega_per_speed;
+        let (x, v, target) =
+            (self.position_m(), self.omega_ref.to_f32() * to_m_per_s, self.speed_target_m_per_s());
+        if let Some(p) = &mut self.positioning {
+            p.profile.follow_speed(x, v, target);
+        }
+        Some(self.enter_low_speed(estimate.theta_e, estimate.omega_e, estimate.speed_m_per_s.to_f32()))
     }
 
     /// Estimated mover position, m: the unwrapped control angle times `tau / pi`, from
@@ -243,6 +331,8 @@ impl<T: Scalar> Drive<T> {
         if let Some(p) = &mut self.positioning {
             p.profile.hold_at(x);
             p.speed_error_rad_s = 0.0;
+            p.retard_rad = 0.0;
+            p.retard_rate_rad_s = 0.0;
             p.mover_offset_rad = 0.0;
             p.slip_guard_s = p.slip_settle_s;
             p.anchor_angle = self.theta_previous;
@@ -263,6 +353,7 @@ impl<T: Scalar> Drive<T> {
     /// tracks.
     pub(super) fn low_speed_references(&mut self, estimate: &Estimate<T>, i_ab: AlphaBeta<T>) -> (Angle, T) {
         let dt_s = self.k.dt_s;
+        let speed_target = self.follows_speed().then(|| self.speed_target_m_per_s());
         let Some(p) = &mut self.positioning else {
             return (self.theta_previous, T::ZERO);
         };
@@ -285,14 +376,24 @@ impl<T: Scalar> Drive<T> {
         let i_ref = self.i_dq_ref;
         let amplitude_a =
             Scalar::sqrt(i_ref.d * i_ref.d + i_ref.q * i_ref.q).to_f32() * self.k.base.current_a;
+        if let Some(v) = speed_target {
+            p.profile.set_speed_target(v);
+        }
         let sp = if p.aligned { p.profile.step(dt_s) } else { p.profile.setpoint() };
         let omega_ref = T::from_f32(sp.speed_m_per_s * p.rad_per_m * self.k.inv_omega_base);
         // The mover's speed from the q voltage of the last step: in the frame turning at
-        // the reference speed, u_q = Rs i_q + w_ref Ld i_d + w psi_f cos(delta); the
-        // inverter's error lies along the current vector (d), so u_q is clean.
+        // `w_frame`, u_q = Rs i_q + w_frame Ld i_d + w psi_f cos(delta); the inverter's
+        // error lies along the current vector (d), so u_q is clean. The frame turns at the
+        // reference speed less the retard's rate, and the current loop turns the current
+        // with it at its own bandwidth: read at the reference speed alone, a change of the
+        // retard would read as a speed of `Ld I / psi_f` times its rate and feed back into
+        // the retard through the current loop (unstable where `Ld I` is several times
+        // `psi_f`). The retard's rate is therefore filtered at the current loop's bandwidth,
+        // the rate at which the loop's voltage follows it.
         let k = &self.k;
         let i = self.i_dq_measured;
-        let omega_mover = (self.u_dq_last.q - k.rs * i.q - omega_ref * k.ld * i.d) * k.inv_psi_f;
+        let omega_frame = omega_ref - T::from_f32(p.retard_rate_rad_s * k.inv_omega_base);
+        let omega_mover = (self.u_dq_last.q - k.rs * i.q - omega_frame * k.ld * i.d) * k.inv_psi_f;
         let error_rad_s = (omega_mover - omega_ref).to_f32() * k.base.omega_rad_s;
         if error_rad_s.is_finite() {
             p.speed_error_rad_s += p.speed_filter_rate * (error_rad_s - p.speed_error_rad_s);
@@ -325,6 +426,8 @@ impl<T: Scalar> Drive<T> {
         // a thrust against the mover's swing on the current vector's spring.
         let damping_s = k.damping_s_sqrt_a / Scalar::sqrt(amplitude_a.max(1e-3));
         let retard = (damping_s * p.speed_error_rad_s).clamp(-0.5, 0.5);
+        p.retard_rate_rad_s += p.current_loop_rate * ((retard - p.retard_rad) / dt_s - p.retard_rate_rad_s);
+        p.retard_rad = retard;
         let theta =
             p.anchor_angle + (p.rad_per_m * (sp.position_m - p.anchor_x_m) - retard).radians_to_angle();
         // Where the mover is expected: the current vector's angle less the load angle
@@ -347,8 +450,7 @@ impl<T: Scalar> Drive<T> {
         let alpha =
             T::from_f32(sp.accel_m_per_s2 * p.rad_per_m * self.k.inv_omega_base * self.k.inv_omega_base);
         self.estimator.set_commanded_acceleration(alpha);
-        let fast = sp.speed_m_per_s.abs() > p.exit_m_per_s;
-        if !fast {
+        if !p.past_exit(&sp) {
             p.seeded = false;
             // Settling dither at rest: a decaying wobble of the vector that breaks the
             // mover away from where friction stopped it, so it comes to rest nearer
@@ -388,6 +490,10 @@ impl<T: Scalar> Drive<T> {
     /// from the q current the hand-over left (less the acceleration feed-forward).
     fn hand_over_to_position_loop(&mut self, theta: Angle, estimate: &Estimate<T>) {
         self.hand_over(theta, estimate);
+        if !self.is_positioning() {
+            // A speed drive: its speed loop on the speed reference, from the q current.
+            return;
+        }
         let (omega_cmd, iq_ff) = self.position_command();
         let iq = self.i_dq_ref.q;
         self.pi_speed.preset(iq - iq_ff, omega_cmd - self.omega_filtered);
@@ -423,6 +529,8 @@ impl<T: Scalar> Drive<T> {
             p.seeded = false;
             p.aligned = true;
             p.speed_error_rad_s = 0.0;
+            p.retard_rad = 0.0;
+            p.retard_rate_rad_s = 0.0;
             p.mover_offset_rad = 0.0;
         }
         let k = &self.k;
@@ -517,6 +625,7 @@ impl<T: Scalar> Drive<T> {
         i_ab: AlphaBeta<T>,
     ) -> Option<(Angle, T, HfiStep<T>)> {
         let dt_s = self.k.dt_s;
+        let speed_target = self.follows_speed().then(|| self.speed_target_m_per_s());
         let p = self.positioning.as_mut()?;
         let h = p.hfi.as_mut()?;
         let hold = HfiStep { inject: AlphaBeta::default(), i_fundamental: i_ab, ready: false };
@@ -568,6 +677,9 @@ impl<T: Scalar> Drive<T> {
         };
         self.omega_filtered =
             self.omega_filtered + p.hfi_speed_filter_rate * (o.omega_integral_e - self.omega_filtered);
+        if let Some(v) = speed_target {
+            p.profile.set_speed_target(v);
+        }
         let sp = p.profile.step(dt_s);
         // The position estimate: the HFI angle. (Low-passing it at rest, against its
         // noise, lagged a mover that was still moving with the reference at rest: 6.4 mm
@@ -654,7 +766,7 @@ impl<T: Scalar> Drive<T> {
         let Some(p) = &mut self.positioning else {
             return Some((theta, omega, step));
         };
-        if sp.speed_m_per_s.abs() <= p.exit_m_per_s {
+        if !p.past_exit(&sp) {
             p.seeded = false;
             return Some((theta, omega, step));
         }

@@ -9,7 +9,7 @@
 //! full scale, its pole pitch. So one list of cases serves any motor file, and the
 //! expectation of each case is fixed, as data, before the case runs.
 
-use dcfo::drive::Faults;
+use dcfo::drive::{Faults, LOW_SPEED_EXIT_RATIO, back_emf_floor_m_per_s};
 use dcfo::motion::Move;
 use dcfo::motor::MotorParams;
 
@@ -144,9 +144,14 @@ impl Bench {
     }
 
     /// The speed cases' speed, m/s: 1.2 times the drive's hand-over speed (0.3 m/s on the
-    /// paper axis), running sensorless, the estimator settled.
+    /// paper axis), running sensorless, the estimator settled; where that lies inside the
+    /// motor's low-speed band (below the band's exit, [`back_emf_floor_m_per_s`] times
+    /// [`LOW_SPEED_EXIT_RATIO`]), where the speed drive runs the low-speed mode and not
+    /// the estimator, 1.2 times the band's exit.
     pub fn speed_m_per_s(&self) -> f64 {
-        1.2 * f64::from(self.speed.drive.startup.handover_speed_m_per_s)
+        let handover = 1.2 * f64::from(self.speed.drive.startup.handover_speed_m_per_s);
+        let exit = f64::from(back_emf_floor_m_per_s(&self.motor, &self.speed.drive) * LOW_SPEED_EXIT_RATIO);
+        if handover >= exit { handover } else { 1.2 * exit }
     }
 
     /// The stroke the positioning cases move over: from 0 (where the drive aligns) to
