@@ -145,13 +145,13 @@ impl Bench {
 
     /// The speed cases' speed, m/s: 1.2 times the drive's hand-over speed (0.3 m/s on the
     /// paper axis), running sensorless, the estimator settled; where that lies inside the
-    /// motor's low-speed band (below the band's exit, [`back_emf_floor_m_per_s`] times
-    /// [`LOW_SPEED_EXIT_RATIO`]), where the speed drive runs the low-speed mode and not
-    /// the estimator, 1.2 times the band's exit.
+    /// motor's low-speed band (below [`back_emf_floor_m_per_s`]), where the speed drive
+    /// runs the low-speed mode and not the estimator, 1.2 times the band's exit (the
+    /// floor times [`LOW_SPEED_EXIT_RATIO`]).
     pub fn speed_m_per_s(&self) -> f64 {
         let handover = 1.2 * f64::from(self.speed.drive.startup.handover_speed_m_per_s);
-        let exit = f64::from(back_emf_floor_m_per_s(&self.motor, &self.speed.drive) * LOW_SPEED_EXIT_RATIO);
-        if handover >= exit { handover } else { 1.2 * exit }
+        let floor = back_emf_floor_m_per_s(&self.motor, &self.speed.drive);
+        if handover >= f64::from(floor) { handover } else { 1.2 * f64::from(floor * LOW_SPEED_EXIT_RATIO) }
     }
 
     /// The stroke the positioning cases move over: from 0 (where the drive aligns) to
