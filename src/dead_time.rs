@@ -44,7 +44,7 @@
 //! ## The compensation
 //! Per leg, `(Td/Ts) Vdc (s(i - delta) + s(i + delta)) / 2 + V_drop s_drop(i)`, with
 //! `s(x) = sat(x / band)` the smoothed sign of
-//! [`DeadTimeCompensation::current_band_a`](crate::drive::DeadTimeCompensation) and the
+//! [`DeadTimeCompensation::current_band_a`] and the
 //! drop's sign linear over `max(band, delta)`: the current spends a share
 //! `(1 + i / delta) / 2` of the period positive when the ripple spans zero.
 //!
@@ -65,11 +65,25 @@
 //! are in `docs/inverter-compensation.md`.
 #![forbid(unsafe_code)]
 
-use crate::drive::DeadTimeCompensation;
 use crate::motor::MotorParams;
 use crate::num::Scalar;
 use crate::transforms::{Abc, AlphaBeta, clarke, inverse_clarke};
 use crate::units::Base;
+
+/// Compensation of the inverter's dead time and device drops, added to the voltage
+/// command per phase as `(dead_time / Ts * Vdc + device_drop) * sign(i)`
+/// (`docs/method.md` §8, `docs/inverter-compensation.md`), the sign smoothed over `current_band_a` and, where the duties spread far enough,
+/// taken at the switching edges through the PWM ripple (the module docs).
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct DeadTimeCompensation {
+    /// Effective dead time, s (>= 0).
+    pub dead_time_s: f32,
+    /// Average device voltage drop, V (>= 0).
+    pub device_drop_v: f32,
+    /// Current over which the sign changes linearly from -1 to 1, A (> 0).
+    pub current_band_a: f32,
+}
 
 /// The inverter-error model a drive compensates, in working units (see the module
 /// docs).

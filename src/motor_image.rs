@@ -7,7 +7,7 @@
 //! The drive code is never compiled for one motor: the firmware validates the record
 //! exactly as the host validates a motor file ([`MotorParams::new`]) and refuses to run
 //! without a valid one. A record with an axis makes the board's drive a positioning
-//! drive ([`DriveConfig::for_image`]), one without a speed drive.
+//! drive (`DriveConfig::for_image`), one without a speed drive.
 //!
 //! Layout of version 3, little-endian, [`MotorImage::LEN`] = 88 bytes (a multiple of the
 //! 8-byte flash programming unit of STM32G4 parts):
@@ -32,10 +32,9 @@
 //! [`MotorImage::encode`] writes version 3 only. Any other version is
 //! [`MotorImageError::UnsupportedVersion`].
 
-use crate::drive::{DeadTimeCompensation, DriveConfig};
+use crate::dead_time::DeadTimeCompensation;
 use crate::motion::ProfileLimits;
 use crate::motor::{MotorParams, ParamError};
-use crate::observer::ObserverKind;
 use crc::{CRC_16_IBM_3740, Crc};
 
 const MAGIC: [u8; 4] = *b"DCFM";
@@ -82,11 +81,6 @@ pub enum MotorImageError {
     /// `stroke_max_m`, `max_speed_m_per_s`, `max_accel_m_per_s2`, `payload_kg`; or
     /// `flags` for axis values without the axis flag).
     Axis(&'static str),
-    /// The axis asks more than the motor can do ([`DriveConfig::check_profile`]):
-    /// `max_accel_m_per_s2` when the moving mass (the motor's and the payload) would need
-    /// more than the drive's current limit, `max_speed_m_per_s` when the back-EMF at that
-    /// speed would exceed what the bridge applies at the lowest allowed bus.
-    AxisBeyondMotor(&'static str),
 }
 
 impl core::fmt::Display for MotorImageError {
@@ -124,14 +118,6 @@ impl core::fmt::Display for MotorImageError {
                 write!(f, "motor image: axis `stroke_max_m` must be a finite position above `stroke_min_m`")
             }
             MotorImageError::Axis(field) => write!(f, "motor image: axis `{field}` must be a finite number"),
-            MotorImageError::AxisBeyondMotor("max_accel_m_per_s2") => write!(
-                f,
-                "motor image: axis `max_accel_m_per_s2` is more than the motor can do: the moving mass (motor and payload) would need more than the drive's current limit (2 x rated peak)"
-            ),
-            MotorImageError::AxisBeyondMotor(field) => write!(
-                f,
-                "motor image: axis `{field}` is more than the motor can do: the back-EMF would exceed what the bridge applies at the lowest allowed bus (60 % of nominal)"
-            ),
         }
     }
 }
@@ -160,7 +146,7 @@ pub struct MotorImage {
     /// Nominal DC-bus voltage, V (> 0): sets the drive's bus limits and per-unit base.
     pub bus_v: f32,
     /// The inverter compensation the drive should use
-    /// ([`DriveConfig::dead_time_compensation`](crate::drive::DriveConfig)); `None`: not
+    /// (`DriveConfig::dead_time_compensation`); `None`: not
     /// known (a version-1 record, or written without one).
     pub compensation: Option<DeadTimeCompensation>,
     /// The positioning axis ([`MotorImage::with_axis`]); `None`: a speed drive (a
@@ -201,24 +187,16 @@ impl MotorImage {
         Ok(MotorImage { compensation: Some(c), ..self })
     }
 
-    /// The same image with the positioning axis `axis`, validated: every value finite,
-    /// `stroke_min_m < stroke_max_m`, speed and acceleration `> 0`
-    /// ([`ProfileLimits::validate`]), `payload_kg >= 0`, and a profile the motor can
-    /// follow when it moves the payload ([`DriveConfig::check_profile`] on the drive
-    /// [`DriveConfig::for_image`] builds: the acceleration within the current limit, the
-    /// top speed's back-EMF within the lowest bus). The first bad field is named.
+    /// The same image with the positioning axis `axis`, validated as a record: every
+    /// value finite, `stroke_min_m < stroke_max_m`, speed and acceleration `> 0`
+    /// ([`ProfileLimits::validate`]), `payload_kg >= 0`. The first bad field is named.
+    /// Whether the motor can follow it is the drive's to say
+    /// (`DriveConfig::check_image_axis`, `DriveConfig::for_image`).
     pub fn with_axis(self, axis: MotorAxis) -> Result<Self, MotorImageError> {
         axis.limits.validate().map_err(|f| MotorImageError::Axis(f.name()))?;
         if !(axis.payload_kg.is_finite() && axis.payload_kg >= 0.0) {
             return Err(MotorImageError::Axis("payload_kg"));
         }
-        // The same current limit, bus limits and modulation as the drive
-        // `DriveConfig::for_image` builds from this image, moving the payload too.
-        let mut drive = DriveConfig::for_motor(&self.motor, self.bus_v, ObserverKind::Dcfo);
-        drive.moving_mass_kg = self.motor.mass_kg + axis.payload_kg;
-        drive
-            .check_profile(&self.motor, &axis.limits)
-            .map_err(|f| MotorImageError::AxisBeyondMotor(f.name()))?;
         Ok(MotorImage { axis: Some(axis), ..self })
     }
 
@@ -521,7 +499,7 @@ mod tests {
     fn every_bad_axis_field_is_named() {
         let image = MotorImage::new(MotorParams::paper(), 311.0).unwrap();
         type Spoil = fn(&mut MotorAxis);
-        let bad: [(Spoil, MotorImageError); 13] = [
+        let bad: [(Spoil, MotorImageError); 11] = [
             (|a| a.limits.stroke_min_m = f32::NAN, MotorImageError::Axis("stroke_min_m")),
             (|a| a.limits.stroke_min_m = f32::NEG_INFINITY, MotorImageError::Axis("stroke_min_m")),
             (|a| a.limits.stroke_max_m = f32::INFINITY, MotorImageError::Axis("stroke_max_m")),
@@ -533,11 +511,6 @@ mod tests {
             (|a| a.limits.max_accel_m_per_s2 = f32::INFINITY, MotorImageError::Axis("max_accel_m_per_s2")),
             (|a| a.payload_kg = -0.1, MotorImageError::Axis("payload_kg")),
             (|a| a.payload_kg = f32::NAN, MotorImageError::Axis("payload_kg")),
-            // Beyond the motor (DriveConfig::check_profile, as `Drive::new` refuses it):
-            // 300 m/s^2 of 10.66 kg needs 3.2 kN, far above the current limit's thrust;
-            // 10 m/s is 2 kV of back-EMF on a 311 V bus.
-            (|a| a.limits.max_accel_m_per_s2 = 300.0, MotorImageError::AxisBeyondMotor("max_accel_m_per_s2")),
-            (|a| a.limits.max_speed_m_per_s = 10.0, MotorImageError::AxisBeyondMotor("max_speed_m_per_s")),
         ];
         for (spoil, error) in bad {
             let mut a = axis();
@@ -547,11 +520,6 @@ mod tests {
             let bytes = MotorImage { axis: Some(a), ..image }.encode();
             assert_eq!(MotorImage::decode(&bytes), Err(error), "{a:?}");
         }
-        // The payload is part of the motor's check: a payload that makes 3 m/s^2 need
-        // more than the current limit is refused by the acceleration, a lighter one is not.
-        let heavy = MotorAxis { payload_kg: 200.0, ..axis() };
-        assert_eq!(image.with_axis(heavy), Err(MotorImageError::AxisBeyondMotor("max_accel_m_per_s2")));
-        assert!(image.with_axis(MotorAxis { payload_kg: 0.0, ..axis() }).is_ok());
         // Axis values without the axis flag, with the CRC right.
         let mut bytes = MotorImage { axis: Some(axis()), ..image }.encode();
         bytes[6..8].copy_from_slice(&0u16.to_le_bytes());
@@ -563,10 +531,6 @@ mod tests {
         {
             let text = alloc::string::ToString::to_string(&MotorImageError::Axis(field));
             assert!(text.contains(field), "{text}");
-        }
-        for field in ["max_speed_m_per_s", "max_accel_m_per_s2"] {
-            let text = alloc::string::ToString::to_string(&MotorImageError::AxisBeyondMotor(field));
-            assert!(text.contains(field) && text.contains("more than the motor can do"), "{text}");
         }
     }
 

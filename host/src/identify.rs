@@ -404,9 +404,17 @@ pub fn motor_image(
         .motor_image(&told(motor), motor.mass_kg, motor.viscous_n_s_per_m, COMMISSIONING_PERIOD_S)
         .map_err(|e| IdentifyError::Setup(format!("identified motor refused for the image: {e}")))?;
     if let Some(axis) = axis {
-        image = image.with_axis(axis).map_err(|e| {
-            IdentifyError::Setup(format!("the existing image's axis does not fit the identified motor: {e}"))
-        })?;
+        image = image
+            .with_axis(axis)
+            .map_err(|e| e.to_string())
+            .and_then(|image| {
+                dcfo::drive::DriveConfig::check_image_axis(&image)
+                    .map(|()| image)
+                    .map_err(|f| format!("axis `{}` is more than the motor can do", f.name()))
+            })
+            .map_err(|e| {
+                IdentifyError::Setup(format!("the existing image's axis does not fit the identified motor: {e}"))
+            })?;
     }
     let bytes = image.encode();
     MotorImage::decode(&bytes).map_err(|e| IdentifyError::Setup(format!("encoded image: {e}")))?;

@@ -90,6 +90,10 @@ pub fn run_command(params: &Params) -> anyhow::Result<()> {
         MotorImage::new(motor.params, params.bus_v).map_err(|e| anyhow::anyhow!("{}: {e}", params.motor))?;
     if let Some(axis) = axis {
         image = image.with_axis(axis).map_err(|e| anyhow::anyhow!("{}: {e}", params.motor))?;
+        // The drive's check, as the board's `DriveConfig::for_image` makes it.
+        dcfo::drive::DriveConfig::check_image_axis(&image).map_err(|f| {
+            anyhow::anyhow!("{}: axis `{}` is more than the motor can do", params.motor, f.name())
+        })?;
     }
     let bytes = image.encode();
     // The firmware's own check, on the bytes as written.

@@ -1,5 +1,6 @@
 //! Drive settings (SI) and the controller gains derived from them.
 
+use crate::dead_time::DeadTimeCompensation;
 use crate::estimator::EstimatorConfig;
 use crate::hfi::HfiConfig;
 use crate::motion::{ProfileField, ProfileLimits};
@@ -43,21 +44,6 @@ pub struct StartupConfig {
     /// `timeout_dwells` dwells would not leave the observer and PLL time to converge
     /// (0.5-1 s from cold, docs/method.md §8).
     pub min_timeout_s: f32,
-}
-
-/// Compensation of the inverter's dead time and device drops, added to the voltage
-/// command per phase as `(dead_time / Ts * Vdc + device_drop) * sign(i)`
-/// (`docs/method.md` §8, `docs/inverter-compensation.md`), the sign smoothed over `current_band_a` and, where the duties spread far enough,
-/// taken at the switching edges through the PWM ripple ([`crate::dead_time`]).
-#[derive(Clone, Copy, Debug, PartialEq)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub struct DeadTimeCompensation {
-    /// Effective dead time, s (>= 0).
-    pub dead_time_s: f32,
-    /// Average device voltage drop, V (>= 0).
-    pub device_drop_v: f32,
-    /// Current over which the sign changes linearly from -1 to 1, A (> 0).
-    pub current_band_a: f32,
 }
 
 /// Which current the inverter compensation takes its per-phase signs from (see
@@ -456,6 +442,20 @@ impl DriveConfig {
         d.validate()?;
         Ok(d)
     }
+
+    /// Whether the motor of `image` can follow its axis (`Ok` without one): the check
+    /// [`DriveConfig::for_image`] makes, for a tool that writes an image without knowing
+    /// the board's period ([`DriveConfig::check_profile`] on the drive `for_image` builds,
+    /// moving the payload too: the acceleration within the current limit, the top speed's
+    /// back-EMF within the lowest bus). `Err` names the axis's field.
+    pub fn check_image_axis(image: &MotorImage) -> Result<(), ProfileField> {
+        let Some(axis) = image.axis else {
+            return Ok(());
+        };
+        let mut d = DriveConfig::for_motor(&image.motor, image.bus_v, ObserverKind::Dcfo);
+        d.moving_mass_kg = image.motor.mass_kg + axis.payload_kg;
+        d.check_profile(&image.motor, &axis.limits)
+    }
 }
 
 /// DC bus of the simulated paper axis, V: `sqrt(2) * 220`.
@@ -631,7 +631,20 @@ mod tests {
         let at_20k = DriveConfig::for_image(&image.with_axis(axis).unwrap(), 5e-5, Some(comp)).unwrap();
         assert_eq!(at_20k.control_period_s, 5e-5);
         assert!(at_20k.motion.is_some());
-        // An axis the motor cannot follow is refused by name (bypassing `with_axis`).
+        // An axis the motor cannot follow is refused by name: 300 m/s^2 of 10.66 kg needs
+        // 3.2 kN, far above the current limit's thrust; 10 m/s is 2 kV of back-EMF on a
+        // 311 V bus; 200 kg of payload need more than the current limit at 3 m/s^2.
+        for (spoil, field) in [
+            (MotorAxis { limits: ProfileLimits { max_accel_m_per_s2: 300.0, ..STROKE_AXIS_LIMITS }, ..axis }, ProfileField::MaxAccel),
+            (MotorAxis { limits: ProfileLimits { max_speed_m_per_s: 10.0, ..STROKE_AXIS_LIMITS }, ..axis }, ProfileField::MaxSpeed),
+            (MotorAxis { payload_kg: 200.0, ..axis }, ProfileField::MaxAccel),
+        ] {
+            let image = image.with_axis(spoil).unwrap();
+            assert_eq!(DriveConfig::check_image_axis(&image), Err(field), "{spoil:?}");
+            assert_eq!(DriveConfig::for_image(&image, 1e-4, None), Err(DriveConfigError { field: field.config_path() }));
+        }
+        assert_eq!(DriveConfig::check_image_axis(&image.with_axis(MotorAxis { payload_kg: 0.0, ..axis }).unwrap()), Ok(()));
+        assert_eq!(DriveConfig::check_image_axis(&image), Ok(()));
         let too_fast =
             MotorAxis { limits: ProfileLimits { max_accel_m_per_s2: 300.0, ..STROKE_AXIS_LIMITS }, ..axis };
         let bad = MotorImage { axis: Some(too_fast), ..image };

@@ -68,8 +68,7 @@ pub use commissioning::{
     IF_FREQUENCY_HZ, SWEEP_FRACTIONS, SWEEP_LEVELS, VoltageErrorPoint,
 };
 pub use config::{
-    CompensationSigns, DeadTimeCompensation, DriveConfig, DriveConfigError, FaultConfig, LOW_SPEED_EXIT_RATIO,
-    MotionConfig,
+    CompensationSigns, DriveConfig, DriveConfigError, FaultConfig, LOW_SPEED_EXIT_RATIO, MotionConfig,
     PAPER_AXIS_BUS_V, PAPER_AXIS_PAYLOAD_KG, STROKE_AXIS_LIMITS, STROKE_AXIS_STROKE_M, StartupConfig,
     back_emf_floor_m_per_s,
 };
@@ -78,6 +77,8 @@ use phase_loss::PhaseLoss;
 pub use positioning::MOVE_QUEUE;
 use positioning::Positioning;
 
+/// The inverter compensation's settings, a part of [`DriveConfig`].
+pub use crate::dead_time::DeadTimeCompensation;
 use crate::dead_time::InverterErrorModel;
 use crate::estimator::{Estimate, Estimator};
 use crate::motor::MotorParams;

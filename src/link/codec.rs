@@ -1,6 +1,5 @@
 //! The codec: a frame's payload and CRC-16 in COBS with a `0x00` delimiter
-//! ([`encode`], [`decode_raw`], [`decode_in_place`]), the streaming [`Receiver`], the
-//! errors, and the little-endian field writer and reader the frame layouts use.
+//! ([`encode`], [`decode_raw`], [`decode_in_place`]) and the streaming [`Receiver`].
 
 use core::marker::PhantomData;
 
@@ -8,8 +7,9 @@ use crc::{CRC_16_IBM_3740, Crc};
 
 use super::board;
 use super::cobs;
-use super::frame::{ActuationFrame, Frame, PROTOCOL_VERSION};
+use super::frame::{ActuationFrame, Frame};
 use super::session::LinkStats;
+use super::wire::{EncodeError, LinkError};
 
 /// Capacity of a [`Receiver`]'s buffer (bytes): the largest COBS-encoded frame, the
 /// [`ActuationFrame`], without its delimiter. A longer frame is reported as
@@ -25,158 +25,6 @@ pub(super) const CRC16: Crc<u16> = Crc::<u16>::new(&CRC_16_IBM_3740);
 
 // COBS adds exactly one byte only below 254 raw bytes.
 const _: () = assert!(MAX_RAW_LEN < 254);
-
-/// Why a received frame was dropped.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub enum LinkError {
-    /// More bytes than [`RX_CAPACITY`] before a delimiter (the rest is skipped up to
-    /// the next `0x00`).
-    Overflow,
-    /// Invalid COBS encoding.
-    Cobs,
-    /// The decoded frame does not have the frame type's raw length.
-    Length,
-    /// The CRC does not match the payload.
-    Crc,
-    /// Unknown protocol version.
-    Version,
-    /// Unknown flag bits set.
-    Flags,
-    /// A value out of its range: a non-finite `f32`, a duty outside `[0, 1]`, an
-    /// unknown drive-state code, or move, estimate or position bytes (or the idle flag)
-    /// sent without their flag.
-    Value,
-}
-
-impl LinkError {
-    /// `true` for [`LinkError::Crc`] (counted as bad CRC); every other error counts as
-    /// malformed.
-    pub const fn is_crc(self) -> bool {
-        matches!(self, LinkError::Crc)
-    }
-}
-
-impl core::fmt::Display for LinkError {
-    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
-        f.write_str(match self {
-            LinkError::Overflow => "frame longer than the receive buffer",
-            LinkError::Cobs => "invalid COBS encoding",
-            LinkError::Length => "wrong frame length",
-            LinkError::Crc => "CRC mismatch",
-            LinkError::Version => "unknown protocol version",
-            LinkError::Flags => "unknown flag bits",
-            LinkError::Value => "value out of range",
-        })
-    }
-}
-
-/// Why a frame could not be encoded.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub enum EncodeError {
-    /// The output buffer is shorter than `needed` bytes (the frame's `WIRE_LEN`).
-    BufferTooSmall {
-        /// Bytes the frame needs on the wire.
-        needed: usize,
-    },
-    /// A field the receiver would reject: a non-finite `f32` or a duty outside `[0, 1]`.
-    InvalidValue,
-}
-
-impl core::fmt::Display for EncodeError {
-    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
-        match self {
-            EncodeError::BufferTooSmall { needed } => write!(f, "output buffer needs {needed} bytes"),
-            EncodeError::InvalidValue => f.write_str("value out of range"),
-        }
-    }
-}
-
-/// Writes little-endian fields in sequence; never panics, notes a short buffer.
-pub(super) struct Writer<'a> {
-    buf: &'a mut [u8],
-    pos: usize,
-    fits: bool,
-}
-
-impl<'a> Writer<'a> {
-    pub(super) fn new(buf: &'a mut [u8]) -> Self {
-        Writer { buf, pos: 0, fits: true }
-    }
-    pub(super) fn bytes(&mut self, bytes: &[u8]) {
-        let end = self.pos.saturating_add(bytes.len());
-        match self.buf.get_mut(self.pos..end) {
-            // Element by element: the lengths are equal, but `copy_from_slice`'s length
-            // check is a panic path the optimiser cannot always remove (`.ci/no-panic`).
-            Some(dst) => dst.iter_mut().zip(bytes).for_each(|(d, s)| *d = *s),
-            None => self.fits = false,
-        }
-        self.pos = end;
-    }
-    pub(super) fn u8(&mut self, x: u8) {
-        self.bytes(&[x]);
-    }
-    pub(super) fn u16(&mut self, x: u16) {
-        self.bytes(&x.to_le_bytes());
-    }
-    pub(super) fn u32(&mut self, x: u32) {
-        self.bytes(&x.to_le_bytes());
-    }
-    pub(super) fn f32(&mut self, x: f32) {
-        self.bytes(&x.to_le_bytes());
-    }
-    /// `Ok` when everything fit and exactly `len` bytes were written.
-    pub(super) fn finish(self, len: usize) -> Result<(), EncodeError> {
-        if self.fits && self.pos == len && self.buf.len() == len {
-            Ok(())
-        } else {
-            Err(EncodeError::BufferTooSmall { needed: len })
-        }
-    }
-}
-
-/// Reads little-endian fields from a payload whose length was checked. Reads past the
-/// end yield zeros (cannot happen after the check).
-pub(super) struct Reader<'a> {
-    buf: &'a [u8],
-    pos: usize,
-}
-
-impl<'a> Reader<'a> {
-    /// A reader over `payload`, which must be exactly `len` bytes.
-    pub(super) fn new(payload: &'a [u8], len: usize) -> Result<Self, LinkError> {
-        if payload.len() == len { Ok(Reader { buf: payload, pos: 0 }) } else { Err(LinkError::Length) }
-    }
-    /// Reads the version byte and checks it.
-    pub(super) fn version(&mut self) -> Result<(), LinkError> {
-        if self.u8() == PROTOCOL_VERSION { Ok(()) } else { Err(LinkError::Version) }
-    }
-    pub(super) fn bytes<const N: usize>(&mut self) -> [u8; N] {
-        let end = self.pos.saturating_add(N);
-        let out = self.buf.get(self.pos..end).and_then(|s| <[u8; N]>::try_from(s).ok()).unwrap_or([0; N]);
-        self.pos = end;
-        out
-    }
-    pub(super) fn u8(&mut self) -> u8 {
-        let [b] = self.bytes::<1>();
-        b
-    }
-    pub(super) fn u16(&mut self) -> u16 {
-        u16::from_le_bytes(self.bytes())
-    }
-    pub(super) fn u32(&mut self) -> u32 {
-        u32::from_le_bytes(self.bytes())
-    }
-    pub(super) fn finite_f32(&mut self) -> Result<f32, LinkError> {
-        let x = f32::from_le_bytes(self.bytes());
-        if x.is_finite() { Ok(x) } else { Err(LinkError::Value) }
-    }
-    pub(super) fn duty(&mut self) -> Result<f32, LinkError> {
-        let x = f32::from_le_bytes(self.bytes());
-        if super::frame::duty_ok(x) { Ok(x) } else { Err(LinkError::Value) }
-    }
-}
 
 /// Encodes `frame` into `out`: COBS(payload ‖ CRC) followed by the `0x00` delimiter.
 /// Returns the bytes written, always `F::WIRE_LEN`.

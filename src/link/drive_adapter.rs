@@ -5,7 +5,8 @@
 //! lock-step link ([`LinkServer`]).
 
 use super::board::{BoardCommand, BoardTelemetry};
-use super::codec::{LinkError, Receiver, decode_raw, encode};
+use super::codec::{Receiver, decode_raw, encode};
+use super::wire::LinkError;
 use super::frame::{
     ActuationFrame, COMMISSIONING_ERROR_CODES, CommissioningReport, CommissioningRequest,
     CommissioningStatus, EstimateReport, PositionReport, STATE_CODES, SensorFrame,

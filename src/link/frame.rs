@@ -2,20 +2,9 @@
 //! layout (the tables in the [module docs](super)). Plain data and codes only: the drive
 //! types are the [drive adapter's](super::drive_adapter) business.
 
-use super::codec::{EncodeError, LinkError, Reader, Writer};
 use super::session::LinkStats;
+use super::wire::{EncodeError, LinkError, PROTOCOL_VERSION, Reader, Writer, duty_ok};
 use crate::motion::Move;
-
-/// The protocol version carried in byte 0 of every frame; any other value is rejected.
-///
-/// Version 2 (from 1) added the move command to [`SensorFrame`], the position report to
-/// [`ActuationFrame`], the commissioning frames ([`CommissioningRequest`],
-/// [`CommissioningReport`]), and, on the board link, the format of the drive's own words
-/// to [`CaptureChunk`](super::board::CaptureChunk) (1: SI `f32` converted on the target),
-/// the move command to [`BoardCommand`](super::board::BoardCommand) (flag
-/// [`BOARD_FLAG_MOVE`](super::board::BOARD_FLAG_MOVE), 12 to 20 bytes) and the position
-/// report to [`BoardTelemetry`](super::board::BoardTelemetry) (44 to 59 bytes).
-pub const PROTOCOL_VERSION: u8 = 2;
 
 /// Bytes of the CRC after the payload (CRC-16, little-endian).
 pub const CRC_LEN: usize = 2;
@@ -55,15 +44,14 @@ pub(super) const fn wire_len(raw_len: usize) -> usize {
     raw_len + 2
 }
 
-mod private {
+/// Seals [`Frame`]: the link's frame types implement it, here and in `board`.
+pub(super) mod private {
+    /// The seal.
     pub trait Sealed {}
     impl Sealed for super::SensorFrame {}
     impl Sealed for super::ActuationFrame {}
     impl Sealed for super::CommissioningRequest {}
     impl Sealed for super::CommissioningReport {}
-    impl Sealed for super::super::board::BoardCommand {}
-    impl Sealed for super::super::board::BoardTelemetry {}
-    impl Sealed for super::super::board::CaptureChunk {}
 }
 
 /// A frame type of the link: [`SensorFrame`], [`ActuationFrame`] or one of the board
@@ -330,10 +318,6 @@ impl ActuationFrame {
         }
         flags | PositionReport::flags(self.position)
     }
-}
-
-pub(super) fn duty_ok(d: f32) -> bool {
-    (0.0..=1.0).contains(&d)
 }
 
 /// `true` for a known drive-state code (`0..STATE_CODES`).

@@ -199,17 +199,19 @@ pub mod codec;
 pub mod drive_adapter;
 pub mod frame;
 pub mod session;
+pub mod wire;
 
-pub use codec::{EncodeError, LinkError, RX_CAPACITY, Receiver, decode_in_place, decode_raw, encode};
+pub use codec::{RX_CAPACITY, Receiver, decode_in_place, decode_raw, encode};
 pub use drive_adapter::BAD_SETTING_OVER_THE_LINK;
 pub use drive_adapter::LinkServer;
 pub use frame::{
     ACTUATION_FLAG_BRIDGE_ENABLED, ACTUATION_FLAG_ESTIMATE_VALID, ACTUATION_FLAG_MOTION_IDLE,
     ACTUATION_FLAG_POSITION_VALID, ActuationFrame, COMMISSIONING_ERROR_CODES, COMMISSIONING_QUERY,
     COMMISSIONING_START, CRC_LEN, CommissioningReport, CommissioningRequest, CommissioningStatus,
-    EstimateReport, Frame, PROTOCOL_VERSION, PositionReport, SENSOR_FLAG_CLEAR_FAULTS, SENSOR_FLAG_ENABLE,
+    EstimateReport, Frame, PositionReport, SENSOR_FLAG_CLEAR_FAULTS, SENSOR_FLAG_ENABLE,
     SENSOR_FLAG_MOVE, STATE_CODES, SensorFrame,
 };
+pub use wire::{EncodeError, LinkError, PROTOCOL_VERSION};
 pub use session::{
     LinkStats, LinkWatchdog, SILENT_LINK_PERIODS, SequenceOrder, SequenceTracker, classify_sequence,
 };

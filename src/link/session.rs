@@ -2,7 +2,7 @@
 //! ([`LinkStats`]), the sequence numbers ([`SequenceTracker`]) and the silent-link
 //! watchdog ([`LinkWatchdog`]).
 
-use super::codec::LinkError;
+use super::wire::LinkError;
 
 /// Frames dropped by the controller, each count saturating at `u16::MAX`. Sent back in
 /// every [`ActuationFrame`](super::ActuationFrame).
