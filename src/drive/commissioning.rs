@@ -82,7 +82,7 @@
 
 use super::DeadTimeCompensation;
 use crate::motor::MotorParams;
-use crate::num::sin_cos;
+use crate::num::{positive as pos, sin_cos};
 
 /// Crossover of the integral current controllers of the DC tests, rad/s (slow enough for
 /// any electrical time constant up to 6 ms whatever the rough resistance's error).
@@ -393,10 +393,6 @@ pub struct Commissioning {
 
 // Variable limits are applied with `max` and `min`, not `f32::clamp`: clamp panics when its
 // bounds are NaN or crossed, which the optimiser cannot rule out (no image may link a panic).
-
-fn pos(x: f32) -> bool {
-    x.is_finite() && x > 0.0
-}
 
 impl Commissioning {
     /// Starts commissioning with `config` at the PWM period `control_period_s` (s).

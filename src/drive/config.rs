@@ -5,6 +5,7 @@ use crate::hfi::HfiConfig;
 use crate::motion::{ProfileField, ProfileLimits};
 use crate::motor::MotorParams;
 use crate::motor_image::MotorImage;
+use crate::num::{non_negative, positive};
 use crate::observer::ObserverKind;
 
 /// Open-loop (I/f) start-up: a current vector of fixed amplitude turned at a
@@ -478,8 +479,7 @@ impl core::fmt::Display for DriveConfigError {
 impl DriveConfig {
     /// Checks every setting; the first bad one is named.
     pub fn validate(&self) -> Result<(), DriveConfigError> {
-        let pos = |x: f32| x.is_finite() && x > 0.0;
-        let non_neg = |x: f32| x.is_finite() && x >= 0.0;
+        let (pos, non_neg) = (positive, non_negative);
         let checks: [(bool, &'static str); 31] = [
             (pos(self.control_period_s), "control_period_s"),
             (self.speed_loop_divider >= 1, "speed_loop_divider"),
