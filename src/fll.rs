@@ -154,7 +154,7 @@
 //! locked above 15 deg in the paper's scenarios (eight event phases each) and in the
 //! 576 cold starts of `dcfo acquire`, with the flag's availability there unchanged.
 
-use crate::num::Scalar;
+use crate::num::{Scalar, positive};
 use crate::transforms::AlphaBeta;
 use crate::units::Base;
 
@@ -310,7 +310,6 @@ pub struct Fll<T> {
 impl<T: Scalar> Fll<T> {
     /// An FLL tuned by `config` (converted with `base`), at its acquisition start.
     pub fn new(config: &FllConfig, base: &Base) -> Result<Self, FllConfigError> {
-        let positive = |x: f32| x.is_finite() && x > 0.0;
         if !positive(config.gain_per_omega) {
             return Err(FllConfigError::BadGain);
         }

@@ -106,7 +106,7 @@
 #![forbid(unsafe_code)]
 
 use crate::motor::MotorParams;
-use crate::num::{Angle, Scalar};
+use crate::num::{Angle, Scalar, positive};
 use crate::transforms::{AlphaBeta, CosSin, Dq, inverse_park, park};
 use crate::units::Base;
 
@@ -211,7 +211,6 @@ impl HfiConfig {
 
     /// Checks every setting; the first refused group by name.
     pub fn validate(&self) -> Result<(), HfiConfigError> {
-        let positive = |x: f32| x.is_finite() && x > 0.0;
         if !(positive(self.ld_h) && positive(self.lq_h) && self.lq_h >= MIN_SALIENCY * self.ld_h) {
             return Err(HfiConfigError::NotSalient);
         }

@@ -46,6 +46,8 @@
 
 #![forbid(unsafe_code)]
 
+use crate::num::positive;
+
 /// Gains and limits of a [`LoadObserver`].
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct LoadObserverConfig {
@@ -86,7 +88,6 @@ pub struct LoadObserver {
 impl LoadObserver {
     /// Builds an observer from `config`, at rest at position 0 with no load.
     pub fn new(config: &LoadObserverConfig) -> Result<Self, LoadObserverConfigError> {
-        let positive = |x: f32| x.is_finite() && x > 0.0;
         let c = config;
         for (ok, field) in [
             (positive(c.mass_kg), "mass_kg"),

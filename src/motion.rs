@@ -32,7 +32,7 @@
 //! Bounded time, no allocation, no panics: the queue is a [`heapless::Deque`] (fixed
 //! capacity, `Err` when full) — a well-kept crate rather than a hand-written ring.
 
-use crate::num::Scalar;
+use crate::num::{Scalar, positive};
 use heapless::Deque;
 
 /// Speed and acceleration limits of a profile, SI.
@@ -92,7 +92,6 @@ impl ProfileLimits {
     /// speed and the acceleration positive and finite, the stroke's ends finite with
     /// `stroke_min_m < stroke_max_m`. The first bad field is named.
     pub fn validate(&self) -> Result<(), ProfileField> {
-        let positive = |x: f32| x.is_finite() && x > 0.0;
         if !self.stroke_min_m.is_finite() {
             return Err(ProfileField::StrokeMin);
         }

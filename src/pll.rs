@@ -62,7 +62,7 @@
 //! on ramps: the notch lags by `kp a / ki` rad/s during a ramp of `a` rad/s^2, which a
 //! drive bounds by limiting its acceleration. Limits `2 pi [3, 40] Hz`.
 
-use crate::num::{Angle, Scalar};
+use crate::num::{Angle, Scalar, positive};
 use crate::transforms::{AlphaBeta, CosSin};
 use crate::units::Base;
 
@@ -198,7 +198,6 @@ impl<T: Scalar> Pll<T> {
     /// A PLL for a motor of pole pitch `pole_pitch_m` (m), tuned by `config` and
     /// converted with `base`. Starts at angle 0, speed 0, unlocked.
     pub fn new(config: &PllConfig, pole_pitch_m: f32, base: &Base) -> Result<Self, PllConfigError> {
-        let positive = |x: f32| x.is_finite() && x > 0.0;
         if !(positive(config.bandwidth_per_omega)
             && positive(config.min_bandwidth_rad_s)
             && positive(config.damping)

@@ -129,7 +129,7 @@
 
 use super::voltage_model::VoltageModel;
 use super::{FluxEstimate, FluxObserver, ObserverFault, ObserverInput, ObserverMotor, check_input};
-use crate::num::Scalar;
+use crate::num::{Scalar, positive};
 use crate::transforms::AlphaBeta;
 use crate::units::Base;
 
@@ -226,7 +226,6 @@ pub struct Dcfo<T> {
 impl<T: Scalar> Dcfo<T> {
     /// A DCFO for `motor`, tuned by `config` (converted with `base`). Refuses `h >= 0`.
     pub fn new(motor: ObserverMotor<T>, config: &DcfoConfig, base: &Base) -> Result<Self, DcfoConfigError> {
-        let positive = |x: f32| x.is_finite() && x > 0.0;
         if !positive(-config.h_per_ls_omega) {
             return Err(DcfoConfigError::GainNotNegative);
         }
