@@ -248,6 +248,10 @@ impl MotionConfig {
     /// - position loop: a quarter of the speed loop's crossover.
     /// - HFI ([`HfiConfig::for_motor`]) for a salient motor (`L_q / L_d >= 1.15`),
     ///   tuned for the control period and the nominal bus; none otherwise.
+    ///
+    /// Not inlined: a drive image calls it from `DriveConfig::for_image` and from
+    /// `Drive::new` (a speed drive's low-speed mode), one copy for both.
+    #[inline(never)]
     pub fn for_drive(motor: &MotorParams, drive: &DriveConfig, limits: ProfileLimits) -> Self {
         let bus_v = nominal_bus_v(drive);
         let rated_peak = motor.rated_current_a * core::f32::consts::SQRT_2;
