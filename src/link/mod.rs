@@ -154,12 +154,14 @@
 //! time, and the drive trips before it steps on that frame.
 //!
 //! ## Modules
-//! The protocol knows nothing of the drive: [`frame`] (constants, the [`Frame`] trait,
-//! the frame types and their layouts, plain data and codes), [`codec`] (CRC, COBS
-//! framing, [`Receiver`]), [`session`] (statistics, sequence numbers, watchdog) and the
-//! board link's frames ([`board`]). [`drive_adapter`] alone maps frames to and from the
-//! drive ([`crate::drive::Commands`], measurements, state codes) and holds the
-//! controller side of the lock-step link ([`LinkServer`]).
+//! The protocol knows nothing of the drive. From the bottom up, each importing only
+//! those below it: [`wire`] (the protocol version, the errors, the field reader and
+//! writer), [`session`] (statistics, sequence numbers, watchdog), [`frame`] (constants,
+//! the [`Frame`] trait, the frame types and their layouts, plain data and codes), the
+//! board link's frames ([`board`]), [`codec`] (CRC, COBS framing, [`Receiver`]).
+//! [`drive_adapter`] alone maps frames to and from the drive ([`crate::drive::Commands`],
+//! measurements, state codes) and holds the controller side of the lock-step link
+//! ([`LinkServer`]).
 //!
 //! ## Controller side, one PWM period
 //! ```
