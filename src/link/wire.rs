@@ -3,9 +3,10 @@
 
 /// The protocol version carried in byte 0 of every frame; any other value is rejected.
 ///
-/// Version 2 (from 1) added the move command to [`SensorFrame`], the position report to
-/// [`ActuationFrame`], the commissioning frames ([`CommissioningRequest`],
-/// [`CommissioningReport`]), and, on the board link, the format of the drive's own words
+/// Version 2 (from 1) added the move command to [`SensorFrame`](super::SensorFrame), the
+/// position report to [`ActuationFrame`](super::ActuationFrame), the commissioning frames
+/// ([`CommissioningRequest`](super::CommissioningRequest),
+/// [`CommissioningReport`](super::CommissioningReport)), and, on the board link, the format of the drive's own words
 /// to [`CaptureChunk`](super::board::CaptureChunk) (1: SI `f32` converted on the target),
 /// the move command to [`BoardCommand`](super::board::BoardCommand) (flag
 /// [`BOARD_FLAG_MOVE`](super::board::BOARD_FLAG_MOVE), 12 to 20 bytes) and the position
