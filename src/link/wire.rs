@@ -22,7 +22,7 @@ pub(super) fn duty_ok(d: f32) -> bool {
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum LinkError {
-    /// More bytes than [`RX_CAPACITY`] before a delimiter (the rest is skipped up to
+    /// More bytes than [`RX_CAPACITY`](super::RX_CAPACITY) before a delimiter (the rest is skipped up to
     /// the next `0x00`).
     Overflow,
     /// Invalid COBS encoding.
