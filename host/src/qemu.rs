@@ -37,11 +37,11 @@
 //! milliseconds (read through semihosting, `dcfo_firmware::board::mps2::HostClock`), so
 //! that neither a host slower than QEMU nor a machine that stalls both looks like a
 //! silence. The host side waits for the drive's own time where it waits for the drive
-//! (`crate::board`: deadlines in control periods of the telemetry, wall-clock limits only
+//! (`crate::commands::board`: deadlines in control periods of the telemetry, wall-clock limits only
 //! against a hang). The instruction counts of `bench_qemu` come from QEMU's exec log, not
 //! from its clock: its command line ([`qemu_command`]) has no `-icount`.
 
-use crate::sim::{Controller, SimError};
+use crate::simulation::{Controller, SimError};
 use std::io::Write;
 use std::os::unix::process::CommandExt;
 use std::path::{Path, PathBuf};
@@ -77,10 +77,10 @@ impl QemuCpu {
 
     /// The in-process drive the firmware's results must equal: same code, same numeric
     /// type, same units.
-    pub fn local_drive(self, setup: &crate::sim::Setup) -> Result<Box<dyn Controller>, SimError> {
+    pub fn local_drive(self, setup: &crate::simulation::Setup) -> Result<Box<dyn Controller>, SimError> {
         Ok(match self {
-            QemuCpu::M4f => Box::new(crate::sim::LocalDrive::new(setup)?),
-            QemuCpu::M3 => Box::new(crate::sim::LocalDrive::fixed_point(setup)?),
+            QemuCpu::M4f => Box::new(crate::simulation::LocalDrive::new(setup)?),
+            QemuCpu::M3 => Box::new(crate::simulation::LocalDrive::fixed_point(setup)?),
         })
     }
 }

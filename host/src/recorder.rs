@@ -21,7 +21,7 @@ use dcfo::svpwm::svpwm;
 use dcfo::transforms::{AlphaBeta, CosSin, Dq, inverse_clarke, inverse_park, park};
 use dcfo::units::Base;
 
-use crate::sim::Setup;
+use crate::simulation::Setup;
 
 /// One recorded period: the observer's inputs as a trace row holds them, and the truth.
 #[derive(Clone, Copy, Debug)]

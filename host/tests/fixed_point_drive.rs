@@ -10,7 +10,7 @@ use dcfo::num::Q24;
 use dcfo::observer::ObserverKind;
 use dcfo::transforms::AlphaBeta;
 use dcfo::units::Base;
-use dcfo_host::sim::{LocalDrive, Setup, run, run_with, scenarios};
+use dcfo_host::simulation::{LocalDrive, Setup, run, run_with, scenarios};
 use dcfo_host::trace::wrap_angle;
 
 #[test]
@@ -118,7 +118,7 @@ fn q24_steady_scenario_meets_the_papers_figure() {
 
 /// Largest current-loop error `|i_dq - i_dq_ref|` (A) over `window_s` before and after
 /// the I/f start hands over to the estimated frame (`Starting` -> `Running`).
-fn handover_current_error(run: &dcfo_host::sim::Run, window_s: f64) -> (f64, f64) {
+fn handover_current_error(run: &dcfo_host::simulation::Run, window_s: f64) -> (f64, f64) {
     let starting = dcfo::drive::DriveState::Starting.code();
     let running = dcfo::drive::DriveState::Running.code();
     let at = run

@@ -10,9 +10,9 @@ use dcfo::motor::MotorParams;
 use dcfo::num::{Angle, Q24};
 use dcfo::transforms::AlphaBeta;
 use dcfo::units::Base;
+use dcfo_host::commands::stroke::plant_for;
 use dcfo_host::motor_file::load_motor;
 use dcfo_host::plant::{Plant, PlantParams, SimParams, svpwm_duties};
-use dcfo_host::stroke::plant_for;
 
 fn salient() -> MotorParams {
     let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../motors/salient.toml");

@@ -10,9 +10,9 @@ use dcfo::drive::{Drive, DriveState};
 use dcfo::motion::Move;
 use dcfo::motor::MotorParams;
 use dcfo::units::Base;
+use dcfo_host::commands::stroke::{drive_for, plant_for};
 use dcfo_host::motor_file::load_motor;
 use dcfo_host::plant::{Plant, rated_thrust_n};
-use dcfo_host::stroke::{drive_for, plant_for};
 
 fn salient() -> MotorParams {
     let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../motors/salient.toml");

@@ -14,8 +14,9 @@
 use dcfo::drive::{DriveState, Faults};
 use dcfo::link::SensorFrame;
 use dcfo::observer::ObserverKind;
-use dcfo_host::hil::{QemuCpu, QemuSession, compare_runs};
-use dcfo_host::sim::{Controller, Setup, run_with, scenarios};
+use dcfo_host::commands::hil::compare_runs;
+use dcfo_host::qemu::{QemuCpu, QemuSession};
+use dcfo_host::simulation::{Controller, Setup, run_with, scenarios};
 use std::process::Command;
 use std::time::{Duration, Instant};
 

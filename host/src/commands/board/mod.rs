@@ -40,9 +40,9 @@ use dcfo::motor::MotorParams;
 use dcfo::motor_image::{MotorAxis, MotorImage};
 use dcfo::observer::ObserverKind;
 
+use crate::commands::replay::{replay_trace_as, working_base};
+use crate::commands::sim::fault_names;
 use crate::qemu::{GuestClock, QemuSession, build_qemu_example};
-use crate::replay::{replay_trace_as, working_base};
-use crate::sim::report::fault_names;
 use crate::trace::{COMMANDED_ACCEL_COLUMN, GroundTruth, InputTrace, InputTraceWriter, TraceRow};
 
 /// How long to wait for an answer before sending the command again (a booting QEMU can
@@ -148,7 +148,7 @@ pub struct BoardLink<W: Write> {
 impl<W: Write> BoardLink<W> {
     /// A link writing to `writer` and reading from `reader` (moved to a thread).
     pub fn new(writer: W, reader: impl Read + Send + 'static) -> Self {
-        let incoming = crate::hil::spawn_reader(reader);
+        let incoming = crate::hil_link::spawn_reader(reader);
         BoardLink {
             writer,
             incoming,
@@ -1249,7 +1249,7 @@ pub fn run_command(params: &Params) -> anyhow::Result<()> {
         check_move(m.target_m, m.dwell_s).map_err(|e| anyhow::anyhow!("--move-to/--dwell: {e}"))?;
     }
     let image = match (&params.image, &params.target) {
-        (Some(path), Target::Qemu { .. }) => Some(crate::motor_image::read_image(path)?),
+        (Some(path), Target::Qemu { .. }) => Some(crate::commands::motor_image::read_image(path)?),
         (Some(_), Target::Port { .. }) => {
             bail!("--image is for --qemu: a board reads its motor image from flash (write it with probe-rs)")
         }
@@ -1260,7 +1260,7 @@ pub fn run_command(params: &Params) -> anyhow::Result<()> {
         Target::Port { .. } => None,
     };
     if let Some(i) = &image {
-        eprintln!("motor image: {}", crate::motor_image::describe_axis(i.axis));
+        eprintln!("motor image: {}", crate::commands::motor_image::describe_axis(i.axis));
     }
     catch_interrupt()?;
     if !params.demo {

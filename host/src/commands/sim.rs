@@ -2,11 +2,11 @@
 //! estimates, summary and figure; and what other commands write of a run
 //! ([`write_run_outputs`], [`trace_of`], [`fault_names`]).
 
-use super::scenarios::{Figures, PaperScale, Scenario, figures, paper_scenarios, scenario};
-use super::{Run, Setup, run, theta_err_deg};
 use crate::motor_file::load_motor;
 use crate::observer::observer_name;
 use crate::plot::{Panel, Series, time_series_figure, write_figure};
+use crate::simulation::scenarios::{Figures, PaperScale, Scenario, figures, paper_scenarios, scenario};
+use crate::simulation::{Run, Setup, run, theta_err_deg};
 use crate::trace::{
     COMMANDED_ACCEL_COLUMN, Estimate, GroundTruth, InputTrace, InputTraceWriter, write_output_trace,
 };
@@ -37,7 +37,7 @@ pub fn run_command(params: &Params) -> Result<()> {
     let mut scenario = load_scenario(&params.scenario)?;
     // A paper experiment on another motor is scaled to it; a scenario file says what it
     // means in its own units.
-    let paper_experiment = super::scenarios::scenario(&params.scenario).is_some();
+    let paper_experiment = crate::simulation::scenarios::scenario(&params.scenario).is_some();
     let mut setup = match &params.motor {
         None => Setup::paper(params.observer),
         Some(m) => {
@@ -62,7 +62,11 @@ pub fn run_command(params: &Params) -> Result<()> {
 }
 
 /// Every fifth sample in the display window of `sc` as (t, value).
-pub fn series(run: &Run, sc: &Scenario, value: impl Fn(&super::Sample) -> f64) -> Vec<(f64, f64)> {
+pub fn series(
+    run: &Run,
+    sc: &Scenario,
+    value: impl Fn(&crate::simulation::Sample) -> f64,
+) -> Vec<(f64, f64)> {
     // From half a second before the event; a run shortened before it, or whose drive
     // stopped reporting before it (a trip), shows everything.
     let last_t = run.samples.last().map_or(0.0, |s| s.row.t);

@@ -144,7 +144,7 @@ pub fn plant_for(motor: &MotorParams, seed: u64, fault: PlantFault) -> SimParams
 }
 
 /// A drive that runs commissioning: in this process ([`InProcess`]) or behind the HIL
-/// link (the firmware on QEMU or a board: [`crate::hil::SerialController`]).
+/// link (the firmware on QEMU or a board: [`crate::hil_link::SerialController`]).
 pub trait Commissioner {
     /// Requests commissioning of a drive told only `config`.
     ///
@@ -211,7 +211,7 @@ impl<T: Scalar> Commissioner for InProcess<T> {
     }
 }
 
-impl<W: std::io::Write> Commissioner for crate::hil::SerialController<W> {
+impl<W: std::io::Write> Commissioner for crate::hil_link::SerialController<W> {
     fn start(&mut self, config: CommissioningConfig) -> Result<(), IdentifyError> {
         let report = self.commissioning(Some(config)).map_err(|e| IdentifyError::Link(e.to_string()))?;
         match (report.status, report.error()) {
@@ -222,7 +222,7 @@ impl<W: std::io::Write> Commissioner for crate::hil::SerialController<W> {
     }
 
     fn step(&mut self, sensor: &SensorFrame) -> Result<ActuationFrame, IdentifyError> {
-        use crate::sim::Controller;
+        use crate::simulation::Controller;
         Controller::step(self, sensor).map(|s| s.frame).map_err(|e| IdentifyError::Link(e.to_string()))
     }
 
@@ -436,7 +436,7 @@ pub fn json_line(r: &IdentifyReport) -> String {
 }
 
 /// The light-load steady angle error of the paper axis (`dcfo sim steady`: 0.3 m/s, no
-/// load, [`crate::sim::Setup::paper`]) for one plant noise seed, under four inverter
+/// load, [`crate::simulation::Setup::paper`]) for one plant noise seed, under four inverter
 /// compensations: none, the typed-in one of [`DriveConfig::paper_axis`], the one
 /// identified by commissioning (`identified`, on the paper motor's plant with the same
 /// seed), and the identified compensation together with the identified motor.
@@ -457,8 +457,8 @@ pub struct SteadyRow {
 
 /// Runs the four steady runs of [`SteadyRow`] for `seed`.
 pub fn steady_row(seed: u64) -> Result<SteadyRow, IdentifyError> {
-    use crate::sim::scenarios::{figures, scenario};
-    use crate::sim::{Setup, run};
+    use crate::simulation::scenarios::{figures, scenario};
+    use crate::simulation::{Setup, run};
     let paper = MotorParams::paper();
     let report = identify("paper", &paper, seed, PlantFault::None)?;
     let result = report.result.ok_or_else(|| IdentifyError::Setup("no result".into()))?;
@@ -559,10 +559,10 @@ pub fn identify_over_link(
                 .unwrap_or(std::path::Path::new("."));
             let elf = match elf {
                 Some(e) => e.clone(),
-                None => crate::hil::build_qemu_firmware(workspace, *cpu)?,
+                None => crate::hil_link::build_qemu_firmware(workspace, *cpu)?,
             };
             let started_qemu = std::time::Instant::now();
-            let (session, mut link) = crate::hil::QemuSession::start(&elf, *cpu)?;
+            let (session, mut link) = crate::qemu::QemuSession::start(&elf, *cpu)?;
             let report = identify_with(name, motor, seed, PlantFault::None, &mut link)?;
             let wall_s = started_qemu.elapsed().as_secs_f64();
             let stack_high_water_bytes = session.stack_high_water().ok();
@@ -570,7 +570,7 @@ pub fn identify_over_link(
         }
         Target::Port { device, baud } => {
             let (serial, reader) = crate::target::open_serial(device, *baud)?;
-            let mut link = crate::hil::SerialController::new(serial, reader);
+            let mut link = crate::hil_link::SerialController::new(serial, reader);
             identify_with(name, motor, seed, PlantFault::None, &mut link)?
         }
     };
@@ -698,7 +698,7 @@ pub fn run_command(params: &Params) -> anyhow::Result<std::process::ExitCode> {
     if let Some(path) = &params.image {
         // An axis in the image being overwritten is kept: commissioning identifies
         // the motor and the inverter, not the axis.
-        let axis = crate::motor_image::existing_axis(path);
+        let axis = crate::commands::motor_image::existing_axis(path);
         let bytes = motor_image(&report, &motor.params, axis)?;
         std::fs::write(path, bytes).with_context(|| format!("writing {}", path.display()))?;
         println!(
@@ -706,7 +706,7 @@ pub fn run_command(params: &Params) -> anyhow::Result<std::process::ExitCode> {
             MotorImage::VERSION,
             bytes.len(),
             path.display(),
-            crate::motor_image::describe_axis(axis),
+            crate::commands::motor_image::describe_axis(axis),
             if axis.is_some() { " kept from the image it replaces" } else { "" }
         );
     }

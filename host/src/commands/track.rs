@@ -25,7 +25,7 @@
 //!   a tenth of a period's worth per period, and for 50 ms after, above the floor, once
 //!   the estimator has locked the first time (issue floor: 8 deg).
 //! - **false-lock samples**: the `locked` flag set with the angle more than
-//!   [`crate::acquire::FALSE_LOCK_DEG`] off (floor: 0).
+//!   [`crate::commands::acquire::FALSE_LOCK_DEG`] off (floor: 0).
 
 use serde::Serialize;
 
@@ -33,10 +33,10 @@ use dcfo::motor::MotorParams;
 use dcfo::num::Q24;
 use dcfo::units::Base;
 
-use crate::acquire::{FALSE_LOCK_DEG, recording_load_n};
+use crate::commands::acquire::{FALSE_LOCK_DEG, recording_load_n};
 use crate::recorder::{PrefilteredSteps, Row, SampledProfile, record, replay};
-use crate::sim::Setup;
-use crate::sim::scenarios::PaperScale;
+use crate::simulation::Setup;
+use crate::simulation::scenarios::PaperScale;
 use crate::trace::wrap_angle;
 
 /// After a reversal the angle must be within this of the truth, electrical degrees.

@@ -2,11 +2,11 @@
 //! phase, short two phase terminals, falsify the current sensors and change the bus,
 //! and a drive either in process or behind the link server (`dcfo::link::LinkServer`,
 //! the firmware's receive path) whose byte stream can go silent, be corrupted or carry
-//! replayed frames. One period at a time, as in `crate::sim`: sample, control step,
+//! replayed frames. One period at a time, as in `crate::simulation`: sample, control step,
 //! the plant runs the period with the duties of the step before.
 //!
 //! A positioning drive is fed its moves as `dcfo stroke` feeds them
-//! (`crate::stroke::run_with`): one per sensor frame while the drive's last report shows
+//! (`crate::commands::stroke::run_with`): one per sensor frame while the drive's last report shows
 //! room in its queue; a move it refuses is counted, not retried.
 
 use std::collections::VecDeque;

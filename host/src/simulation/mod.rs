@@ -2,7 +2,7 @@
 //! control step, `Drive<f32>` in SI units or `Drive<Q24>` per-unit: [`LocalDrive`]) in
 //! lock-step, with scenario events and ground truth. Both numeric types log the same
 //! detailed samples ([`StepDetail`], converted to SI through the drive's base); a drive
-//! behind a link ([`Controller`] in `crate::hil`) logs what the link carries.
+//! behind a link ([`Controller`] in `crate::hil_link`) logs what the link carries.
 //!
 //! Per PWM period `k` (time `t_k`): the plant's sensors are sampled, the drive computes
 //! its step, the plant runs the period with the duties computed one step earlier (the
@@ -10,7 +10,6 @@
 //! drive's first start-up step, when its estimator is reset, so that replaying the
 //! trace through the same estimator reproduces the run's estimates exactly.
 
-pub mod report;
 pub mod scenarios;
 
 use crate::plant::{Plant, PlantError, SimParams, TrueState};
@@ -229,7 +228,7 @@ impl StepDetail {
 }
 
 /// A drive the simulation can close the loop with: in-process ([`LocalDrive`]) or
-/// behind the HIL serial link (`crate::hil`).
+/// behind the HIL serial link (`crate::hil_link`).
 pub trait Controller {
     /// Adds DC offsets to the observer's voltage (V) and current (A) inputs (the paper's
     /// disturbance tests); only an in-process drive can.
@@ -491,6 +490,6 @@ mod tests {
         assert!((amp(a) - amp(b)).abs() < 0.2 * amp(a).max(0.1), "|i| f32 {} vs Q24 {}", amp(a), amp(b));
         let (pa, pb) = (a.psi_hat[0].hypot(a.psi_hat[1]), b.psi_hat[0].hypot(b.psi_hat[1]));
         assert!((pa - pb).abs() < 0.02 * pa, "|psi| f32 {pa} vs Q24 {pb} Wb");
-        assert!(report::trace_of(&q).expect("trace").0.commanded_acceleration().is_some());
+        assert!(crate::commands::sim::trace_of(&q).expect("trace").0.commanded_acceleration().is_some());
     }
 }

@@ -50,7 +50,7 @@
 pub mod axis;
 pub mod cases;
 
-use crate::sim::report::fault_names;
+use crate::commands::sim::fault_names;
 
 use dcfo::drive::{Drive, DriveState, Faults};
 use dcfo::link::SILENT_LINK_PERIODS;
@@ -61,7 +61,7 @@ use serde::Serialize;
 pub use axis::{Axis, Injection, LinkChecks, Period};
 pub use cases::{AFTER_S, Bench, Case, DriveKind, Expected, INJECT_S, Levels, Trigger};
 
-use crate::sim::Setup;
+use crate::simulation::Setup;
 use crate::trace::wrap_angle;
 
 /// A ride-through's accuracy is measured over the run's last this many seconds.

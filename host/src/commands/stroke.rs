@@ -25,7 +25,7 @@ use dcfo::motor::MotorParams;
 use serde::Serialize;
 
 use crate::plant::{InverterParams, Plant, PlantParams, SimParams};
-use crate::sim::{Controller, LocalDrive, Setup};
+use crate::simulation::{Controller, LocalDrive, Setup};
 
 /// Carriage and load moved besides the mover, kg.
 pub const PAYLOAD_KG: f64 = dcfo::drive::PAPER_AXIS_PAYLOAD_KG as f64;
@@ -619,7 +619,7 @@ pub fn run_params(params: &Params, motor: &MotorParams) -> anyhow::Result<(Repor
         std::path::Path::new(env!("CARGO_MANIFEST_DIR")).parent().unwrap_or(std::path::Path::new("."));
     let elf = match elf {
         Some(e) => e.clone(),
-        None => crate::hil::build_qemu_firmware(workspace, *cpu)?,
+        None => crate::hil_link::build_qemu_firmware(workspace, *cpu)?,
     };
     let cmdline = qemu_cmdline(motor, bus_for(motor)).map_err(|e| anyhow::anyhow!("{name}: {e}"))?;
     let started = std::time::Instant::now();

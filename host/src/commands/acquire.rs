@@ -26,8 +26,8 @@ use dcfo::transforms::AlphaBeta;
 use dcfo::units::Base;
 use serde::Serialize;
 
-use crate::sim::Setup;
-use crate::sim::scenarios::PaperScale;
+use crate::simulation::Setup;
+use crate::simulation::scenarios::PaperScale;
 use crate::trace::wrap_angle;
 
 /// Lock criterion: the error stays below this from the lock time on, electrical degrees.
