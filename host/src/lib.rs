@@ -3,7 +3,6 @@
 //! - [`commands`]: one module per `dcfo` command, each with its parameters and its run
 //!   function; [`cli`] parses the command line and dispatches to them.
 //! - The simulated axis: [`plant`] (motor, inverter, sensors; SI readings),
-//!   [`closed_loop`] (the plant in closed loop with a controller one PWM period late),
 //!   [`simulation`] (the drive in closed loop over a scenario), [`recorder`] (sensored
 //!   recordings for the estimator alone).
 //! - The drive images: [`hil_link`] (the host end of the lock-step HIL link), [`qemu`],

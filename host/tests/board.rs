@@ -23,9 +23,8 @@ use dcfo::observer::ObserverKind;
 use dcfo::svpwm::svpwm;
 use dcfo::transforms::{Abc, AlphaBeta};
 use dcfo::virtual_motor::{VirtualAxis, VirtualMotor};
-use dcfo_host::commands::board::{
-    Board, BoardLink, CaptureData, DriveClock, capture_trace, replay_matches, write_capture_trace,
-};
+use dcfo_host::commands::board::capture::{CaptureData, capture_trace, replay_matches, write_capture_trace};
+use dcfo_host::commands::board::link::{Board, BoardLink, DriveClock};
 use dcfo_host::commands::replay::working_base;
 use dcfo_host::plant::{Plant, SimParams};
 use dcfo_host::qemu::{GuestClock, QemuCpu, QemuSession, build_qemu_example};

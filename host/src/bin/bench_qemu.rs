@@ -64,7 +64,7 @@ use std::time::Instant;
 use anyhow::{Context, Result, bail};
 use clap::Parser;
 use dcfo::motor_image::MotorImage;
-use dcfo_host::commands::board::qemu_image_cmdline;
+use dcfo_host::commands::board::session::qemu_image_cmdline;
 use dcfo_host::motor_file::load_motor;
 use dcfo_host::qemu::{QemuCpu, build_qemu_example, qemu_example_elf, target_dir};
 use serde_json::{Map, Value, json};

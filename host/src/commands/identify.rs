@@ -437,7 +437,7 @@ pub fn json_line(r: &IdentifyReport) -> String {
 
 /// The light-load steady angle error of the paper axis (`dcfo sim steady`: 0.3 m/s, no
 /// load, [`crate::simulation::Setup::paper`]) for one plant noise seed, under four inverter
-/// compensations: none, the typed-in one of [`DriveConfig::paper_axis`], the one
+/// compensations: none, the typed-in one of [`dcfo::drive::DriveConfig::paper_axis`], the one
 /// identified by commissioning (`identified`, on the paper motor's plant with the same
 /// seed), and the identified compensation together with the identified motor.
 #[derive(Clone, Copy, Debug, Serialize)]

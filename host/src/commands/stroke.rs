@@ -7,7 +7,7 @@
 //! the motor file, the realistic inverter (dead time, drops) and sensors (offsets, gain
 //! errors, noise) of [`SimParams::from_motor`]. The drive (`Drive<f32>`, the firmware's
 //! control step) is built from the motor file alone: [`DriveConfig::for_motor`] with the
-//! inverter compensation the paper axis uses, and [`MotionConfig::for_drive`].
+//! inverter compensation the paper axis uses, and [`dcfo::drive::MotionConfig::for_drive`].
 //! It aligns on enable (the zero of its position estimate is that pole position; the
 //! mover starts there), then runs [`MOVES`] moves between the stroke's ends with
 //! [`DWELL_S`] dwells.
@@ -232,7 +232,7 @@ pub fn run(name: &str, motor: &MotorParams, log_every: usize) -> Result<(StrokeS
 /// `progress(fraction)` now and then.
 ///
 /// Moves reach the drive as the link carries them: one per sensor frame
-/// ([`SensorFrame::move_to`]), while the last answer shows room in the drive's
+/// ([`dcfo::link::SensorFrame::move_to`]), while the last answer shows room in the drive's
 /// fixed-capacity queue. Position, reference and queue come back in the answer's
 /// [`dcfo::link::PositionReport`]. The figures that need the drive's internals (control
 /// angle, current references) are `None` over a link.
