@@ -1,12 +1,13 @@
-//! Hardware-in-the-loop: the plant simulation in lock-step with a drive behind the
-//! serial link of [`dcfo::link`] — the firmware on QEMU's `mps2-an386` (Cortex-M4F, f32)
+//! The host end of the hardware-in-the-loop link ([`SerialController`]): the plant
+//! simulation in lock-step with a drive behind the serial link of [`dcfo::link`] — the
+//! firmware on QEMU's `mps2-an386` (Cortex-M4F, f32)
 //! or `mps2-an385` (Cortex-M3, Q8.24) board, UART0 on QEMU's standard I/O, or a board on
 //! a serial port.
 //!
 //! Per PWM period the host sends one [`SensorFrame`] and waits for the
 //! [`ActuationFrame`] with the same sequence number; the plant then runs the period with
-//! the duties of the previous answer, exactly as in the in-process simulation
-//! ([`crate::simulation::run_with`]). The firmware runs the same drive code as
+//! the duties of the previous answer ([`crate::closed_loop`]), exactly as in the
+//! in-process simulation ([`crate::simulation::run_with`]). The firmware runs the same drive code as
 //! [`crate::simulation::LocalDrive`] of the same numeric type, so the angle estimates equal the
 //! in-process run's bit for bit: f32 is IEEE on both sides, and Q8.24 is integer
 //! arithmetic (the f32 conversions at its edges are IEEE too, in software on the M3).

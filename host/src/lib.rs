@@ -3,6 +3,7 @@
 //! - [`commands`]: one module per `dcfo` command, each with its parameters and its run
 //!   function; [`cli`] parses the command line and dispatches to them.
 //! - The simulated axis: [`plant`] (motor, inverter, sensors; SI readings),
+//!   [`closed_loop`] (the plant in closed loop with a controller one PWM period late),
 //!   [`simulation`] (the drive in closed loop over a scenario), [`recorder`] (sensored
 //!   recordings for the estimator alone).
 //! - The drive images: [`hil_link`] (the host end of the lock-step HIL link), [`qemu`],
@@ -13,6 +14,7 @@
 #![deny(missing_docs)]
 
 pub mod cli;
+pub mod closed_loop;
 pub mod commands;
 pub mod hil_link;
 pub mod motor_file;

@@ -21,6 +21,8 @@ use dcfo::svpwm::svpwm;
 use dcfo::transforms::{AlphaBeta, CosSin, Dq, inverse_clarke, inverse_park, park};
 use dcfo::units::Base;
 
+use crate::closed_loop::{Bridge, ClosedLoop};
+use crate::plant::Plant;
 use crate::simulation::Setup;
 
 /// One recorded period: the observer's inputs as a trace row holds them, and the truth.
@@ -119,9 +121,12 @@ pub fn record(
 ) -> Result<Vec<Row>, String> {
     let err = |e: &dyn std::fmt::Debug| format!("recording: {e:?}");
     let motor = &setup.motor;
-    let mut plant = crate::plant::Plant::new(&setup.plant).map_err(|e| err(&e))?;
+    let mut plant = Plant::new(&setup.plant).map_err(|e| err(&e))?;
     plant.set_position(x0_m).map_err(|e| err(&e))?;
     let ts = plant.pwm_period_s();
+    // The bridge switches from the start, at 50 % duty until the controller's first
+    // duties take effect.
+    let mut closed_loop = ClosedLoop::starting_with(plant, Bridge::On([0.5; 3]));
     let wc = f64::from(setup.drive.current_bandwidth_rad_s);
     let (l, r, psi) = (f64::from(motor.lq_h), f64::from(motor.rs_ohm), f64::from(motor.psi_f_wb));
     let pi = |lim: f64| Pi::new(l * wc, r * wc * ts, -lim, lim).map_err(|e| err(&e));
@@ -136,15 +141,16 @@ pub fn record(
     let skip = (0.1 / ts).round() as usize;
     let n = skip + (duration_s / ts).round() as usize;
     let mut rows = Vec::with_capacity(n);
-    let mut pending = [0.5f64; 3];
-    let mut u_pending = [0.0f64; 2];
+    // The voltage the controller intended for the period now queued, V.
+    let mut u_queued = [0.0f64; 2];
     for k in 0..n {
         let t = k.saturating_sub(skip) as f64 * ts;
         let (v, a) = profile.at(t);
-        plant.set_speed_clamp(Some(v)).map_err(|e| err(&e))?;
-        let omega = std::f64::consts::PI * v / f64::from(motor.pole_pitch_m);
-        let reading = plant.sample();
-        let theta = plant.state().theta_e_rad;
+        closed_loop.plant_mut().set_speed_clamp(Some(v)).map_err(|e| err(&e))?;
+        let omega = omega_e(motor, v);
+        let sensed = closed_loop.sense();
+        let reading = sensed.reading;
+        let theta = sensed.truth.theta_e_rad;
         let i_ab = AlphaBeta::new(reading.i_alpha_a, reading.i_beta_a);
         let cs = CosSin { cos: theta.cos(), sin: theta.sin() };
         let i_dq = park(i_ab, &cs);
@@ -174,16 +180,18 @@ pub fn record(
         };
         let m = svpwm(AlphaBeta::new(u_ab.alpha + c.alpha, u_ab.beta + c.beta), reading.vdc_v)
             .map_err(|e| err(&e))?;
+        let applied =
+            closed_loop.actuate(sensed, Bridge::On([m.duties.a, m.duties.b, m.duties.c]), 0.0).applied;
         if k >= skip {
-            rows.push(Row { u: u_pending, u_actual: [0.0; 2], i: [i_ab.alpha, i_ab.beta], theta, v });
+            rows.push(Row {
+                u: u_queued,
+                u_actual: [applied.u_alpha_avg_v, applied.u_beta_avg_v],
+                i: [i_ab.alpha, i_ab.beta],
+                theta,
+                v,
+            });
         }
-        plant.step(pending, 0.0);
-        if let Some(row) = rows.last_mut().filter(|_| k >= skip) {
-            let period = &plant.state().last_period;
-            row.u_actual = [period.u_alpha_avg_v, period.u_beta_avg_v];
-        }
-        pending = [m.duties.a, m.duties.b, m.duties.c];
-        u_pending = [m.u_applied.alpha - c.alpha, m.u_applied.beta - c.beta];
+        u_queued = [m.u_applied.alpha - c.alpha, m.u_applied.beta - c.beta];
     }
     Ok(rows)
 }

@@ -25,7 +25,9 @@ use dcfo::observer::ObserverKind;
 use dcfo::units::Base;
 use serde::Serialize;
 
+use crate::closed_loop::ClosedLoop;
 use crate::plant::{Plant, SimParams};
+use crate::simulation::{frame_bridge, sensor_frame};
 
 /// Something wrong with the simulated motor, for the tests of the refusals.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
@@ -268,24 +270,16 @@ pub fn identify_with(
     }
     drive.start(config)?;
     let ts = plant.pwm_period_s();
+    let mut closed_loop = ClosedLoop::new(plant);
     let limit_s = 10.0;
     let n = (limit_s / ts) as usize;
-    let mut pending = [0.5f64; 3];
-    let mut pending_on = false;
     let mut travel_max = 0.0f64;
     let mut started = false;
     for k in 0..n {
-        let reading = plant.sample();
-        let sensor = reading.sensor_frame(k as u16, 0.0, None);
-        let out = drive.step(&sensor)?;
-        if pending_on {
-            plant.step(pending, 0.0);
-        } else {
-            plant.step_open(0.0);
-        }
-        pending_on = out.bridge_enabled;
-        pending = [f64::from(out.duty_a), f64::from(out.duty_b), f64::from(out.duty_c)];
-        travel_max = travel_max.max((plant.state().x_m - x0).abs());
+        let sensed = closed_loop.sense();
+        let out = drive.step(&sensor_frame(&sensed.reading, k as u16, 0.0, None))?;
+        closed_loop.actuate(sensed, frame_bridge(&out), 0.0);
+        travel_max = travel_max.max((closed_loop.plant().state().x_m - x0).abs());
         let state = out.state();
         if state == DriveState::Commissioning {
             started = true;
