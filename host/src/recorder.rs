@@ -206,7 +206,8 @@ pub fn omega_e(motor: &MotorParams, v: f64) -> f64 {
 /// `di` (A, alpha-beta) added to its inputs, as `dcfo replay` feeds a trace: sample `k`
 /// gets row `k - 1`'s voltage (the first sample none: a recording that starts
 /// mid-motion has no earlier voltage) and row `k`'s currents. Per sample, the angle
-/// estimate (rad) and the `locked` flag.
+/// estimate (rad) and the `locked` flag; and the first sample after the estimator's
+/// circle fit ended ([`Estimator::fitting`]; the number of rows if it never did).
 ///
 /// # Errors
 /// The estimator refused its settings or a sample.
@@ -217,14 +218,13 @@ pub fn replay<T: Scalar>(
     ts: f64,
     du: [f64; 2],
     di: [f64; 2],
-) -> Result<Vec<(f64, bool)>, String> {
-    // As the drive builds it: the mechanics accelerate the axis's moving mass.
-    let config = setup.drive.estimator;
-    let mut est: Estimator<T> =
-        Estimator::new(&setup.motor, &config, base).map_err(|e| format!("estimator: {e:?}"))?;
+) -> Result<(Vec<(f64, bool)>, usize), String> {
+    let mut est: Estimator<T> = Estimator::new(&setup.motor, &setup.drive.estimator, base)
+        .map_err(|e| format!("estimator: {e:?}"))?;
     let dt = base.time(ts as f32);
     let mut out = Vec::with_capacity(rows.len());
     let mut u_prev = [0.0f64; 2];
+    let mut fit_end = None;
     for (k, r) in rows.iter().enumerate() {
         let u = AlphaBeta::new(
             base.voltage((u_prev[0] + du[0]) as f32),
@@ -234,6 +234,9 @@ pub fn replay<T: Scalar>(
         let i = AlphaBeta::new(base.current((r.i[0] + di[0]) as f32), base.current((r.i[1] + di[1]) as f32));
         let e = est.update(u, i, dt).map_err(|e| format!("estimator fault at sample {k}: {e:?}"))?;
         out.push((e.theta_e.to_radians::<f64>(), e.locked));
+        if fit_end.is_none() && !est.fitting() {
+            fit_end = Some(k + 1);
+        }
     }
-    Ok(out)
+    Ok((out, fit_end.unwrap_or(rows.len())))
 }

@@ -222,8 +222,8 @@ pub fn run_profile(setup: &Setup, profile: &Profile) -> Result<Vec<Figures>, Str
     let floor = f64::from(dcfo::drive::back_emf_floor_m_per_s(motor, &setup.drive));
     let mut out = Vec::new();
     for (numeric, est) in [
-        ("f32", replay::<f32>(setup, &Base::SI, &rows, ts, [0.0; 2], [0.0; 2])?),
-        ("q24", replay::<Q24>(setup, &Base::for_motor(motor), &rows, ts, [0.0; 2], [0.0; 2])?),
+        ("f32", replay::<f32>(setup, &Base::SI, &rows, ts, [0.0; 2], [0.0; 2])?.0),
+        ("q24", replay::<Q24>(setup, &Base::for_motor(motor), &rows, ts, [0.0; 2], [0.0; 2])?.0),
     ] {
         let (reversals, relock, transient, steady, first_lock, false_locks) =
             score(motor, &rows, &sampled.samples, &est, ts, floor);
