@@ -20,7 +20,8 @@
 use anyhow::{Context, Result, bail};
 use dcfo::observer::ObserverKind;
 use dcfo_host::commands::paper::run_all;
-use dcfo_host::simulation::scenarios::{Event, Scenario, figures, paper_scenarios, scenario};
+use dcfo_host::simulation::figures::figures;
+use dcfo_host::simulation::scenarios::{Event, Scenario, paper_scenarios, scenario};
 
 /// Event shift between phases, s.
 const PHASE_STEP_S: f64 = 0.0125;

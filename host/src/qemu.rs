@@ -48,6 +48,9 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, ChildStdin, ChildStdout, Command, Stdio};
 use std::time::Duration;
 
+/// How long a reply of QEMU's monitor may take.
+pub const MONITOR_TIMEOUT: Duration = Duration::from_secs(5);
+
 /// The QEMU board of a HIL run, and with it the firmware's numeric type.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
 #[serde(rename_all = "lowercase")]
@@ -274,11 +277,7 @@ impl QemuSession {
     /// Reads `count` 32-bit words of the target's memory from `addr`, through QEMU's
     /// monitor (QMP `human-monitor-command` with `xp`). The target keeps running.
     pub fn read_words(&self, addr: u32, count: u32) -> Result<Vec<u32>, SimError> {
-        let text = qmp_human_command(
-            &self.qmp_socket,
-            &format!("xp /{count}wx {addr:#x}"),
-            crate::target::ANSWER_TIMEOUT,
-        )?;
+        let text = qmp_human_command(&self.qmp_socket, &format!("xp /{count}wx {addr:#x}"), MONITOR_TIMEOUT)?;
         let err = |what: &str| SimError::Controller(format!("QEMU monitor: {what}"));
         // Lines `<address>: 0x<word> 0x<word> ...`.
         let words: Vec<u32> = text

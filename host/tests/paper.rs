@@ -4,7 +4,7 @@
 
 use dcfo::motor::MotorParams;
 use dcfo_host::commands::paper::{PaperReport, ScenarioResult, paper_report};
-use dcfo_host::simulation::scenarios::Figures;
+use dcfo_host::simulation::figures::{self, Figures};
 use std::sync::OnceLock;
 
 /// All twelve runs, once for every test in this file.
@@ -169,7 +169,7 @@ fn steady_with_the_compensation_signs_from_the_reference() {
     // Against the measured signs' run of the same scenario.
     let mut setup = Setup::paper(ObserverKind::Dcfo);
     setup.drive.compensation_signs = CompensationSigns::Measured;
-    let measured = scenarios::figures(&run(&setup, &sc, |_| {}).expect("run"), &sc);
+    let measured = figures::figures(&run(&setup, &sc, |_| {}).expect("run"), &sc);
     println!("measured signs: {measured:?}");
     healthy(&measured);
     assert!(f.theta_err_rms_deg < 0.6 * measured.theta_err_rms_deg, "{f:?} against {measured:?}");

@@ -17,7 +17,7 @@ pub struct HilReport {
     pub scenario: String,
     /// The scenario's figures over its measurement window; `None` when the run was
     /// shortened (`--duration`) to end before the window.
-    pub figures: Option<crate::simulation::scenarios::Figures>,
+    pub figures: Option<crate::simulation::figures::Figures>,
     /// Lock-step round trips per second over the link.
     pub round_trips_per_s: f64,
     /// Simulated time, s.
@@ -124,7 +124,7 @@ pub fn run_command(params: &Params) -> anyhow::Result<HilReport> {
     };
     bar.finish_and_clear();
     let qemu_cpu = params.target.qemu_cpu();
-    let figures = (scenario.window_s > 0.0).then(|| scenarios::figures(&hil_run, &scenario));
+    let figures = (scenario.window_s > 0.0).then(|| crate::simulation::figures::figures(&hil_run, &scenario));
     let equivalence = if params.check {
         // A board on a serial port runs the f32 firmware.
         let cpu = qemu_cpu.unwrap_or(QemuCpu::M4f);

@@ -451,7 +451,8 @@ pub struct SteadyRow {
 
 /// Runs the four steady runs of [`SteadyRow`] for `seed`.
 pub fn steady_row(seed: u64) -> Result<SteadyRow, IdentifyError> {
-    use crate::simulation::scenarios::{figures, scenario};
+    use crate::simulation::figures::figures;
+    use crate::simulation::scenarios::scenario;
     use crate::simulation::{Setup, run};
     let paper = MotorParams::paper();
     let report = identify("paper", &paper, seed, PlantFault::None)?;

@@ -5,7 +5,8 @@
 use crate::motor_file::load_motor;
 use crate::observer::observer_name;
 use crate::plot::{Panel, Series, time_series_figure, write_figure};
-use crate::simulation::scenarios::{Figures, PaperScale, Scenario, figures, paper_scenarios, scenario};
+use crate::simulation::figures::{Figures, figures};
+use crate::simulation::scenarios::{PaperScale, Scenario, paper_scenarios, scenario};
 use crate::simulation::{Run, Setup, run, theta_err_deg};
 use crate::trace::{
     COMMANDED_ACCEL_COLUMN, Estimate, GroundTruth, InputTrace, InputTraceWriter, write_output_trace,
@@ -225,4 +226,22 @@ pub fn write_run_outputs(run: &Run, sc: &Scenario, out: &Path, label: &str) -> R
     let title = format!("{} ({label}): {}", sc.name, sc.description);
     write_figure(&time_series_figure(title, panels), &out.join(&sc.name))?;
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::simulation::{LocalDrive, run_with};
+
+    /// The trace of a fixed-point run carries the commanded acceleration its estimator
+    /// used (the column a replay needs to reproduce the run's estimates).
+    #[test]
+    fn a_fixed_point_runs_trace_carries_the_commanded_acceleration() {
+        let setup = Setup::paper(ObserverKind::Dcfo);
+        let mut sc = scenario("steady").expect("scenario");
+        sc.duration_s = 1.5;
+        let q = run_with(&setup, &sc, &mut LocalDrive::fixed_point(&setup).expect("drive"), |_| {})
+            .expect("q24 run");
+        assert!(trace_of(&q).expect("trace").0.commanded_acceleration().is_some());
+    }
 }
