@@ -703,7 +703,10 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             Ok(ExitCode::SUCCESS)
         }
         Command::Track(a) => {
-            crate::commands::track::run_command(a.motor.as_deref(), a.json)?;
+            crate::commands::track::run_command(&crate::commands::track::Params {
+                motor: a.motor,
+                json: a.json,
+            })?;
             Ok(ExitCode::SUCCESS)
         }
         Command::Stroke(a) => {

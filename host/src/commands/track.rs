@@ -292,13 +292,21 @@ pub fn table(figures: &[Figures]) -> String {
     s
 }
 
-/// `dcfo track`: every profile on `motor` (default: the paper motor), the table (or one
-/// JSON object) on stdout.
+/// What `dcfo track` is asked to do.
+#[derive(Debug, Clone)]
+pub struct Params {
+    /// The motor: a preset or a motor file (`None`: the paper motor).
+    pub motor: Option<String>,
+    /// Print one JSON object instead of the table.
+    pub json: bool,
+}
+
+/// `dcfo track`: every profile on the motor, the table (or one JSON object) on stdout.
 ///
 /// # Errors
 /// The motor could not be loaded, or a recording or a replay failed.
-pub fn run_command(motor: Option<&str>, json: bool) -> anyhow::Result<()> {
-    let (params, name) = match motor {
+pub fn run_command(p: &Params) -> anyhow::Result<()> {
+    let (params, name) = match p.motor.as_deref() {
         None => (MotorParams::paper(), "paper".to_string()),
         Some(arg) => {
             let file = crate::motor_file::load_motor(arg)?;
@@ -307,7 +315,7 @@ pub fn run_command(motor: Option<&str>, json: bool) -> anyhow::Result<()> {
     };
     let setup = setup_for(&params);
     let figures = run_all(&setup).map_err(|e| anyhow::anyhow!(e))?;
-    if json {
+    if p.json {
         println!("{}", serde_json::json!({ "motor": name, "profiles": figures }));
     } else {
         println!("motor: {name}");
