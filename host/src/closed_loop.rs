@@ -12,9 +12,9 @@
 //!    from the sample at `t_k` act from `t_{k+1}`), and the new answer is queued for
 //!    the next period.
 //!
-//! [`ClosedLoop::actuate`] takes the [`Sensed`] value of the same period, so a period
-//! cannot be actuated without being sensed first. The stepper knows no drive and no
-//! wire format: the controller's answer reaches it as a [`Bridge`].
+//! [`ClosedLoop::actuate`] consumes the [`Sensed`] value of the same period, so a period
+//! cannot be actuated without being sensed first, nor twice. The stepper knows no drive
+//! and no wire format: the controller's answer reaches it as a [`Bridge`].
 
 use crate::plant::{PeriodAverage, Plant, SensorReading, TrueState};
 
@@ -43,7 +43,7 @@ impl Bridge {
 
 /// The plant's readings and true state at the start of a period (step 1 above); hand
 /// it back to [`ClosedLoop::actuate`] to run the period.
-#[derive(Clone, Copy, Debug)]
+#[derive(Debug)]
 #[must_use = "a sensed period is run by ClosedLoop::actuate"]
 pub struct Sensed {
     /// The sensors' readings at `t_k` (each [`ClosedLoop::sense`] draws fresh noise).
@@ -137,5 +137,47 @@ impl ClosedLoop {
             bridge,
             applied: self.plant.state().last_period,
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::plant::SimParams;
+    use dcfo::motor::MotorParams;
+
+    fn paper_loop() -> ClosedLoop {
+        ClosedLoop::new(Plant::new(&SimParams::from_motor(&MotorParams::paper())).expect("plant"))
+    }
+
+    /// The controller's answer acts one period late: the first period runs with the
+    /// bridge the loop started with, each next one with the answer of the period before.
+    #[test]
+    fn an_answer_acts_during_the_next_period() {
+        let mut cl = paper_loop();
+        let answers = [Bridge::On([0.6, 0.5, 0.4]), Bridge::Off, Bridge::On([0.4, 0.5, 0.6])];
+        let mut ran = Vec::new();
+        for next in answers {
+            let sensed = cl.sense();
+            let stepped = cl.actuate(sensed, next, 0.0);
+            if let Bridge::On(duties) = stepped.bridge {
+                assert_eq!(stepped.applied.duties, duties);
+            }
+            ran.push(stepped.bridge);
+        }
+        assert_eq!(ran, [Bridge::Off, answers[0], answers[1]]);
+        assert_eq!((cl.queued(), cl.periods()), (answers[2], 3));
+        assert_eq!(cl.plant().time_s(), 3.0 * cl.plant().pwm_period_s());
+    }
+
+    /// A period is actuated once, with what was sensed at its start.
+    #[test]
+    #[should_panic(expected = "actuated once")]
+    fn a_period_sensed_earlier_is_refused() {
+        let mut cl = paper_loop();
+        let first = cl.sense();
+        let again = cl.sense();
+        let _ = cl.actuate(first, Bridge::Off, 0.0);
+        let _ = cl.actuate(again, Bridge::Off, 0.0);
     }
 }
