@@ -50,7 +50,7 @@ fuzz_target!(|data: &[u8]| {
     let mut sensor_rx = Receiver::<SensorFrame>::new();
     let mut actuation_rx = Receiver::<ActuationFrame>::new();
     let mut command_rx = Receiver::<BoardCommand>::new();
-    // The host's answer decoding (`dcfo_host::board::decode_answer`): by length.
+    // The host's answer decoding (`dcfo_host::commands::board::link::decode_answer`): by length.
     for encoded in data.split(|&b| b == 0) {
         let mut encoded = encoded.to_vec();
         if let Some(n) = link::cobs::decode_in_place(&mut encoded) {

@@ -15,12 +15,13 @@
 //! the runs' maximum angle error (electrical degrees) over the scenario's window, runs
 //! that did not end healthy (sensorless and without a fault), and samples reported
 //! locked while more than 15 degrees off. The runs go through `dcfo paper`'s runner
-//! ([`dcfo_host::paper::run_all`]): about 30 s for 8 phases on two cores.
+//! ([`dcfo_host::commands::paper::run_all`]): about 30 s for 8 phases on two cores.
 
 use anyhow::{Context, Result, bail};
 use dcfo::observer::ObserverKind;
-use dcfo_host::paper::run_all;
-use dcfo_host::sim::scenarios::{Event, Scenario, figures, paper_scenarios, scenario};
+use dcfo_host::commands::paper::run_all;
+use dcfo_host::simulation::figures::figures;
+use dcfo_host::simulation::scenarios::{Event, Scenario, paper_scenarios, scenario};
 
 /// Event shift between phases, s.
 const PHASE_STEP_S: f64 = 0.0125;

@@ -1,9 +1,9 @@
 //! The `dcfo` command line: argument definitions (clap derive) and the dispatch
 //! ([`run`]), which turns each subcommand's arguments into the plain parameters of the
 //! module that implements it and calls that module's entry point: `dcfo X` is
-//! `crate::X::run_command` (`dcfo sim`: `crate::sim::report::run_command`, `dcfo hil`:
-//! `crate::hil::run_hil`, `dcfo motor-image`: `crate::motor_image::run_command`). No
-//! command module depends on this one. `src/main.rs` parses [`Cli`] and calls [`run`].
+//! `crate::commands::X::run_command` (`dcfo motor-image`:
+//! `crate::commands::motor_image::run_command`). No command module depends on this one.
+//! `src/main.rs` parses [`Cli`] and calls [`run`].
 //!
 //! Output discipline: results go to stdout (a human summary, or with `--json` exactly
 //! one JSON object and nothing else); progress and information go to stderr; errors go
@@ -87,7 +87,7 @@ pub enum Command {
     Results(ResultsArgs),
 }
 
-/// Arguments of `dcfo results` (`dcfo_host::results`).
+/// Arguments of `dcfo results` (`dcfo_host::commands::results`).
 #[derive(Debug, Clone, Args)]
 pub struct ResultsArgs {
     /// What to do.
@@ -309,7 +309,7 @@ pub struct StrokeArgs {
     #[arg(long, value_name = "DIR", default_value = "out/stroke")]
     pub out: PathBuf,
     /// Number of moves between the stroke's ends (each after the first reverses).
-    #[arg(long, value_name = "N", default_value_t = crate::stroke::MOVES as u16,
+    #[arg(long, value_name = "N", default_value_t = crate::commands::stroke::MOVES as u16,
           value_parser = clap::value_parser!(u16).range(1..))]
     pub moves: u16,
     /// Run the drive on QEMU through the lock-step HIL link (board: --cpu; the
@@ -365,7 +365,7 @@ pub struct AcquireArgs {
     /// benchmark), or `ideal-inverter`, `ideal-sensors`, `ideal` to tell the estimator's
     /// own error from what the inverter's and the sensors' errors cost it.
     #[arg(long, value_enum, default_value = "realistic")]
-    pub plant: crate::acquire::PlantModel,
+    pub plant: crate::commands::acquire::PlantModel,
     /// Which current the drive's inverter compensation (and the recorder's) takes its
     /// signs from.
     #[arg(long, value_enum, default_value = "reference")]
@@ -628,7 +628,7 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
     match cli.command {
         Command::Board(a) => {
             let Some(target) = a.target.target() else { bail!("give --qemu or --port DEVICE") };
-            crate::board::run_command(&crate::board::Params {
+            crate::commands::board::run_command(&crate::commands::board::Params {
                 target,
                 record: a.record,
                 demo: a.demo,
@@ -640,7 +640,7 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             Ok(ExitCode::SUCCESS)
         }
         Command::Replay(a) => {
-            crate::replay::run_command(&crate::replay::Params {
+            crate::commands::replay::run_command(&crate::commands::replay::Params {
                 motor: a.motor,
                 observer: a.observer.kind(),
                 trace: a.trace,
@@ -651,12 +651,13 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             })?;
             Ok(ExitCode::SUCCESS)
         }
-        Command::Paper(a) => {
-            Ok(reported("paper", crate::paper::run_command(&crate::paper::Params { out: a.out })))
-        }
+        Command::Paper(a) => Ok(reported(
+            "paper",
+            crate::commands::paper::run_command(&crate::commands::paper::Params { out: a.out }),
+        )),
         Command::Sim(a) => Ok(reported(
             "sim",
-            crate::sim::report::run_command(&crate::sim::report::Params {
+            crate::commands::sim::run_command(&crate::commands::sim::Params {
                 scenario: a.scenario,
                 motor: a.motor,
                 observer: a.observer.kind(),
@@ -666,7 +667,7 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         )),
         Command::Hil(a) => {
             let Some(target) = a.target.target() else { bail!("give --qemu or --port DEVICE") };
-            crate::hil::run_hil(&crate::hil::Params {
+            crate::commands::hil::run_command(&crate::commands::hil::Params {
                 target,
                 scenario: a.scenario,
                 duration_s: a.duration,
@@ -676,10 +677,10 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             Ok(ExitCode::SUCCESS)
         }
         Command::MotorImage(a) => {
-            crate::motor_image::run_command(&crate::motor_image::Params {
+            crate::commands::motor_image::run_command(&crate::commands::motor_image::Params {
                 motor: a.motor,
                 bus_v: a.bus_v,
-                axis: crate::motor_image::AxisArgs {
+                axis: crate::commands::motor_image::AxisArgs {
                     stroke_min_m: a.stroke_min_m,
                     stroke_max_m: a.stroke_max_m,
                     max_speed_m_per_s: a.max_speed,
@@ -691,7 +692,7 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             Ok(ExitCode::SUCCESS)
         }
         Command::Acquire(a) => {
-            crate::acquire::run_command(&crate::acquire::Params {
+            crate::commands::acquire::run_command(&crate::commands::acquire::Params {
                 json: a.json,
                 notch: a.notch.tuning(),
                 plant: a.plant,
@@ -702,11 +703,14 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             Ok(ExitCode::SUCCESS)
         }
         Command::Track(a) => {
-            crate::track::run_command(a.motor.as_deref(), a.json)?;
+            crate::commands::track::run_command(&crate::commands::track::Params {
+                motor: a.motor,
+                json: a.json,
+            })?;
             Ok(ExitCode::SUCCESS)
         }
         Command::Stroke(a) => {
-            crate::stroke::run_command(&crate::stroke::Params {
+            crate::commands::stroke::run_command(&crate::commands::stroke::Params {
                 motor: a.motor,
                 json: a.json,
                 out: a.out,
@@ -719,24 +723,31 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         Command::Results(a) => {
             let params = match a.action {
                 ResultsAction::Render { table, inputs } => {
-                    let Some(table) = crate::results::Table::from_name(&table) else {
-                        let names = crate::results::Table::ALL.map(crate::results::Table::name);
+                    let Some(table) = crate::commands::results::Table::from_name(&table) else {
+                        let names =
+                            crate::commands::results::Table::ALL.map(crate::commands::results::Table::name);
                         bail!("no table `{table}` (tables: {})", names.join(", "))
                     };
-                    crate::results::Params::Render { root: a.root, table, inputs, check: a.check }
+                    crate::commands::results::Params::Render { root: a.root, table, inputs, check: a.check }
                 }
-                ResultsAction::Readme => crate::results::Params::Readme { root: a.root, check: a.check },
+                ResultsAction::Readme => {
+                    crate::commands::results::Params::Readme { root: a.root, check: a.check }
+                }
             };
-            Ok(if crate::results::run_command(&params)? { ExitCode::SUCCESS } else { ExitCode::FAILURE })
+            Ok(if crate::commands::results::run_command(&params)? {
+                ExitCode::SUCCESS
+            } else {
+                ExitCode::FAILURE
+            })
         }
         Command::Identify(a) => {
-            use crate::identify::Where;
+            use crate::commands::identify::Where;
             let place = match (a.target.target(), a.sim) {
                 (Some(target), _) => Where::Link(target),
                 (None, true) => Where::Sim,
                 (None, false) => Where::Unsaid,
             };
-            crate::identify::run_command(&crate::identify::Params {
+            crate::commands::identify::run_command(&crate::commands::identify::Params {
                 place,
                 motor: a.motor,
                 seed: a.seed,
@@ -747,9 +758,11 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                 steady_seeds: a.steady,
             })
         }
-        Command::Faults(a) => {
-            crate::faults::run_command(&crate::faults::Params { json: a.json, out: a.out, motor: a.motor })
-        }
+        Command::Faults(a) => crate::commands::faults::run_command(&crate::commands::faults::Params {
+            json: a.json,
+            out: a.out,
+            motor: a.motor,
+        }),
     }
 }
 

@@ -37,16 +37,19 @@
 //! milliseconds (read through semihosting, `dcfo_firmware::board::mps2::HostClock`), so
 //! that neither a host slower than QEMU nor a machine that stalls both looks like a
 //! silence. The host side waits for the drive's own time where it waits for the drive
-//! (`crate::board`: deadlines in control periods of the telemetry, wall-clock limits only
+//! (`crate::commands::board`: deadlines in control periods of the telemetry, wall-clock limits only
 //! against a hang). The instruction counts of `bench_qemu` come from QEMU's exec log, not
 //! from its clock: its command line ([`qemu_command`]) has no `-icount`.
 
-use crate::sim::{Controller, SimError};
+use crate::simulation::{Controller, SimError};
 use std::io::Write;
 use std::os::unix::process::CommandExt;
 use std::path::{Path, PathBuf};
 use std::process::{Child, ChildStdin, ChildStdout, Command, Stdio};
 use std::time::Duration;
+
+/// How long a reply of QEMU's monitor may take.
+pub const MONITOR_TIMEOUT: Duration = Duration::from_secs(5);
 
 /// The QEMU board of a HIL run, and with it the firmware's numeric type.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
@@ -77,10 +80,10 @@ impl QemuCpu {
 
     /// The in-process drive the firmware's results must equal: same code, same numeric
     /// type, same units.
-    pub fn local_drive(self, setup: &crate::sim::Setup) -> Result<Box<dyn Controller>, SimError> {
+    pub fn local_drive(self, setup: &crate::simulation::Setup) -> Result<Box<dyn Controller>, SimError> {
         Ok(match self {
-            QemuCpu::M4f => Box::new(crate::sim::LocalDrive::new(setup)?),
-            QemuCpu::M3 => Box::new(crate::sim::LocalDrive::fixed_point(setup)?),
+            QemuCpu::M4f => Box::new(crate::simulation::LocalDrive::new(setup)?),
+            QemuCpu::M3 => Box::new(crate::simulation::LocalDrive::fixed_point(setup)?),
         })
     }
 }
@@ -274,11 +277,7 @@ impl QemuSession {
     /// Reads `count` 32-bit words of the target's memory from `addr`, through QEMU's
     /// monitor (QMP `human-monitor-command` with `xp`). The target keeps running.
     pub fn read_words(&self, addr: u32, count: u32) -> Result<Vec<u32>, SimError> {
-        let text = qmp_human_command(
-            &self.qmp_socket,
-            &format!("xp /{count}wx {addr:#x}"),
-            crate::target::ANSWER_TIMEOUT,
-        )?;
+        let text = qmp_human_command(&self.qmp_socket, &format!("xp /{count}wx {addr:#x}"), MONITOR_TIMEOUT)?;
         let err = |what: &str| SimError::Controller(format!("QEMU monitor: {what}"));
         // Lines `<address>: 0x<word> 0x<word> ...`.
         let words: Vec<u32> = text

@@ -21,7 +21,9 @@ use dcfo::svpwm::svpwm;
 use dcfo::transforms::{AlphaBeta, CosSin, Dq, inverse_clarke, inverse_park, park};
 use dcfo::units::Base;
 
-use crate::sim::Setup;
+use crate::closed_loop::{Bridge, ClosedLoop};
+use crate::plant::Plant;
+use crate::simulation::Setup;
 
 /// One recorded period: the observer's inputs as a trace row holds them, and the truth.
 #[derive(Clone, Copy, Debug)]
@@ -119,9 +121,12 @@ pub fn record(
 ) -> Result<Vec<Row>, String> {
     let err = |e: &dyn std::fmt::Debug| format!("recording: {e:?}");
     let motor = &setup.motor;
-    let mut plant = crate::plant::Plant::new(&setup.plant).map_err(|e| err(&e))?;
+    let mut plant = Plant::new(&setup.plant).map_err(|e| err(&e))?;
     plant.set_position(x0_m).map_err(|e| err(&e))?;
     let ts = plant.pwm_period_s();
+    // The bridge switches from the start, at 50 % duty until the controller's first
+    // duties take effect.
+    let mut closed_loop = ClosedLoop::starting_with(plant, Bridge::On([0.5; 3]));
     let wc = f64::from(setup.drive.current_bandwidth_rad_s);
     let (l, r, psi) = (f64::from(motor.lq_h), f64::from(motor.rs_ohm), f64::from(motor.psi_f_wb));
     let pi = |lim: f64| Pi::new(l * wc, r * wc * ts, -lim, lim).map_err(|e| err(&e));
@@ -136,15 +141,16 @@ pub fn record(
     let skip = (0.1 / ts).round() as usize;
     let n = skip + (duration_s / ts).round() as usize;
     let mut rows = Vec::with_capacity(n);
-    let mut pending = [0.5f64; 3];
-    let mut u_pending = [0.0f64; 2];
+    // The voltage the controller intended for the period now queued, V.
+    let mut u_queued = [0.0f64; 2];
     for k in 0..n {
         let t = k.saturating_sub(skip) as f64 * ts;
         let (v, a) = profile.at(t);
-        plant.set_speed_clamp(Some(v)).map_err(|e| err(&e))?;
-        let omega = std::f64::consts::PI * v / f64::from(motor.pole_pitch_m);
-        let reading = plant.sample();
-        let theta = plant.state().theta_e_rad;
+        closed_loop.plant_mut().set_speed_clamp(Some(v)).map_err(|e| err(&e))?;
+        let omega = omega_e(motor, v);
+        let sensed = closed_loop.sense();
+        let reading = sensed.reading;
+        let theta = sensed.truth.theta_e_rad;
         let i_ab = AlphaBeta::new(reading.i_alpha_a, reading.i_beta_a);
         let cs = CosSin { cos: theta.cos(), sin: theta.sin() };
         let i_dq = park(i_ab, &cs);
@@ -174,16 +180,18 @@ pub fn record(
         };
         let m = svpwm(AlphaBeta::new(u_ab.alpha + c.alpha, u_ab.beta + c.beta), reading.vdc_v)
             .map_err(|e| err(&e))?;
+        let applied =
+            closed_loop.actuate(sensed, Bridge::On([m.duties.a, m.duties.b, m.duties.c]), 0.0).applied;
         if k >= skip {
-            rows.push(Row { u: u_pending, u_actual: [0.0; 2], i: [i_ab.alpha, i_ab.beta], theta, v });
+            rows.push(Row {
+                u: u_queued,
+                u_actual: [applied.u_alpha_avg_v, applied.u_beta_avg_v],
+                i: [i_ab.alpha, i_ab.beta],
+                theta,
+                v,
+            });
         }
-        plant.step(pending, 0.0);
-        if let Some(row) = rows.last_mut().filter(|_| k >= skip) {
-            let period = &plant.state().last_period;
-            row.u_actual = [period.u_alpha_avg_v, period.u_beta_avg_v];
-        }
-        pending = [m.duties.a, m.duties.b, m.duties.c];
-        u_pending = [m.u_applied.alpha - c.alpha, m.u_applied.beta - c.beta];
+        u_queued = [m.u_applied.alpha - c.alpha, m.u_applied.beta - c.beta];
     }
     Ok(rows)
 }
@@ -198,7 +206,8 @@ pub fn omega_e(motor: &MotorParams, v: f64) -> f64 {
 /// `di` (A, alpha-beta) added to its inputs, as `dcfo replay` feeds a trace: sample `k`
 /// gets row `k - 1`'s voltage (the first sample none: a recording that starts
 /// mid-motion has no earlier voltage) and row `k`'s currents. Per sample, the angle
-/// estimate (rad) and the `locked` flag.
+/// estimate (rad) and the `locked` flag; and the first sample after the estimator's
+/// circle fit ended ([`Estimator::fitting`]; the number of rows if it never did).
 ///
 /// # Errors
 /// The estimator refused its settings or a sample.
@@ -209,14 +218,13 @@ pub fn replay<T: Scalar>(
     ts: f64,
     du: [f64; 2],
     di: [f64; 2],
-) -> Result<Vec<(f64, bool)>, String> {
-    // As the drive builds it: the mechanics accelerate the axis's moving mass.
-    let config = setup.drive.estimator;
-    let mut est: Estimator<T> =
-        Estimator::new(&setup.motor, &config, base).map_err(|e| format!("estimator: {e:?}"))?;
+) -> Result<(Vec<(f64, bool)>, usize), String> {
+    let mut est: Estimator<T> = Estimator::new(&setup.motor, &setup.drive.estimator, base)
+        .map_err(|e| format!("estimator: {e:?}"))?;
     let dt = base.time(ts as f32);
     let mut out = Vec::with_capacity(rows.len());
     let mut u_prev = [0.0f64; 2];
+    let mut fit_end = None;
     for (k, r) in rows.iter().enumerate() {
         let u = AlphaBeta::new(
             base.voltage((u_prev[0] + du[0]) as f32),
@@ -226,6 +234,9 @@ pub fn replay<T: Scalar>(
         let i = AlphaBeta::new(base.current((r.i[0] + di[0]) as f32), base.current((r.i[1] + di[1]) as f32));
         let e = est.update(u, i, dt).map_err(|e| format!("estimator fault at sample {k}: {e:?}"))?;
         out.push((e.theta_e.to_radians::<f64>(), e.locked));
+        if fit_end.is_none() && !est.fitting() {
+            fit_end = Some(k + 1);
+        }
     }
-    Ok(out)
+    Ok((out, fit_end.unwrap_or(rows.len())))
 }

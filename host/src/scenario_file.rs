@@ -40,7 +40,7 @@ use std::path::Path;
 use serde::Deserialize;
 use toml::Spanned;
 
-use crate::sim::{Event, PlantChanges, Scenario};
+use crate::simulation::{Event, PlantChanges, Scenario};
 
 /// Longest simulated duration a scenario file may ask for, s: the run is kept in memory
 /// (about 10 kHz of samples).

@@ -10,7 +10,7 @@ use anyhow::Context;
 use crate::qemu::QemuCpu;
 
 /// How long a host command waits for an answer from the drive image before it gives
-/// up (a lock-step HIL frame, a board command, a QEMU monitor reply).
+/// up (a lock-step HIL frame, a board command).
 pub const ANSWER_TIMEOUT: Duration = Duration::from_secs(5);
 
 /// Where the drive image runs.

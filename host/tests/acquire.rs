@@ -13,8 +13,8 @@
 //! the circles over the next eighth of the fit).
 
 use dcfo::observer::ObserverKind;
-use dcfo_host::acquire::{Offset, Options, PlantModel, sweep};
-use dcfo_host::sim::Setup;
+use dcfo_host::commands::acquire::{Offset, Options, PlantModel, sweep};
+use dcfo_host::simulation::Setup;
 
 #[test]
 fn estimator_finds_a_moving_mover_from_its_zero_state() {
@@ -77,7 +77,7 @@ fn on_ideal_inputs_the_estimator_locks_well_within_budget() {
 ///
 /// The DCFO passes the fundamental with unity gain and zero phase (docs/method.md §3,
 /// `tests/observer_analysis.rs`), so an error `dU_d` the estimator is not told turns the
-/// flux estimate by `dU_d / (w psi_f)`: [`dcfo_host::acquire::Start::inverter_bias_deg`],
+/// flux estimate by `dU_d / (w psi_f)`: [`dcfo_host::commands::acquire::Start::inverter_bias_deg`],
 /// computed from the plant's period-average voltages, predicts the mean error the
 /// estimator shows. Ideal sensors, so that the inverter is the only error. Measured
 /// (2026-11-26): within 0.1 deg at every start. With the measured current's signs at
@@ -126,7 +126,7 @@ fn the_steady_angle_error_is_the_inverters_voltage_error_over_the_back_emf() {
 #[test]
 fn another_motor_is_swept_at_the_benchmarks_electrical_frequencies_and_load_share() {
     use dcfo::motor::MotorParams;
-    use dcfo_host::acquire::{LOAD_N, electrical_hz, recording_load_n};
+    use dcfo_host::commands::acquire::{LOAD_N, electrical_hz, recording_load_n};
     let paper = MotorParams::paper();
     assert_eq!(Options::full_for(&paper).speeds_m_per_s, Options::full().speeds_m_per_s);
     assert_eq!(recording_load_n(&paper), LOAD_N);

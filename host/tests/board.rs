@@ -23,12 +23,11 @@ use dcfo::observer::ObserverKind;
 use dcfo::svpwm::svpwm;
 use dcfo::transforms::{Abc, AlphaBeta};
 use dcfo::virtual_motor::{VirtualAxis, VirtualMotor};
-use dcfo_host::board::{
-    Board, BoardLink, CaptureData, DriveClock, capture_trace, replay_matches, write_capture_trace,
-};
+use dcfo_host::commands::board::capture::{CaptureData, capture_trace, replay_matches, write_capture_trace};
+use dcfo_host::commands::board::link::{Board, BoardLink, DriveClock};
+use dcfo_host::commands::replay::working_base;
 use dcfo_host::plant::{Plant, SimParams};
 use dcfo_host::qemu::{GuestClock, QemuCpu, QemuSession, build_qemu_example};
-use dcfo_host::replay::working_base;
 use dcfo_host::trace::InputTrace;
 use std::process::Command;
 use std::time::Duration;
@@ -178,7 +177,8 @@ fn q24_drive_capture_replays_bit_for_bit_through_the_trace_file() {
     let cmp = replay_matches(&trace, &motor, &data).expect("replay");
     assert_eq!((cmp.differing, cmp.first_differing), (0, None));
     // The same file through the f32 estimator: not the drive's estimates.
-    let f32_replay = dcfo_host::replay::replay_trace(&trace, &motor, ObserverKind::Dcfo).expect("replay");
+    let f32_replay =
+        dcfo_host::commands::replay::replay_trace(&trace, &motor, ObserverKind::Dcfo).expect("replay");
     let same = f32_replay
         .iter()
         .zip(&data.samples)

@@ -2,9 +2,9 @@
 //! reproduces the run's estimates exactly: same code, same arithmetic, same inputs.
 
 use dcfo::observer::ObserverKind;
-use dcfo_host::replay::replay_trace;
-use dcfo_host::sim::report::trace_of;
-use dcfo_host::sim::{Setup, run, scenarios};
+use dcfo_host::commands::replay::replay_trace;
+use dcfo_host::commands::sim::trace_of;
+use dcfo_host::simulation::{Setup, run, scenarios};
 use dcfo_host::trace::InputTrace;
 use std::process::Command;
 

@@ -1,9 +1,9 @@
 //! `dcfo faults`: the fault campaign against its floors (issue 11, item 4; issue 38,
 //! items 3 and 4) and each case against the reaction the design promises (stated in
-//! `dcfo_host::faults::cases`, derived from the motor, before it was measured).
+//! `dcfo_host::commands::faults::cases`, derived from the motor, before it was measured).
 
 use dcfo::drive::Faults;
-use dcfo_host::faults::{Bench, Campaign, DriveKind, Expected, Plan, run_all};
+use dcfo_host::commands::faults::{Bench, Campaign, DriveKind, Expected, Plan, run_all};
 
 /// Cases of the standard campaign that do not meet the expectation stated before
 /// measuring, by name, and why: their floors (no silent failure, a named fault and the
@@ -39,7 +39,7 @@ const KNOWN_FLOOR_MISSES: [(&str, &str, &str); 2] = [
 /// The floors of every campaign, and each case's expectation unless it is a known
 /// shortfall.
 fn check(plan: &Plan, campaign: &Campaign) {
-    println!("{}", dcfo_host::faults::table(campaign));
+    println!("{}", dcfo_host::commands::faults::table(campaign));
     assert_eq!(campaign.cases, plan.cases().count());
     assert_eq!(campaign.silent_failures, 0);
     assert!(campaign.max_bridge_off_periods <= 1, "{}", campaign.max_bridge_off_periods);
@@ -108,7 +108,7 @@ fn every_fault_trips_in_a_period_or_rides_through_and_none_fails_silently() {
 /// expectations on motors other than the standard campaign's are reported, not asserted:
 /// `dcfo faults --motor`).
 fn check_floors(plan: &Plan, campaign: &Campaign) {
-    println!("{}", dcfo_host::faults::table(campaign));
+    println!("{}", dcfo_host::commands::faults::table(campaign));
     for ((part, case), r) in plan.cases().zip(&campaign.results) {
         assert_eq!(case.name, r.name);
         if let Some((_, _, why)) = KNOWN_FLOOR_MISSES.iter().find(|(m, c, _)| *m == r.motor && *c == r.name) {

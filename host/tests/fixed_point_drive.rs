@@ -10,7 +10,7 @@ use dcfo::num::Q24;
 use dcfo::observer::ObserverKind;
 use dcfo::transforms::AlphaBeta;
 use dcfo::units::Base;
-use dcfo_host::sim::{LocalDrive, Setup, run, run_with, scenarios};
+use dcfo_host::simulation::{LocalDrive, Setup, figures, run, run_with, scenarios};
 use dcfo_host::trace::wrap_angle;
 
 #[test]
@@ -90,7 +90,7 @@ fn q24_drive_runs_the_paper_scenarios_like_the_f32_drive() {
             let f32_run = run(&setup, &sc, |_| {}).expect("f32 run");
             let q24_run = run_with(&setup, &sc, &mut LocalDrive::fixed_point(&setup).expect("drive"), |_| {})
                 .expect("q24 run");
-            let (a, b) = (scenarios::figures(&f32_run, &sc), scenarios::figures(&q24_run, &sc));
+            let (a, b) = (figures::figures(&f32_run, &sc), figures::figures(&q24_run, &sc));
             assert!(b.healthy, "{name}: the Q24 drive faulted ({:?})", q24_run.faults);
             f_max.push(a.theta_err_max_deg);
             q_max.push(b.theta_err_max_deg);
@@ -112,13 +112,13 @@ fn q24_steady_scenario_meets_the_papers_figure() {
     let setup = Setup::paper(ObserverKind::Dcfo);
     let sc = scenarios::scenario("steady").expect("scenario");
     let r = run_with(&setup, &sc, &mut LocalDrive::fixed_point(&setup).expect("drive"), |_| {}).expect("run");
-    let f = scenarios::figures(&r, &sc);
+    let f = figures::figures(&r, &sc);
     assert!(f.healthy && f.theta_err_max_deg <= 5.0 && f.theta_err_rms_deg <= 2.5, "{f:?}");
 }
 
 /// Largest current-loop error `|i_dq - i_dq_ref|` (A) over `window_s` before and after
 /// the I/f start hands over to the estimated frame (`Starting` -> `Running`).
-fn handover_current_error(run: &dcfo_host::sim::Run, window_s: f64) -> (f64, f64) {
+fn handover_current_error(run: &dcfo_host::simulation::Run, window_s: f64) -> (f64, f64) {
     let starting = dcfo::drive::DriveState::Starting.code();
     let running = dcfo::drive::DriveState::Running.code();
     let at = run

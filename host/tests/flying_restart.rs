@@ -4,7 +4,7 @@
 
 use dcfo::drive::DriveState;
 use dcfo::observer::ObserverKind;
-use dcfo_host::sim::{self, Event, Scenario, Setup, theta_err_deg};
+use dcfo_host::simulation::{self, Event, Scenario, Setup, theta_err_deg};
 
 /// (time to resume Running, peak current, lowest speed, max error over the last 0.1 s,
 /// max error over the 0.5 s before the reset).
@@ -17,14 +17,14 @@ fn run_reset_at(v: f64) -> (Option<f64>, f64, f64, f64, f64) {
         description: "estimator reset at speed".into(),
         duration_s: t_reset + 1.0,
         events: vec![(0.0, Event::Speed(v)), (t_reset, Event::ResetEstimator)],
-        plant: sim::PlantChanges::default(),
+        plant: simulation::PlantChanges::default(),
         event_s: t_reset,
         window_s: 1.0,
         paper: String::new(),
     };
-    let run = sim::run(&setup, &scenario, |_| {}).unwrap();
+    let run = simulation::run(&setup, &scenario, |_| {}).unwrap();
     assert!(run.faults.is_empty(), "{v} m/s: tripped {:?}", run.faults);
-    let after: Vec<&sim::Sample> = run.samples.iter().filter(|s| s.row.t >= t_reset).collect();
+    let after: Vec<&simulation::Sample> = run.samples.iter().filter(|s| s.row.t >= t_reset).collect();
     let left = after.iter().position(|s| s.state == DriveState::Reacquiring.code());
     // Back in Running after having been in Reacquiring.
     let resumed = left.and_then(|j| {
@@ -73,12 +73,12 @@ fn enable_while_moving(v: f64) -> (Vec<u8>, Option<f64>, f64, f64) {
         description: "drive enabled with the mover already moving".into(),
         duration_s: 1.5,
         events: vec![(0.0, Event::Speed(v)), (0.0, Event::MoverSpeed(v))],
-        plant: sim::PlantChanges::default(),
+        plant: simulation::PlantChanges::default(),
         event_s: 0.0,
         window_s: 1.5,
         paper: String::new(),
     };
-    let run = sim::run(&setup, &scenario, |_| {}).unwrap();
+    let run = simulation::run(&setup, &scenario, |_| {}).unwrap();
     assert!(run.faults.is_empty(), "{v} m/s: tripped {:?}", run.faults);
     let mut states: Vec<u8> = run.samples.iter().map(|s| s.state).collect();
     states.dedup();
@@ -102,12 +102,12 @@ fn steady_error_after_if_start(v: f64) -> f64 {
         description: "started by I/f".into(),
         duration_s: duration,
         events: vec![(0.0, Event::Speed(v))],
-        plant: sim::PlantChanges::default(),
+        plant: simulation::PlantChanges::default(),
         event_s: 0.0,
         window_s: duration,
         paper: String::new(),
     };
-    let run = sim::run(&setup, &scenario, |_| {}).unwrap();
+    let run = simulation::run(&setup, &scenario, |_| {}).unwrap();
     assert!(run.faults.is_empty(), "{v} m/s: tripped {:?}", run.faults);
     run.samples
         .iter()

@@ -10,9 +10,10 @@ use dcfo::motor::MotorParams;
 use dcfo::num::{Angle, Q24};
 use dcfo::transforms::AlphaBeta;
 use dcfo::units::Base;
+use dcfo_host::closed_loop::{Bridge, ClosedLoop};
+use dcfo_host::commands::stroke::plant_for;
 use dcfo_host::motor_file::load_motor;
 use dcfo_host::plant::{Plant, PlantParams, SimParams, svpwm_duties};
-use dcfo_host::stroke::plant_for;
 
 fn salient() -> MotorParams {
     let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../motors/salient.toml");
@@ -71,23 +72,23 @@ fn standstill<T: dcfo::num::Scalar>(
     let bus = plant_for(m).inverter.dc_bus_v as f32;
     let cfg = HfiConfig::for_motor(m, pl.pwm_period_s() as f32, bus).expect("salient");
     let mut hfi = Hfi::<T>::new(&cfg, base).expect("config");
-    let mut duties = [0.5; 3];
+    let late_from = periods - (0.05 / pl.pwm_period_s()) as usize;
+    // The bridge switches from the start (50 % duty until the first injection acts).
+    let mut closed_loop = ClosedLoop::starting_with(pl, Bridge::On([0.5; 3]));
     let mut decided_after = None;
     let mut late_max: f64 = 0.0;
-    let late_from = periods - (0.05 / pl.pwm_period_s()) as usize;
     let mut margin = 0.0;
     for k in 0..periods {
-        let r = pl.sample();
-        let truth = pl.state().theta_e_rad;
+        let sensed = closed_loop.sense();
+        let (r, truth) = (sensed.reading, sensed.truth.theta_e_rad);
         let i = AlphaBeta::new(
             T::from_f32(((r.i_alpha_a - oa) / f64::from(base.current_a)) as f32),
             T::from_f32(((r.i_beta_a - ob) / f64::from(base.current_a)) as f32),
         );
         let o = hfi.step(i).expect("valid");
-        pl.step(duties, 0.0);
         let u_a = f64::from(base.to_volts(o.u_inject_ab.alpha));
         let u_b = f64::from(base.to_volts(o.u_inject_ab.beta));
-        duties = svpwm_duties(u_a, u_b, r.vdc_v);
+        closed_loop.actuate(sensed, Bridge::On(svpwm_duties(u_a, u_b, r.vdc_v)), 0.0);
         let err = f64::from((o.theta_e - Angle::from_radians(truth as f32)).to_degrees_f32());
         if o.polarity_known && decided_after.is_none() {
             decided_after = Some(k);
@@ -101,7 +102,7 @@ fn standstill<T: dcfo::num::Scalar>(
         error_late_max_deg: late_max,
         polarity_margin: margin,
         decided_after,
-        moved_m: pl.state().x_m - x0_m,
+        moved_m: closed_loop.plant().state().x_m - x0_m,
     }
 }
 

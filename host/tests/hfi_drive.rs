@@ -10,9 +10,11 @@ use dcfo::drive::{Drive, DriveState};
 use dcfo::motion::Move;
 use dcfo::motor::MotorParams;
 use dcfo::units::Base;
+use dcfo_host::closed_loop::ClosedLoop;
+use dcfo_host::commands::stroke::{drive_for, plant_for};
 use dcfo_host::motor_file::load_motor;
 use dcfo_host::plant::{Plant, rated_thrust_n};
-use dcfo_host::stroke::{drive_for, plant_for};
+use dcfo_host::simulation::{measurements, output_bridge};
 
 fn salient() -> MotorParams {
     let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../motors/salient.toml");
@@ -48,21 +50,15 @@ fn run(x0_m: f64, duration_s: f64, load_n: impl Fn(f64) -> f64, moves: &[Move], 
         drive.push_move(*mv).expect("move");
     }
     let ts = plant.pwm_period_s();
-    let (mut pending, mut on) = ([0.5; 3], false);
+    let mut closed_loop = ClosedLoop::new(plant);
     let mut log = Vec::new();
     for k in 0..(duration_s / ts).round() as usize {
         let t = k as f64 * ts;
-        let reading = plant.sample();
-        let truth = plant.state();
+        let sensed = closed_loop.sense();
+        let truth = sensed.truth;
         drive.enable();
-        let out = drive.step(&reading.measurements());
-        if on {
-            plant.step(pending, load_n(t));
-        } else {
-            plant.step_open(load_n(t));
-        }
-        on = out.bridge_enabled;
-        pending = [f64::from(out.duties.a), f64::from(out.duties.b), f64::from(out.duties.c)];
+        let out = drive.step(&measurements(&sensed.reading));
+        closed_loop.actuate(sensed, output_bridge(&out), load_n(t));
         log.push(Sample {
             t_s: t,
             x_m: truth.x_m,

@@ -7,8 +7,9 @@ use dcfo::drive::Drive;
 use dcfo::link::LinkServer;
 use dcfo::observer::ObserverKind;
 use dcfo::units::Base;
-use dcfo_host::hil::{SerialController, compare_runs};
-use dcfo_host::sim::{Setup, run, run_with, scenarios};
+use dcfo_host::commands::hil::compare_runs;
+use dcfo_host::hil_link::SerialController;
+use dcfo_host::simulation::{Setup, run, run_with, scenarios};
 use std::io::{Read, Write};
 use std::os::unix::net::UnixStream;
 
@@ -42,7 +43,7 @@ fn hil_run(
     noise: &'static [u8],
     booting: usize,
     duration_s: f64,
-) -> (dcfo_host::sim::Run, dcfo_host::sim::Run) {
+) -> (dcfo_host::simulation::Run, dcfo_host::simulation::Run) {
     let setup = Setup::paper(ObserverKind::Dcfo);
     let mut sc = scenarios::scenario("steady").expect("scenario");
     sc.duration_s = duration_s;

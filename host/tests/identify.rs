@@ -8,7 +8,7 @@
 
 use dcfo::drive::CommissioningError;
 use dcfo::motor::MotorParams;
-use dcfo_host::identify::{IdentifyError, IdentifyReport, PlantFault, identify, motor_toml};
+use dcfo_host::commands::identify::{IdentifyError, IdentifyReport, PlantFault, identify, motor_toml};
 use dcfo_host::motor_file::{load_motor, parse_motor_toml};
 
 mod common;
@@ -20,7 +20,7 @@ fn motor(arg: &str) -> MotorParams {
 }
 
 fn check_floors(r: &IdentifyReport) {
-    println!("{}", dcfo_host::identify::table(r));
+    println!("{}", dcfo_host::commands::identify::table(r));
     assert!(r.rs_ohm.err_pct.abs() <= 3.0, "Rs {:?}", r.rs_ohm);
     assert!(r.ld_h.err_pct.abs() <= 5.0, "Ld {:?}", r.ld_h);
     assert!(r.lq_h.err_pct.abs() <= 5.0, "Lq {:?}", r.lq_h);
@@ -141,7 +141,7 @@ fn cli_writes_the_motor_file_and_one_json_object_last() {
 /// The firmware's commissioning on QEMU through the HIL link, against the in-process run
 /// of the same numeric type (bit for bit) and the plant's truth (the floors).
 fn commissioning_through_qemu(cpu: dcfo_host::qemu::QemuCpu) {
-    use dcfo_host::identify::{InProcess, identical, identify_over_link, identify_with};
+    use dcfo_host::commands::identify::{InProcess, identical, identify_over_link, identify_with};
     use dcfo_host::qemu::QemuCpu;
     let Some(elf) = common::hil_firmware(cpu) else { return };
     let m = motor("paper");
@@ -190,14 +190,14 @@ fn the_motor_image_carries_the_identified_motor_and_compensation() {
     use dcfo::motor_image::MotorImage;
     let m = motor("paper");
     let r = identify("paper", &m, 1, PlantFault::None).unwrap();
-    let bytes = dcfo_host::identify::motor_image(&r, &m, None).unwrap();
+    let bytes = dcfo_host::commands::identify::motor_image(&r, &m, None).unwrap();
     let image = MotorImage::decode(&bytes).unwrap();
     let result = r.result.unwrap();
     assert_eq!(
         (image.motor.rs_ohm, image.motor.ld_h, image.motor.lq_h, image.motor.psi_f_wb),
         (result.rs_ohm, result.ld_h, result.lq_h, result.psi_f_wb)
     );
-    assert_eq!(image.bus_v, dcfo_host::identify::told(&m).bus_v);
+    assert_eq!(image.bus_v, dcfo_host::commands::identify::told(&m).bus_v);
     let c = image.compensation.expect("the identified compensation");
     assert_eq!(c, result.dead_time_compensation(1e-4));
     // As a voltage at the commissioning's bus and 100 us period it is the identified
@@ -212,15 +212,16 @@ fn the_motor_image_carries_the_identified_motor_and_compensation() {
     let dir = tempfile::tempdir().unwrap();
     let old = dir.path().join("old.bin");
     std::fs::write(&old, image.with_axis(axis).unwrap().encode()).unwrap();
-    assert_eq!(dcfo_host::motor_image::existing_axis(&old), Some(axis));
-    assert_eq!(dcfo_host::motor_image::existing_axis(&dir.path().join("absent.bin")), None);
-    let kept = MotorImage::decode(&dcfo_host::identify::motor_image(&r, &m, Some(axis)).unwrap()).unwrap();
+    assert_eq!(dcfo_host::commands::motor_image::existing_axis(&old), Some(axis));
+    assert_eq!(dcfo_host::commands::motor_image::existing_axis(&dir.path().join("absent.bin")), None);
+    let kept =
+        MotorImage::decode(&dcfo_host::commands::identify::motor_image(&r, &m, Some(axis)).unwrap()).unwrap();
     assert_eq!(kept, MotorImage { axis: Some(axis), ..image });
     let too_fast = dcfo::motor_image::MotorAxis {
         limits: dcfo::motion::ProfileLimits { max_speed_m_per_s: 100.0, ..axis.limits },
         ..axis
     };
-    let e = dcfo_host::identify::motor_image(&r, &m, Some(too_fast)).unwrap_err().to_string();
+    let e = dcfo_host::commands::identify::motor_image(&r, &m, Some(too_fast)).unwrap_err().to_string();
     assert!(e.contains("axis") && e.contains("max_speed_m_per_s"), "{e}");
 }
 

@@ -3,8 +3,8 @@
 //! figure (with its reason) where not, and against the analysis where it predicts one.
 
 use dcfo::motor::MotorParams;
-use dcfo_host::paper::{PaperReport, ScenarioResult, paper_report};
-use dcfo_host::sim::scenarios::Figures;
+use dcfo_host::commands::paper::{PaperReport, ScenarioResult, paper_report};
+use dcfo_host::simulation::figures::{self, Figures};
 use std::sync::OnceLock;
 
 /// All twelve runs, once for every test in this file.
@@ -155,7 +155,7 @@ fn dcfo_lock_flag_is_honest_in_every_scenario() {
 fn steady_with_the_compensation_signs_from_the_reference() {
     use dcfo::drive::CompensationSigns;
     use dcfo::observer::ObserverKind;
-    use dcfo_host::sim::{Setup, run, scenarios};
+    use dcfo_host::simulation::{Setup, run, scenarios};
     let sc = scenarios::scenario("steady").expect("scenario");
     // The default, as `dcfo paper` runs it.
     let f = scenario("steady").dcfo;
@@ -169,7 +169,7 @@ fn steady_with_the_compensation_signs_from_the_reference() {
     // Against the measured signs' run of the same scenario.
     let mut setup = Setup::paper(ObserverKind::Dcfo);
     setup.drive.compensation_signs = CompensationSigns::Measured;
-    let measured = scenarios::figures(&run(&setup, &sc, |_| {}).expect("run"), &sc);
+    let measured = figures::figures(&run(&setup, &sc, |_| {}).expect("run"), &sc);
     println!("measured signs: {measured:?}");
     healthy(&measured);
     assert!(f.theta_err_rms_deg < 0.6 * measured.theta_err_rms_deg, "{f:?} against {measured:?}");

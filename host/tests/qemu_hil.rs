@@ -14,8 +14,9 @@
 use dcfo::drive::{DriveState, Faults};
 use dcfo::link::SensorFrame;
 use dcfo::observer::ObserverKind;
-use dcfo_host::hil::{QemuCpu, QemuSession, compare_runs};
-use dcfo_host::sim::{Controller, Setup, run_with, scenarios};
+use dcfo_host::commands::hil::compare_runs;
+use dcfo_host::qemu::{QemuCpu, QemuSession};
+use dcfo_host::simulation::{Controller, Setup, figures, run_with, scenarios};
 use std::process::Command;
 use std::time::{Duration, Instant};
 
@@ -37,7 +38,7 @@ fn steady_scenario_meets_its_figure_and_equals_the_host_bit_for_bit(cpu: QemuCpu
     // same receive path with f32, have 30,144 bytes (flip-link: all RAM below their
     // statics, less the 256-byte guard).
     assert!(stack <= STACK_BUDGET_BYTES, "{stack} bytes of stack, budget {STACK_BUDGET_BYTES}");
-    let f = scenarios::figures(&over_uart, &sc);
+    let f = figures::figures(&over_uart, &sc);
     println!(
         "QEMU HIL {cpu:?}, {:.1} s simulated at {rate:.0} round trips/s: theta_err max {:.2} deg, rms {:.2} deg",
         over_uart.simulated_s, f.theta_err_max_deg, f.theta_err_rms_deg

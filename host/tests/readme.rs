@@ -4,7 +4,7 @@
 //! `results/paper.md` against its own `dcfo paper` run (`.ci/run`), and
 //! `results/regenerate` rewrites them all.
 
-use dcfo_host::results::{Input, README, RESULTS_DIR, Table, blocks, readme_differences};
+use dcfo_host::commands::results::{Input, README, RESULTS_DIR, Table, blocks, readme_differences};
 use std::path::{Path, PathBuf};
 
 /// The workspace root.

@@ -5,8 +5,8 @@
 use dcfo::drive::DriveState;
 use dcfo::observer::ObserverKind;
 use dcfo_host::motor_file::load_motor;
-use dcfo_host::sim::{Run, Setup, run};
-use dcfo_host::sim::report::load_scenario;
+use dcfo_host::simulation::{Run, Setup, run};
+use dcfo_host::commands::sim::load_scenario;
 
 const ROOT: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/..");
 

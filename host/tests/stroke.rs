@@ -5,8 +5,8 @@
 //! drive's tuning comes from the motor file alone.
 
 use dcfo::motor::MotorParams;
+use dcfo_host::commands::stroke::{MOVES, run};
 use dcfo_host::motor_file::load_motor;
-use dcfo_host::stroke::{MOVES, run};
 
 /// The floors, asserted as measured (figures in the README). `final_floor_m`
 /// is the tau / 60 unless stated otherwise by the caller.
@@ -68,7 +68,7 @@ fn a_profile_the_motor_cannot_follow_is_refused_by_name() {
     use dcfo::drive::Drive;
     use dcfo::units::Base;
     let m = MotorParams::paper();
-    let ok = dcfo_host::stroke::drive_for(&m);
+    let ok = dcfo_host::commands::stroke::drive_for(&m);
     assert!(Drive::<f32>::new(&m, &ok, &Base::SI).is_ok());
     // 300 m/s^2 of a 10.7 kg axis needs 64 A of a 5.9 A limit.
     let mut too_fast = ok;

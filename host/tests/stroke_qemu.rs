@@ -16,8 +16,8 @@
 //! `DCFO_REQUIRE_QEMU=1` (CI sets it), which turns a skip into a failure.
 
 use dcfo::motor::MotorParams;
-use dcfo_host::hil::{QemuCpu, QemuSession};
-use dcfo_host::stroke::{bus_for, compare, qemu_cmdline, run_with, setup_for};
+use dcfo_host::commands::stroke::{bus_for, compare, qemu_cmdline, run_with, setup_for};
+use dcfo_host::qemu::{QemuCpu, QemuSession};
 
 mod common;
 

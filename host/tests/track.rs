@@ -1,4 +1,4 @@
-//! `dcfo track` (module docs of `dcfo_host::track`): the recordings hold the reversals
+//! `dcfo track` (module docs of `dcfo_host::commands::track`): the recordings hold the reversals
 //! their profiles command, the estimator claims no lock on a wrong angle on any of them,
 //! finds the mover again within 2 electrical periods of every passage through zero speed
 //! (issue 35's floor), and Q8.24 follows f32 within a degree. The other issue-35 floor, 8
@@ -6,7 +6,7 @@
 //! not meet yet (`docs/estimator-design.md`).
 
 use dcfo::motor::MotorParams;
-use dcfo_host::track::{Figures, profiles, run_all, setup_for};
+use dcfo_host::commands::track::{Figures, profiles, run_all, setup_for};
 
 /// The issue's floor: re-lock within this many electrical periods of the instant `|v|`
 /// reaches the back-EMF floor after a reversal.

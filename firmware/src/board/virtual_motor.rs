@@ -10,7 +10,7 @@
 //! each [`PhaseSensors::sample`] first runs the model over the period that just ended
 //! with the duties that were in force in it, then takes the newly set ones into force,
 //! then returns the currents and the bus at the period's end. This is the host
-//! simulation's one-period computation delay (`dcfo_host::sim`).
+//! simulation's one-period computation delay (`dcfo_host::closed_loop`).
 //!
 //! No register is touched: it builds on every target and is tested on the host.
 

@@ -64,7 +64,7 @@ use std::time::Instant;
 use anyhow::{Context, Result, bail};
 use clap::Parser;
 use dcfo::motor_image::MotorImage;
-use dcfo_host::board::qemu_image_cmdline;
+use dcfo_host::commands::board::session::qemu_image_cmdline;
 use dcfo_host::motor_file::load_motor;
 use dcfo_host::qemu::{QemuCpu, build_qemu_example, qemu_example_elf, target_dir};
 use serde_json::{Map, Value, json};
@@ -217,7 +217,7 @@ fn run(args: &Args) -> Result<bool> {
     let motor = load_motor(&motor_path.to_string_lossy())
         .with_context(|| format!("loading {}", motor_path.display()))?
         .params;
-    let image = MotorImage::new(motor, dcfo_host::stroke::bus_for(&motor))
+    let image = MotorImage::new(motor, dcfo_host::commands::stroke::bus_for(&motor))
         .map_err(|e| anyhow::anyhow!("{MOTOR_FILE}: no motor image: {e:?}"))?;
     let cmdline = qemu_image_cmdline(&image);
 

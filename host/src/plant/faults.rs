@@ -1,7 +1,7 @@
 //! Fault injection that needs the plant's inside: the DC bus changing under a running
 //! drive (sag, overvoltage, loss). Everything else `dcfo faults` injects (an open
 //! phase, a short, sensor and link faults) is a wrapper around the plant's public
-//! interface (`crate::faults::inject`).
+//! interface (`crate::commands::faults::inject`).
 
 use super::{Plant, PlantError};
 

@@ -25,41 +25,6 @@ pub struct SensorReading {
     pub current_saturated: bool,
 }
 
-impl SensorReading {
-    /// This reading as the drive takes it: phase currents (A) and bus voltage (V) in
-    /// f32, SI.
-    pub fn measurements(&self) -> dcfo::drive::Measurements<f32> {
-        let [a, b, c] = self.i_abc_a;
-        dcfo::drive::Measurements::from_si(
-            [a as f32, b as f32, c as f32],
-            self.vdc_v as f32,
-            &dcfo::units::Base::SI,
-        )
-    }
-
-    /// This reading as the lock-step link's sensor frame number `sequence`, with the drive
-    /// enabled, the speed reference `speed_ref_m_per_s` (m/s) and a move to queue, if any.
-    pub fn sensor_frame(
-        &self,
-        sequence: u16,
-        speed_ref_m_per_s: f32,
-        move_to: Option<dcfo::motion::Move>,
-    ) -> dcfo::link::SensorFrame {
-        let [a, b, c] = self.i_abc_a;
-        dcfo::link::SensorFrame {
-            sequence,
-            i_a: a as f32,
-            i_b: b as f32,
-            i_c: c as f32,
-            vdc: self.vdc_v as f32,
-            speed_ref: speed_ref_m_per_s,
-            enable: true,
-            clear_faults: false,
-            move_to,
-        }
-    }
-}
-
 /// Sensor chain state: parameters and the noise generator.
 #[derive(Debug, Clone)]
 pub(crate) struct Sensors {

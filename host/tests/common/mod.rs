@@ -27,5 +27,6 @@ pub fn qemu_runs(cpu: QemuCpu) -> bool {
 
 /// The HIL firmware (`qemu_hil`) for `cpu`, built; `None` when the test must skip.
 pub fn hil_firmware(cpu: QemuCpu) -> Option<PathBuf> {
-    qemu_runs(cpu).then(|| dcfo_host::hil::build_qemu_firmware(&workspace(), cpu).expect("firmware builds"))
+    qemu_runs(cpu)
+        .then(|| dcfo_host::hil_link::build_qemu_firmware(&workspace(), cpu).expect("firmware builds"))
 }

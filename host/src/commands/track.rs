@@ -25,7 +25,7 @@
 //!   a tenth of a period's worth per period, and for 50 ms after, above the floor, once
 //!   the estimator has locked the first time (issue floor: 8 deg).
 //! - **false-lock samples**: the `locked` flag set with the angle more than
-//!   [`crate::acquire::FALSE_LOCK_DEG`] off (floor: 0).
+//!   [`crate::commands::acquire::FALSE_LOCK_DEG`] off (floor: 0).
 
 use serde::Serialize;
 
@@ -33,10 +33,10 @@ use dcfo::motor::MotorParams;
 use dcfo::num::Q24;
 use dcfo::units::Base;
 
-use crate::acquire::{FALSE_LOCK_DEG, recording_load_n};
+use crate::commands::acquire::{FALSE_LOCK_DEG, recording_load_n};
 use crate::recorder::{PrefilteredSteps, Row, SampledProfile, record, replay};
-use crate::sim::Setup;
-use crate::sim::scenarios::PaperScale;
+use crate::simulation::Setup;
+use crate::simulation::scenarios::PaperScale;
 use crate::trace::wrap_angle;
 
 /// After a reversal the angle must be within this of the truth, electrical degrees.
@@ -222,8 +222,8 @@ pub fn run_profile(setup: &Setup, profile: &Profile) -> Result<Vec<Figures>, Str
     let floor = f64::from(dcfo::drive::back_emf_floor_m_per_s(motor, &setup.drive));
     let mut out = Vec::new();
     for (numeric, est) in [
-        ("f32", replay::<f32>(setup, &Base::SI, &rows, ts, [0.0; 2], [0.0; 2])?),
-        ("q24", replay::<Q24>(setup, &Base::for_motor(motor), &rows, ts, [0.0; 2], [0.0; 2])?),
+        ("f32", replay::<f32>(setup, &Base::SI, &rows, ts, [0.0; 2], [0.0; 2])?.0),
+        ("q24", replay::<Q24>(setup, &Base::for_motor(motor), &rows, ts, [0.0; 2], [0.0; 2])?.0),
     ] {
         let (reversals, relock, transient, steady, first_lock, false_locks) =
             score(motor, &rows, &sampled.samples, &est, ts, floor);
@@ -292,13 +292,21 @@ pub fn table(figures: &[Figures]) -> String {
     s
 }
 
-/// `dcfo track`: every profile on `motor` (default: the paper motor), the table (or one
-/// JSON object) on stdout.
+/// What `dcfo track` is asked to do.
+#[derive(Debug, Clone)]
+pub struct Params {
+    /// The motor: a preset or a motor file (`None`: the paper motor).
+    pub motor: Option<String>,
+    /// Print one JSON object instead of the table.
+    pub json: bool,
+}
+
+/// `dcfo track`: every profile on the motor, the table (or one JSON object) on stdout.
 ///
 /// # Errors
 /// The motor could not be loaded, or a recording or a replay failed.
-pub fn run_command(motor: Option<&str>, json: bool) -> anyhow::Result<()> {
-    let (params, name) = match motor {
+pub fn run_command(p: &Params) -> anyhow::Result<()> {
+    let (params, name) = match p.motor.as_deref() {
         None => (MotorParams::paper(), "paper".to_string()),
         Some(arg) => {
             let file = crate::motor_file::load_motor(arg)?;
@@ -307,7 +315,7 @@ pub fn run_command(motor: Option<&str>, json: bool) -> anyhow::Result<()> {
     };
     let setup = setup_for(&params);
     let figures = run_all(&setup).map_err(|e| anyhow::anyhow!(e))?;
-    if json {
+    if p.json {
         println!("{}", serde_json::json!({ "motor": name, "profiles": figures }));
     } else {
         println!("motor: {name}");

@@ -7,7 +7,7 @@
 //! the motor file, the realistic inverter (dead time, drops) and sensors (offsets, gain
 //! errors, noise) of [`SimParams::from_motor`]. The drive (`Drive<f32>`, the firmware's
 //! control step) is built from the motor file alone: [`DriveConfig::for_motor`] with the
-//! inverter compensation the paper axis uses, and [`MotionConfig::for_drive`].
+//! inverter compensation the paper axis uses, and [`dcfo::drive::MotionConfig::for_drive`].
 //! It aligns on enable (the zero of its position estimate is that pole position; the
 //! mover starts there), then runs [`MOVES`] moves between the stroke's ends with
 //! [`DWELL_S`] dwells.
@@ -24,8 +24,9 @@ use dcfo::motion::Move;
 use dcfo::motor::MotorParams;
 use serde::Serialize;
 
+use crate::closed_loop::ClosedLoop;
 use crate::plant::{InverterParams, Plant, PlantParams, SimParams};
-use crate::sim::{Controller, LocalDrive, Setup};
+use crate::simulation::{Controller, LocalDrive, Setup, frame_bridge, sensor_frame};
 
 /// Carriage and load moved besides the mover, kg.
 pub const PAYLOAD_KG: f64 = dcfo::drive::PAPER_AXIS_PAYLOAD_KG as f64;
@@ -232,7 +233,7 @@ pub fn run(name: &str, motor: &MotorParams, log_every: usize) -> Result<(StrokeS
 /// `progress(fraction)` now and then.
 ///
 /// Moves reach the drive as the link carries them: one per sensor frame
-/// ([`SensorFrame::move_to`]), while the last answer shows room in the drive's
+/// ([`dcfo::link::SensorFrame::move_to`]), while the last answer shows room in the drive's
 /// fixed-capacity queue. Position, reference and queue come back in the answer's
 /// [`dcfo::link::PositionReport`]. The figures that need the drive's internals (control
 /// angle, current references) are `None` over a link.
@@ -246,15 +247,13 @@ pub fn run_with(
 ) -> Result<StrokeRun, String> {
     let motor = &setup.motor;
     let motion = setup.drive.motion.ok_or("no motion config")?;
-    let mut plant = Plant::new(&setup.plant).map_err(|e| e.to_string())?;
+    let mut closed_loop = ClosedLoop::new(Plant::new(&setup.plant).map_err(|e| e.to_string())?);
     let mut moves: std::collections::VecDeque<Move> = moves(moves_count).into();
-    let ts = plant.pwm_period_s();
+    let ts = closed_loop.plant().pwm_period_s();
     let tau = f64::from(motor.pole_pitch_m);
     let rated_peak = f64::from(motor.rated_current_a) * 2f64.sqrt();
     let n = (duration_s(moves_count) / ts).round() as usize;
     let log_every = log_every.max(1);
-    let mut pending = [0.5f64; 3];
-    let mut pending_on = false;
     let mut rows = Vec::new();
     let mut estimates = Vec::with_capacity(n);
     let (mut x_err_max, mut x_err_final) = (0.0f64, 0.0f64);
@@ -282,10 +281,11 @@ pub fn run_with(
     for k in 0..n {
         let t = k as f64 * ts;
         let move_to = if queue_room > 0 { moves.pop_front() } else { None };
-        let reading = plant.sample();
-        let truth = plant.state();
-        let sensor = reading.sensor_frame(k as u16, 0.0, move_to);
-        let step = controller.step(&sensor).map_err(|e| e.to_string())?;
+        let sensed = closed_loop.sense();
+        let truth = sensed.truth;
+        let step = controller
+            .step(&sensor_frame(&sensed.reading, k as u16, 0.0, move_to))
+            .map_err(|e| e.to_string())?;
         let f = step.frame;
         let Some(pos) = f.position else {
             return Err(format!(
@@ -302,13 +302,7 @@ pub fn run_with(
         }
         rejected = pos.moves_rejected;
         queue_room = dcfo::drive::MOVE_QUEUE.saturating_sub(usize::from(pos.moves_queued));
-        if pending_on {
-            plant.step(pending, 0.0);
-        } else {
-            plant.step_open(0.0);
-        }
-        pending_on = f.bridge_enabled;
-        pending = if f.bridge_enabled { [f.duty_a, f.duty_b, f.duty_c].map(f64::from) } else { [0.5; 3] };
+        closed_loop.actuate(sensed, frame_bridge(&f), 0.0);
         let state = f.state();
         faults = f.faults();
         estimates.push(LinkEstimate { theta_hat: f.estimate.map(|e| e.theta_hat), x_hat_m: pos.x_hat_m });
@@ -619,7 +613,7 @@ pub fn run_params(params: &Params, motor: &MotorParams) -> anyhow::Result<(Repor
         std::path::Path::new(env!("CARGO_MANIFEST_DIR")).parent().unwrap_or(std::path::Path::new("."));
     let elf = match elf {
         Some(e) => e.clone(),
-        None => crate::hil::build_qemu_firmware(workspace, *cpu)?,
+        None => crate::hil_link::build_qemu_firmware(workspace, *cpu)?,
     };
     let cmdline = qemu_cmdline(motor, bus_for(motor)).map_err(|e| anyhow::anyhow!("{name}: {e}"))?;
     let started = std::time::Instant::now();

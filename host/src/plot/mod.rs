@@ -28,7 +28,6 @@ use plotters::coord::Shift;
 use plotters::coord::ranged1d::{AsRangedCoord, Ranged, ValueFormatter};
 use plotters::prelude::*;
 
-pub use bode::{Bode, BodeFigure, BodeSetup, FluxFilter, bode, bode_figure};
 use text::GlyphText;
 
 /// A colour, `(red, green, blue)`.

@@ -2,11 +2,12 @@
 //! estimates, summary and figure; and what other commands write of a run
 //! ([`write_run_outputs`], [`trace_of`], [`fault_names`]).
 
-use super::scenarios::{Figures, PaperScale, Scenario, figures, paper_scenarios, scenario};
-use super::{Run, Setup, run, theta_err_deg};
 use crate::motor_file::load_motor;
 use crate::observer::observer_name;
 use crate::plot::{Panel, Series, time_series_figure, write_figure};
+use crate::simulation::figures::{Figures, figures};
+use crate::simulation::scenarios::{PaperScale, Scenario, paper_scenarios, scenario};
+use crate::simulation::{Run, Setup, run, theta_err_deg};
 use crate::trace::{
     COMMANDED_ACCEL_COLUMN, Estimate, GroundTruth, InputTrace, InputTraceWriter, write_output_trace,
 };
@@ -37,7 +38,7 @@ pub fn run_command(params: &Params) -> Result<()> {
     let mut scenario = load_scenario(&params.scenario)?;
     // A paper experiment on another motor is scaled to it; a scenario file says what it
     // means in its own units.
-    let paper_experiment = super::scenarios::scenario(&params.scenario).is_some();
+    let paper_experiment = crate::simulation::scenarios::scenario(&params.scenario).is_some();
     let mut setup = match &params.motor {
         None => Setup::paper(params.observer),
         Some(m) => {
@@ -62,7 +63,11 @@ pub fn run_command(params: &Params) -> Result<()> {
 }
 
 /// Every fifth sample in the display window of `sc` as (t, value).
-pub fn series(run: &Run, sc: &Scenario, value: impl Fn(&super::Sample) -> f64) -> Vec<(f64, f64)> {
+pub fn series(
+    run: &Run,
+    sc: &Scenario,
+    value: impl Fn(&crate::simulation::Sample) -> f64,
+) -> Vec<(f64, f64)> {
     // From half a second before the event; a run shortened before it, or whose drive
     // stopped reporting before it (a trip), shows everything.
     let last_t = run.samples.last().map_or(0.0, |s| s.row.t);
@@ -221,4 +226,22 @@ pub fn write_run_outputs(run: &Run, sc: &Scenario, out: &Path, label: &str) -> R
     let title = format!("{} ({label}): {}", sc.name, sc.description);
     write_figure(&time_series_figure(title, panels), &out.join(&sc.name))?;
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::simulation::{LocalDrive, run_with};
+
+    /// The trace of a fixed-point run carries the commanded acceleration its estimator
+    /// used (the column a replay needs to reproduce the run's estimates).
+    #[test]
+    fn a_fixed_point_runs_trace_carries_the_commanded_acceleration() {
+        let setup = Setup::paper(ObserverKind::Dcfo);
+        let mut sc = scenario("steady").expect("scenario");
+        sc.duration_s = 1.5;
+        let q = run_with(&setup, &sc, &mut LocalDrive::fixed_point(&setup).expect("drive"), |_| {})
+            .expect("q24 run");
+        assert!(trace_of(&q).expect("trace").0.commanded_acceleration().is_some());
+    }
 }

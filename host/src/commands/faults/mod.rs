@@ -50,7 +50,7 @@
 pub mod axis;
 pub mod cases;
 
-use crate::sim::report::fault_names;
+use crate::commands::sim::fault_names;
 
 use dcfo::drive::{Drive, DriveState, Faults};
 use dcfo::link::SILENT_LINK_PERIODS;
@@ -61,7 +61,7 @@ use serde::Serialize;
 pub use axis::{Axis, Injection, LinkChecks, Period};
 pub use cases::{AFTER_S, Bench, Case, DriveKind, Expected, INJECT_S, Levels, Trigger};
 
-use crate::sim::Setup;
+use crate::simulation::Setup;
 use crate::trace::wrap_angle;
 
 /// A ride-through's accuracy is measured over the run's last this many seconds.
@@ -544,13 +544,6 @@ fn analyse(part: &Part, case: &Case, log: &[Period], k0: usize, axis: &Axis) -> 
         (None, None) => format!("{last_state:?}"),
     };
     CaseResult {
-        name: case.name.clone(),
-        motor: part.bench.name.clone(),
-        drive: part.drive,
-        trigger: case.trigger,
-        expected: describe(case.expected),
-        why: case.why.clone(),
-        happened,
         faults: fault_names(final_faults),
         detect_s,
         bridge_off_periods,
@@ -567,36 +560,40 @@ fn analyse(part: &Part, case: &Case, log: &[Period], k0: usize, axis: &Axis) -> 
         moves_rejected,
         link,
         met,
+        ..CaseResult::unmet(part, case, happened)
     }
 }
 
-/// The result of a case that could not run (its part's healthy run is no base for it):
-/// unmet, with the reason.
-fn not_run(part: &Part, case: &Case, why: String) -> CaseResult {
-    CaseResult {
-        name: case.name.clone(),
-        motor: part.bench.name.clone(),
-        drive: part.drive,
-        trigger: case.trigger,
-        expected: describe(case.expected),
-        why: case.why.clone(),
-        happened: format!("not run: {why}"),
-        faults: "-".into(),
-        detect_s: None,
-        bridge_off_periods: None,
-        steady_err_deg: None,
-        locked_err_max_deg: 0.0,
-        locked_wrong_s: 0.0,
-        silent_failure: false,
-        i_peak_a: 0.0,
-        x_err_max_m: None,
-        x_err_final_m: None,
-        x_off_target_m: None,
-        x_range_m: None,
-        moves_done: None,
-        moves_rejected: None,
-        link: None,
-        met: false,
+impl CaseResult {
+    /// The result of `case` on `part` with nothing measured: unmet, `happened` saying
+    /// why (a case that could not run: its part's healthy run is no base for it); the
+    /// base every result is built on.
+    fn unmet(part: &Part, case: &Case, happened: String) -> Self {
+        CaseResult {
+            name: case.name.clone(),
+            motor: part.bench.name.clone(),
+            drive: part.drive,
+            trigger: case.trigger,
+            expected: describe(case.expected),
+            why: case.why.clone(),
+            happened,
+            faults: "-".into(),
+            detect_s: None,
+            bridge_off_periods: None,
+            steady_err_deg: None,
+            locked_err_max_deg: 0.0,
+            locked_wrong_s: 0.0,
+            silent_failure: false,
+            i_peak_a: 0.0,
+            x_err_max_m: None,
+            x_err_final_m: None,
+            x_off_target_m: None,
+            x_range_m: None,
+            moves_done: None,
+            moves_rejected: None,
+            link: None,
+            met: false,
+        }
     }
 }
 
@@ -640,7 +637,7 @@ pub fn run_all(
         let part = &plan.parts[i];
         let r = match run_case(part, case, &prefixes[i]) {
             Ok(r) => r,
-            Err(e) => (not_run(part, case, e), Vec::new()),
+            Err(e) => (CaseResult::unmet(part, case, format!("not run: {e}")), Vec::new()),
         };
         progress(&case.name);
         r

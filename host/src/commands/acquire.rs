@@ -5,8 +5,9 @@
 //! the load machine (the plant's speed clamp) while a *sensored* current controller on
 //! the plant's true angle drives the thrust current of a 10 N load, with the drive's
 //! dead-time compensation; what it commands (less the compensation) and measures is the
-//! trace, as a recording that starts mid-motion would hold it. The recorder does not
-//! depend on the estimator under test, and the speed is exact. A fresh estimator
+//! trace, as a recording that starts mid-motion would hold it ([`crate::recorder`] at a
+//! [`ConstantSpeed`]). The recorder does not depend on the estimator under test, and the
+//! speed is exact. A fresh estimator
 //! (zero state, not told the speed) is then started on that trace at eight instants a
 //! pole pitch apart in eighths (eight initial mover angles), with and without a
 //! constant +0.2 A on `i_beta` or +2 V on `u_alpha` present from its first sample, in
@@ -17,17 +18,14 @@
 //! periods)`), and a **false lock** is any sample where the estimator's `locked` flag is
 //! set while the true error exceeds 15 deg.
 
-use std::f64::consts::PI;
-
-use dcfo::estimator::Estimator;
 use dcfo::motor::MotorParams;
 use dcfo::num::{Q24, Scalar};
-use dcfo::transforms::AlphaBeta;
 use dcfo::units::Base;
 use serde::Serialize;
 
-use crate::sim::Setup;
-use crate::sim::scenarios::PaperScale;
+use crate::recorder::{ConstantSpeed, Row, omega_e, record, replay};
+use crate::simulation::Setup;
+use crate::simulation::scenarios::PaperScale;
 use crate::trace::wrap_angle;
 
 /// Lock criterion: the error stays below this from the lock time on, electrical degrees.
@@ -188,99 +186,9 @@ pub fn budget_s(motor: &MotorParams, v: f64) -> f64 {
     (2.0 / electrical_hz(motor, v)).max(0.06)
 }
 
-/// One recorded period: the observer's inputs as a trace row holds them, and the truth.
-#[derive(Clone, Copy, Debug)]
-struct Row {
-    /// Voltage applied during `[t_k, t_k + Ts)` as the controller intended it, V.
-    u: [f64; 2],
-    /// Voltage the inverter actually applied over that period (the plant's period
-    /// average), V: `u_actual - u` is the inverter's error the estimator is not told.
-    u_actual: [f64; 2],
-    /// Measured currents at `t_k`, A.
-    i: [f64; 2],
-    /// True electrical angle at `t_k`, rad.
-    theta: f64,
-}
-
-/// Records `duration_s` of the plant held at `v` (m/s, signed), from mover position
-/// `x0_m`, under sensored current control of the thrust current for
-/// [`recording_load_n`]. The first 0.1 s (current loops settling) are dropped.
-fn record(setup: &Setup, v: f64, x0_m: f64, duration_s: f64) -> Result<Vec<Row>, String> {
-    use dcfo::pi::Pi;
-    use dcfo::svpwm::svpwm;
-    use dcfo::transforms::{CosSin, Dq, inverse_clarke, inverse_park, park};
-
-    let err = |e: &dyn std::fmt::Debug| format!("{v} m/s: {e:?}");
-    let motor = &setup.motor;
-    let mut plant = crate::plant::Plant::new(&setup.plant).map_err(|e| err(&e))?;
-    plant.set_position(x0_m).map_err(|e| err(&e))?;
-    plant.set_speed_clamp(Some(v)).map_err(|e| err(&e))?;
-    let ts = plant.pwm_period_s();
-    let wc = f64::from(setup.drive.current_bandwidth_rad_s);
-    let (l, r, psi) = (f64::from(motor.lq_h), f64::from(motor.rs_ohm), f64::from(motor.psi_f_wb));
-    let pi = |lim: f64| Pi::new(l * wc, r * wc * ts, -lim, lim).map_err(|e| err(&e));
-    let vmax = setup.plant.inverter.dc_bus_v / 3f64.sqrt();
-    let (mut pi_d, mut pi_q) = (pi(vmax)?, pi(vmax)?);
-    let iq_ref = recording_load_n(motor) * v.signum() / f64::from(motor.thrust_constant_n_per_a());
-    let omega = omega_e(motor, v);
-    let comp = setup
-        .drive
-        .dead_time_compensation
-        .map(|c| (c, dcfo::dead_time::InverterErrorModel::<f64>::for_drive(&c, ts as f32, motor, &Base::SI)));
-    let skip = (0.1 / ts).round() as usize;
-    let n = skip + (duration_s / ts).round() as usize;
-    let mut rows = Vec::with_capacity(n);
-    let mut pending = [0.5f64; 3];
-    let mut u_pending = [0.0f64; 2];
-    for k in 0..n {
-        let reading = plant.sample();
-        let theta = plant.state().theta_e_rad;
-        let i_ab = dcfo::transforms::AlphaBeta::new(reading.i_alpha_a, reading.i_beta_a);
-        let cs = CosSin { cos: theta.cos(), sin: theta.sin() };
-        let i_dq = park(i_ab, &cs);
-        let u_d = pi_d.update(-i_dq.d) - omega * l * i_dq.q;
-        let u_q = pi_q.update(iq_ref - i_dq.q) + omega * (l * i_dq.d + psi);
-        let apply = theta + 1.5 * omega * ts;
-        let cs_apply = CosSin { cos: apply.cos(), sin: apply.sin() };
-        let u_ab = inverse_park(Dq::new(u_d, u_q), &cs_apply);
-        // The drive's inverter compensation (`dcfo::dead_time`), from the current carried
-        // to the window: the measured current blended into the reference as the drive
-        // does (`Drive::compensation_current`).
-        let c = match comp {
-            Some((c, model)) => {
-                let band = f64::from(c.current_band_a);
-                let from = f64::from(dcfo::drive::COMPENSATION_REFERENCE_FROM_BANDS);
-                let w = match setup.drive.compensation_signs {
-                    dcfo::drive::CompensationSigns::Measured => 0.0,
-                    dcfo::drive::CompensationSigns::ReferenceAboveNoise => {
-                        ((iq_ref.abs() / band - from) / from).clamp(0.0, 1.0)
-                    }
-                };
-                let i_sign = Dq::new(i_dq.d * (1.0 - w), i_dq.q + w * (iq_ref - i_dq.q));
-                model.compensation(u_ab, reading.vdc_v, inverse_clarke(inverse_park(i_sign, &cs_apply)))
-            }
-            None => dcfo::transforms::AlphaBeta::new(0.0, 0.0),
-        };
-        let m =
-            svpwm(dcfo::transforms::AlphaBeta::new(u_ab.alpha + c.alpha, u_ab.beta + c.beta), reading.vdc_v)
-                .map_err(|e| err(&e))?;
-        if k >= skip {
-            rows.push(Row { u: u_pending, u_actual: [0.0; 2], i: [i_ab.alpha, i_ab.beta], theta });
-        }
-        plant.step(pending, 0.0);
-        if let Some(row) = rows.last_mut().filter(|_| k >= skip) {
-            let period = &plant.state().last_period;
-            row.u_actual = [period.u_alpha_avg_v, period.u_beta_avg_v];
-        }
-        pending = [m.duties.a, m.duties.b, m.duties.c];
-        u_pending = [m.u_applied.alpha - c.alpha, m.u_applied.beta - c.beta];
-    }
-    Ok(rows)
-}
-
-/// Runs a fresh estimator over `rows` with `offset` added; returns the angle estimates
-/// (rad) and lock flags, and the first sample after its circle fit ended
-/// ([`Estimator::fitting`]; the number of rows if it never did).
+/// Runs a fresh estimator over `rows` with `offset` added ([`replay`]); returns the
+/// angle estimates (rad) and lock flags, and the first sample after its circle fit
+/// ended.
 fn cold_run<T: Scalar>(
     setup: &Setup,
     base: &Base,
@@ -288,30 +196,8 @@ fn cold_run<T: Scalar>(
     ts: f64,
     offset: Offset,
 ) -> Result<(Vec<(f64, bool)>, usize), String> {
-    let mut est: Estimator<T> = Estimator::new(&setup.motor, &setup.drive.estimator, base)
-        .map_err(|e| format!("estimator: {e:?}"))?;
     let (du, di) = offset.values_for(&setup.motor);
-    let dt = base.time(ts as f32);
-    let mut out = Vec::with_capacity(rows.len());
-    // As `dcfo replay` does: a row's voltage acts during the period after it, so sample
-    // k is given row k - 1's voltage, and the first sample none (a recording that
-    // starts mid-motion has no earlier voltage).
-    let mut u_prev = [0.0f64; 2];
-    let mut fit_end = None;
-    for (k, r) in rows.iter().enumerate() {
-        let u = AlphaBeta::new(
-            base.voltage((u_prev[0] + du[0]) as f32),
-            base.voltage((u_prev[1] + du[1]) as f32),
-        );
-        u_prev = r.u;
-        let i = AlphaBeta::new(base.current((r.i[0] + di[0]) as f32), base.current((r.i[1] + di[1]) as f32));
-        let e = est.update(u, i, dt).map_err(|e| format!("estimator fault at sample {k}: {e:?}"))?;
-        out.push((e.theta_e.to_radians::<f64>(), e.locked));
-        if fit_end.is_none() && !est.fitting() {
-            fit_end = Some(k + 1);
-        }
-    }
-    Ok((out, fit_end.unwrap_or(rows.len())))
+    replay::<T>(setup, base, rows, ts, du, di)
 }
 
 /// Lock time (s) of `estimates` against the truth of `samples`: the time after which
@@ -343,7 +229,8 @@ fn starts_at(setup: &Setup, v: f64, options: &Options) -> Result<Vec<Start>, Str
     for position in 0..options.positions {
         // Eight mover positions spread over a pole pair (one electrical period).
         let x0 = 2.0 * f64::from(motor.pole_pitch_m) * position as f64 / options.positions as f64;
-        let rows = record(setup, v, x0, window)?;
+        let rows = record(setup, &ConstantSpeed(v), x0, recording_load_n(motor), window)
+            .map_err(|e| format!("{v} m/s: {e}"))?;
         let inverter_error_d_v = rows
             .iter()
             .map(|r| {
@@ -448,11 +335,6 @@ pub fn sweep(
         all.extend(r?);
     }
     Ok(all)
-}
-
-/// The electrical angular speed of `v` on `motor`, rad/s.
-pub fn omega_e(motor: &MotorParams, v: f64) -> f64 {
-    PI * v / f64::from(motor.pole_pitch_m)
 }
 
 /// One row of the table: one signed speed, over its positions and offsets.

@@ -714,7 +714,7 @@ fn cost(input: &Input) -> Result<String> {
         } else {
             bail!(
                 "{}: `{key}` is neither a per-core figure (NAME_m4f_f32, NAME_m3_q24) nor a size \
-                 (flash_IMAGE_b, ram_IMAGE_b); teach dcfo_host::results::cost it",
+                 (flash_IMAGE_b, ram_IMAGE_b); teach dcfo_host::commands::results::cost it",
                 input.path.display()
             );
         };

@@ -2,7 +2,7 @@
 //!
 //! A [`Bench`] is one motor on two simulated axes: the speed drive at
 //! [`Bench::speed_m_per_s`] (the paper axis's plant and drive settings for that motor) and
-//! the positioning drive of `dcfo stroke` ([`crate::stroke::setup_for`]: carriage,
+//! the positioning drive of `dcfo stroke` ([`crate::commands::stroke::setup_for`]: carriage,
 //! friction, R +20 %, L -5 %; HFI on a salient motor). Every level a case injects or
 //! expects comes from the bench's own settings ([`Levels`]): the trip levels of its
 //! drive, the thrust at its current limit, the hold's thrust, its bus limits, its ADC's
@@ -14,7 +14,7 @@ use dcfo::motion::Move;
 use dcfo::motor::MotorParams;
 
 use super::axis::Injection;
-use crate::sim::Setup;
+use crate::simulation::Setup;
 
 /// A speed case's fault comes at this time, s (the drive has handed over and settled).
 pub const INJECT_S: f64 = 3.0;
@@ -114,7 +114,7 @@ impl Bench {
     /// [`dcfo::drive::PAPER_AXIS_PAYLOAD_KG`] carriage, the drive of
     /// [`dcfo::drive::DriveConfig::stroke_axis`] without its motion.
     pub fn for_motor(name: &str, motor: &MotorParams) -> Self {
-        let stroke = crate::stroke::setup_for(motor);
+        let stroke = crate::commands::stroke::setup_for(motor);
         let mut plant = crate::plant::SimParams::from_motor(motor);
         plant.plant.mass_kg += f64::from(dcfo::drive::PAPER_AXIS_PAYLOAD_KG);
         let mut drive = stroke.drive;
@@ -138,7 +138,7 @@ impl Bench {
     /// `motors/salient.toml`, built into the binary.
     pub fn salient() -> Result<Self, String> {
         let file = "motors/salient.toml";
-        let m = crate::motor_file::parse_motor_toml(include_str!("../../../motors/salient.toml"), file)
+        let m = crate::motor_file::parse_motor_toml(include_str!("../../../../motors/salient.toml"), file)
             .map_err(|e| e.to_string())?;
         Ok(Bench::for_motor(&m.name, &m.params))
     }
@@ -157,7 +157,7 @@ impl Bench {
     /// The stroke the positioning cases move over: from 0 (where the drive aligns) to
     /// this end, m.
     pub fn stroke_m(&self) -> f32 {
-        crate::stroke::STROKE_M
+        crate::commands::stroke::STROKE_M
     }
 
     /// The positioning drive's moves: to the stroke's end, hold [`HOLD_S`] there, back

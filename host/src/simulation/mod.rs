@@ -2,18 +2,22 @@
 //! control step, `Drive<f32>` in SI units or `Drive<Q24>` per-unit: [`LocalDrive`]) in
 //! lock-step, with scenario events and ground truth. Both numeric types log the same
 //! detailed samples ([`StepDetail`], converted to SI through the drive's base); a drive
-//! behind a link ([`Controller`] in `crate::hil`) logs what the link carries.
+//! behind a link ([`Controller`] in `crate::hil_link`) logs what the link carries.
+//! Every controller steps on the HIL link's frames: [`sensor_frame`] turns the plant's
+//! SI readings into one, [`frame_bridge`] an answer into the bridge of the next period.
 //!
-//! Per PWM period `k` (time `t_k`): the plant's sensors are sampled, the drive computes
-//! its step, the plant runs the period with the duties computed one step earlier (the
-//! drive's one-period computation delay), and a trace row is logged. Rows start at the
+//! Per PWM period `k` (time `t_k`), in the order of [`crate::closed_loop`]: the plant's
+//! sensors are sampled, the drive computes its step, the plant runs the period with the
+//! duties computed one step earlier (the drive's one-period computation delay), and a
+//! trace row is logged. Rows start at the
 //! drive's first start-up step, when its estimator is reset, so that replaying the
 //! trace through the same estimator reproduces the run's estimates exactly.
 
-pub mod report;
+pub mod figures;
 pub mod scenarios;
 
-use crate::plant::{Plant, PlantError, SimParams, TrueState};
+use crate::closed_loop::{Bridge, ClosedLoop};
+use crate::plant::{Plant, PlantError, SensorReading, SimParams};
 use crate::trace::{TraceRow, wrap_angle};
 use dcfo::drive::{Drive, DriveConfig, DriveState, Faults, PAPER_AXIS_PAYLOAD_KG, StepOutput};
 use dcfo::link::{ActuationFrame, LinkStats, PositionReport, SensorFrame};
@@ -228,8 +232,51 @@ impl StepDetail {
     }
 }
 
+/// `reading` as the lock-step link's sensor frame number `sequence`: the readings in
+/// f32, the drive enabled, the speed reference `speed_ref_m_per_s` (m/s) and a move to
+/// queue, if any. Every [`Controller`] steps on such frames, the in-process drive as
+/// the firmware's link server hands them to its drive.
+pub fn sensor_frame(
+    reading: &SensorReading,
+    sequence: u16,
+    speed_ref_m_per_s: f32,
+    move_to: Option<dcfo::motion::Move>,
+) -> SensorFrame {
+    let [a, b, c] = reading.i_abc_a;
+    SensorFrame {
+        sequence,
+        i_a: a as f32,
+        i_b: b as f32,
+        i_c: c as f32,
+        vdc: reading.vdc_v as f32,
+        speed_ref: speed_ref_m_per_s,
+        enable: true,
+        clear_faults: false,
+        move_to,
+    }
+}
+
+/// `reading` as the drive takes it in this process: phase currents (A) and bus
+/// voltage (V) in f32, SI.
+pub fn measurements(reading: &SensorReading) -> dcfo::drive::Measurements<f32> {
+    let [a, b, c] = reading.i_abc_a;
+    dcfo::drive::Measurements::from_si([a as f32, b as f32, c as f32], reading.vdc_v as f32, &Base::SI)
+}
+
+/// The bridge an actuation frame asks for over the next period: its duties when it
+/// enables the bridge, off otherwise.
+pub fn frame_bridge(frame: &ActuationFrame) -> Bridge {
+    Bridge::driven(frame.bridge_enabled, [frame.duty_a, frame.duty_b, frame.duty_c].map(f64::from))
+}
+
+/// The bridge a drive step in this process asks for over the next period (as
+/// [`frame_bridge`] for its actuation frame).
+pub fn output_bridge(out: &StepOutput<f32>) -> Bridge {
+    Bridge::driven(out.bridge_enabled, [out.duties.a, out.duties.b, out.duties.c].map(f64::from))
+}
+
 /// A drive the simulation can close the loop with: in-process ([`LocalDrive`]) or
-/// behind the HIL serial link (`crate::hil`).
+/// behind the HIL serial link (`crate::hil_link`).
 pub trait Controller {
     /// Adds DC offsets to the observer's voltage (V) and current (A) inputs (the paper's
     /// disturbance tests); only an in-process drive can.
@@ -326,11 +373,9 @@ pub fn run_with(
 ) -> Result<Run, SimError> {
     let mut plant_params = setup.plant;
     scenario.plant.apply(&mut plant_params.plant);
-    let mut plant = Plant::new(&plant_params)?;
-    let ts = plant.pwm_period_s();
+    let mut closed_loop = ClosedLoop::new(Plant::new(&plant_params)?);
+    let ts = closed_loop.plant().pwm_period_s();
     let n = (scenario.duration_s / ts).round() as usize;
-    let mut pending = [0.5f64; 3];
-    let mut pending_on = false;
     let mut load_n = 0.0;
     let mut samples = Vec::with_capacity(n);
     let mut handover_s = None;
@@ -347,24 +392,15 @@ pub fn run_with(
                 Event::Load(f) => load_n = f,
                 Event::ObserverOffsets { u_v, i_a } => controller.set_observer_offsets(u_v, i_a)?,
                 Event::ResetEstimator => controller.reset_estimator()?,
-                Event::MoverSpeed(v) => plant.set_speed(v)?,
+                Event::MoverSpeed(v) => closed_loop.plant_mut().set_speed(v)?,
             }
             next_event += 1;
         }
-        let reading = plant.sample();
-        let truth: TrueState = plant.state();
-        let sensor = reading.sensor_frame(k as u16, v_ref_target as f32, None);
-        let step = controller.step(&sensor)?;
+        let sensed = closed_loop.sense();
+        let step = controller.step(&sensor_frame(&sensed.reading, k as u16, v_ref_target as f32, None))?;
         let f = step.frame;
-        if pending_on {
-            plant.step(pending, load_n);
-        } else {
-            plant.step_open(load_n);
-        }
-        let applied = plant.state().last_period;
-        pending_on = f.bridge_enabled;
-        pending =
-            if f.bridge_enabled { [f.duty_a as f64, f.duty_b as f64, f.duty_c as f64] } else { [0.5; 3] };
+        let period = closed_loop.actuate(sensed, frame_bridge(&f), load_n);
+        let (reading, truth, applied) = (period.reading, period.truth, period.applied);
         faults = f.faults();
         if f.state() == DriveState::Running && handover_s.is_none() {
             handover_s = Some(t);
@@ -491,6 +527,5 @@ mod tests {
         assert!((amp(a) - amp(b)).abs() < 0.2 * amp(a).max(0.1), "|i| f32 {} vs Q24 {}", amp(a), amp(b));
         let (pa, pb) = (a.psi_hat[0].hypot(a.psi_hat[1]), b.psi_hat[0].hypot(b.psi_hat[1]));
         assert!((pa - pb).abs() < 0.02 * pa, "|psi| f32 {pa} vs Q24 {pb} Wb");
-        assert!(report::trace_of(&q).expect("trace").0.commanded_acceleration().is_some());
     }
 }

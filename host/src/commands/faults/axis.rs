@@ -2,11 +2,11 @@
 //! phase, short two phase terminals, falsify the current sensors and change the bus,
 //! and a drive either in process or behind the link server (`dcfo::link::LinkServer`,
 //! the firmware's receive path) whose byte stream can go silent, be corrupted or carry
-//! replayed frames. One period at a time, as in `crate::sim`: sample, control step,
-//! the plant runs the period with the duties of the step before.
+//! replayed frames. One period at a time on [`crate::closed_loop::ClosedLoop`]: sample,
+//! control step, the plant runs the period with the duties of the step before.
 //!
 //! A positioning drive is fed its moves as `dcfo stroke` feeds them
-//! (`crate::stroke::run_with`): one per sensor frame while the drive's last report shows
+//! (`crate::commands::stroke::run_with`): one per sensor frame while the drive's last report shows
 //! room in its queue; a move it refuses is counted, not retried.
 
 use std::collections::VecDeque;
@@ -18,7 +18,9 @@ use dcfo::units::Base;
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64;
 
-use crate::plant::{Plant, PlantError, SimParams};
+use crate::closed_loop::{Bridge, ClosedLoop};
+use crate::plant::{Plant, PlantError, SensorReading, SimParams};
+use crate::simulation::{frame_bridge, output_bridge, sensor_frame};
 
 /// The fault a case injects (at the injection time unless said otherwise).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -191,11 +193,8 @@ struct Answer {
 /// The axis: plant, drive and the fault state.
 #[derive(Clone, Debug)]
 pub struct Axis {
-    plant: Plant,
+    closed_loop: ClosedLoop,
     controller: Controller,
-    /// Duties of the last answer, applied during the next period.
-    pending: [f64; 3],
-    pending_on: bool,
     k: u64,
     speed_ref: f64,
     load_n: f64,
@@ -222,10 +221,8 @@ impl Axis {
         };
         let codes = sim.sensors.current_adc_bits.map_or(f64::INFINITY, |b| f64::from(1u32 << b));
         Ok(Axis {
-            plant,
+            closed_loop: ClosedLoop::new(plant),
             controller,
-            pending: [0.5; 3],
-            pending_on: false,
             k: 0,
             speed_ref,
             load_n: 0.0,
@@ -273,18 +270,21 @@ impl Axis {
 
     /// The plant.
     pub fn plant(&self) -> &Plant {
-        &self.plant
+        self.closed_loop.plant()
     }
 
     /// Injects `fault` now.
     pub fn inject(&mut self, fault: Injection) -> Result<(), PlantError> {
         self.injection = Some(fault);
         match fault {
-            Injection::Bus(f) => self.plant.set_dc_bus_v(f * self.plant.params().inverter.dc_bus_v)?,
-            Injection::Blocked => self.plant.set_speed_clamp(Some(0.0))?,
+            Injection::Bus(f) => {
+                let plant = self.closed_loop.plant_mut();
+                plant.set_dc_bus_v(f * plant.params().inverter.dc_bus_v)?
+            }
+            Injection::Blocked => self.closed_loop.plant_mut().set_speed_clamp(Some(0.0))?,
             Injection::Load(f) => self.load_n = f,
             Injection::EstimatorReset => self.drive_mut().reset_estimator(),
-            Injection::OpenPhase => self.plant.set_open_phase(Some(0)),
+            Injection::OpenPhase => self.closed_loop.plant_mut().set_open_phase(Some(0)),
             Injection::LinkSilent | Injection::LinkCorrupt { .. } | Injection::LinkReplay { .. } => {
                 self.put_behind_link()
             }
@@ -309,10 +309,10 @@ impl Axis {
 
     /// One period: returns what was logged.
     pub fn period(&mut self) -> Period {
-        let ts = self.plant.pwm_period_s();
+        let ts = self.closed_loop.plant().pwm_period_s();
         let t = self.k as f64 * ts;
-        let reading = self.plant.sample();
-        let truth = self.plant.state();
+        let sensed = self.closed_loop.sense();
+        let (reading, truth) = (sensed.reading, sensed.truth);
         let [mut a, mut b, _] = reading.i_abc_a;
         match self.injection {
             Some(Injection::SensorStuck) => b = *self.stuck_b.get_or_insert(b),
@@ -328,61 +328,44 @@ impl Axis {
         let c = -(a + b);
         let move_to =
             self.moves.as_mut().and_then(|f| if f.queue_room > 0 { f.to_send.pop_front() } else { None });
-        let sensor = SensorFrame {
-            sequence: self.k as u16,
-            i_a: a as f32,
-            i_b: b as f32,
-            i_c: c as f32,
-            vdc: reading.vdc_v as f32,
-            speed_ref: self.speed_ref as f32,
-            enable: true,
-            clear_faults: false,
-            move_to,
-        };
+        // The readings the drive gets: the two falsified currents and the third computed
+        // from them.
+        let falsified = SensorReading { i_abc_a: [a, b, c], ..reading };
+        let sensor = sensor_frame(&falsified, self.k as u16, self.speed_ref as f32, move_to);
         let answer = self.control(&sensor);
-        let bridge_on = self.pending_on;
-        let applied = self.pending;
-        if bridge_on {
-            self.plant.step(applied, self.load_n);
-        } else {
-            self.plant.step_open(self.load_n);
-        }
-        if self.injection == Some(Injection::PhaseShort) {
-            // di/dt = (v_ab - R i) / L over the period, v_ab the period's mean line
-            // voltage (0 with the bridge off: the short's current then decays in its own
-            // resistance and the diodes, modelled as its R/L).
-            let v_ab = if bridge_on {
-                self.plant.state().last_period.vdc_avg_v * (applied[0] - applied[1])
-            } else {
-                0.0
-            };
-            let tau = SHORT_H / SHORT_OHM;
-            let i_inf = v_ab / SHORT_OHM;
-            self.short_a = i_inf + (self.short_a - i_inf) * (-ts / tau).exp();
-        }
         let drive_state = self.drive().state();
-        match (answer.out.as_ref(), answer.frame.as_ref()) {
-            (Some(out), _) => {
-                self.pending_on = out.bridge_enabled;
-                self.pending = [out.duties.a, out.duties.b, out.duties.c].map(f64::from);
-            }
-            (None, Some(f)) => {
-                self.pending_on = f.bridge_enabled;
-                self.pending = [f.duty_a, f.duty_b, f.duty_c].map(f64::from);
-            }
-            // No answer: the PWM repeats the last duties unless the drive (its
-            // watchdog) switched the bridge off.
+        let next = match (answer.out.as_ref(), answer.frame.as_ref()) {
+            (Some(out), _) => output_bridge(out),
+            (None, Some(f)) => frame_bridge(f),
+            // No answer: the PWM repeats the last duties unless the drive (its watchdog)
+            // switched the bridge off.
             (None, None) => {
-                if !matches!(
+                if matches!(
                     drive_state,
                     DriveState::Starting
                         | DriveState::Running
                         | DriveState::Reacquiring
                         | DriveState::LowSpeed
                 ) {
-                    self.pending_on = false;
+                    self.closed_loop.queued()
+                } else {
+                    Bridge::Off
                 }
             }
+        };
+        let stepped = self.closed_loop.actuate(sensed, next, self.load_n);
+        let bridge_on = stepped.bridge.is_on();
+        if self.injection == Some(Injection::PhaseShort) {
+            // di/dt = (v_ab - R i) / L over the period, v_ab the period's mean line
+            // voltage (0 with the bridge off: the short's current then decays in its own
+            // resistance and the diodes, modelled as its R/L).
+            let v_ab = match stepped.bridge {
+                Bridge::On(duties) => stepped.applied.vdc_avg_v * (duties[0] - duties[1]),
+                Bridge::Off => 0.0,
+            };
+            let tau = SHORT_H / SHORT_OHM;
+            let i_inf = v_ab / SHORT_OHM;
+            self.short_a = i_inf + (self.short_a - i_inf) * (-ts / tau).exp();
         }
         let (theta_hat, v_hat, locked) = match (&answer.out, &answer.frame) {
             (Some(out), _) => match out.estimate {

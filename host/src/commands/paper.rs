@@ -2,12 +2,13 @@
 //! and the DCFO, the table beside the paper's figures, a figure per scenario, the Bode
 //! figure and `summary.json`.
 
+use crate::commands::sim::series;
 use crate::observer::observer_name;
 use crate::plot::bode::{BodeSetup, bode_figure};
 use crate::plot::{PALETTE, Panel, Rgb, Series, time_series_figure, write_figure};
-use crate::sim::report::series;
-use crate::sim::scenarios::{Figures, Scenario, figures, paper_scenarios};
-use crate::sim::{Run, Setup, run, theta_err_deg};
+use crate::simulation::figures::{Figures, figures};
+use crate::simulation::scenarios::{Scenario, paper_scenarios};
+use crate::simulation::{Run, Setup, run, theta_err_deg};
 use anyhow::{Context, Result, bail};
 use dcfo::observer::ObserverKind;
 use indicatif::{ProgressBar, ProgressStyle};

@@ -25,7 +25,9 @@ use dcfo::observer::ObserverKind;
 use dcfo::units::Base;
 use serde::Serialize;
 
+use crate::closed_loop::ClosedLoop;
 use crate::plant::{Plant, SimParams};
+use crate::simulation::{frame_bridge, sensor_frame};
 
 /// Something wrong with the simulated motor, for the tests of the refusals.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
@@ -144,7 +146,7 @@ pub fn plant_for(motor: &MotorParams, seed: u64, fault: PlantFault) -> SimParams
 }
 
 /// A drive that runs commissioning: in this process ([`InProcess`]) or behind the HIL
-/// link (the firmware on QEMU or a board: [`crate::hil::SerialController`]).
+/// link (the firmware on QEMU or a board: [`crate::hil_link::SerialController`]).
 pub trait Commissioner {
     /// Requests commissioning of a drive told only `config`.
     ///
@@ -211,7 +213,7 @@ impl<T: Scalar> Commissioner for InProcess<T> {
     }
 }
 
-impl<W: std::io::Write> Commissioner for crate::hil::SerialController<W> {
+impl<W: std::io::Write> Commissioner for crate::hil_link::SerialController<W> {
     fn start(&mut self, config: CommissioningConfig) -> Result<(), IdentifyError> {
         let report = self.commissioning(Some(config)).map_err(|e| IdentifyError::Link(e.to_string()))?;
         match (report.status, report.error()) {
@@ -222,7 +224,7 @@ impl<W: std::io::Write> Commissioner for crate::hil::SerialController<W> {
     }
 
     fn step(&mut self, sensor: &SensorFrame) -> Result<ActuationFrame, IdentifyError> {
-        use crate::sim::Controller;
+        use crate::simulation::Controller;
         Controller::step(self, sensor).map(|s| s.frame).map_err(|e| IdentifyError::Link(e.to_string()))
     }
 
@@ -268,24 +270,16 @@ pub fn identify_with(
     }
     drive.start(config)?;
     let ts = plant.pwm_period_s();
+    let mut closed_loop = ClosedLoop::new(plant);
     let limit_s = 10.0;
     let n = (limit_s / ts) as usize;
-    let mut pending = [0.5f64; 3];
-    let mut pending_on = false;
     let mut travel_max = 0.0f64;
     let mut started = false;
     for k in 0..n {
-        let reading = plant.sample();
-        let sensor = reading.sensor_frame(k as u16, 0.0, None);
-        let out = drive.step(&sensor)?;
-        if pending_on {
-            plant.step(pending, 0.0);
-        } else {
-            plant.step_open(0.0);
-        }
-        pending_on = out.bridge_enabled;
-        pending = [f64::from(out.duty_a), f64::from(out.duty_b), f64::from(out.duty_c)];
-        travel_max = travel_max.max((plant.state().x_m - x0).abs());
+        let sensed = closed_loop.sense();
+        let out = drive.step(&sensor_frame(&sensed.reading, k as u16, 0.0, None))?;
+        closed_loop.actuate(sensed, frame_bridge(&out), 0.0);
+        travel_max = travel_max.max((closed_loop.plant().state().x_m - x0).abs());
         let state = out.state();
         if state == DriveState::Commissioning {
             started = true;
@@ -444,8 +438,8 @@ pub fn json_line(r: &IdentifyReport) -> String {
 }
 
 /// The light-load steady angle error of the paper axis (`dcfo sim steady`: 0.3 m/s, no
-/// load, [`crate::sim::Setup::paper`]) for one plant noise seed, under four inverter
-/// compensations: none, the typed-in one of [`DriveConfig::paper_axis`], the one
+/// load, [`crate::simulation::Setup::paper`]) for one plant noise seed, under four inverter
+/// compensations: none, the typed-in one of [`dcfo::drive::DriveConfig::paper_axis`], the one
 /// identified by commissioning (`identified`, on the paper motor's plant with the same
 /// seed), and the identified compensation together with the identified motor.
 #[derive(Clone, Copy, Debug, Serialize)]
@@ -465,8 +459,9 @@ pub struct SteadyRow {
 
 /// Runs the four steady runs of [`SteadyRow`] for `seed`.
 pub fn steady_row(seed: u64) -> Result<SteadyRow, IdentifyError> {
-    use crate::sim::scenarios::{figures, scenario};
-    use crate::sim::{Setup, run};
+    use crate::simulation::figures::figures;
+    use crate::simulation::scenarios::scenario;
+    use crate::simulation::{Setup, run};
     let paper = MotorParams::paper();
     let report = identify("paper", &paper, seed, PlantFault::None)?;
     let result = report.result.ok_or_else(|| IdentifyError::Setup("no result".into()))?;
@@ -567,10 +562,10 @@ pub fn identify_over_link(
                 .unwrap_or(std::path::Path::new("."));
             let elf = match elf {
                 Some(e) => e.clone(),
-                None => crate::hil::build_qemu_firmware(workspace, *cpu)?,
+                None => crate::hil_link::build_qemu_firmware(workspace, *cpu)?,
             };
             let started_qemu = std::time::Instant::now();
-            let (session, mut link) = crate::hil::QemuSession::start(&elf, *cpu)?;
+            let (session, mut link) = crate::qemu::QemuSession::start(&elf, *cpu)?;
             let report = identify_with(name, motor, seed, PlantFault::None, &mut link)?;
             let wall_s = started_qemu.elapsed().as_secs_f64();
             let stack_high_water_bytes = session.stack_high_water().ok();
@@ -578,7 +573,7 @@ pub fn identify_over_link(
         }
         Target::Port { device, baud } => {
             let (serial, reader) = crate::target::open_serial(device, *baud)?;
-            let mut link = crate::hil::SerialController::new(serial, reader);
+            let mut link = crate::hil_link::SerialController::new(serial, reader);
             identify_with(name, motor, seed, PlantFault::None, &mut link)?
         }
     };
@@ -706,7 +701,7 @@ pub fn run_command(params: &Params) -> anyhow::Result<std::process::ExitCode> {
     if let Some(path) = &params.image {
         // An axis in the image being overwritten is kept: commissioning identifies
         // the motor and the inverter, not the axis.
-        let axis = crate::motor_image::existing_axis(path);
+        let axis = crate::commands::motor_image::existing_axis(path);
         let bytes = motor_image(&report, &motor.params, axis)?;
         std::fs::write(path, bytes).with_context(|| format!("writing {}", path.display()))?;
         println!(
@@ -714,7 +709,7 @@ pub fn run_command(params: &Params) -> anyhow::Result<std::process::ExitCode> {
             MotorImage::VERSION,
             bytes.len(),
             path.display(),
-            crate::motor_image::describe_axis(axis),
+            crate::commands::motor_image::describe_axis(axis),
             if axis.is_some() { " kept from the image it replaces" } else { "" }
         );
     }

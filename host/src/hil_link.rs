@@ -1,26 +1,25 @@
-//! Hardware-in-the-loop: the plant simulation in lock-step with a drive behind the
-//! serial link of [`dcfo::link`] — the firmware on QEMU's `mps2-an386` (Cortex-M4F, f32)
+//! The host end of the hardware-in-the-loop link ([`SerialController`]): the plant
+//! simulation in lock-step with a drive behind the serial link of [`dcfo::link`] — the
+//! firmware on QEMU's `mps2-an386` (Cortex-M4F, f32)
 //! or `mps2-an385` (Cortex-M3, Q8.24) board, UART0 on QEMU's standard I/O, or a board on
 //! a serial port.
 //!
 //! Per PWM period the host sends one [`SensorFrame`] and waits for the
 //! [`ActuationFrame`] with the same sequence number; the plant then runs the period with
-//! the duties of the previous answer, exactly as in the in-process simulation
-//! ([`crate::sim::run_with`]). The firmware runs the same drive code as
-//! [`crate::sim::LocalDrive`] of the same numeric type, so the angle estimates equal the
+//! the duties of the previous answer ([`crate::closed_loop`]), exactly as in the
+//! in-process simulation ([`crate::simulation::run_with`]). The firmware runs the same drive code as
+//! [`crate::simulation::LocalDrive`] of the same numeric type, so the angle estimates equal the
 //! in-process run's bit for bit: f32 is IEEE on both sides, and Q8.24 is integer
 //! arithmetic (the f32 conversions at its edges are IEEE too, in software on the M3).
 
-use crate::sim::{ControlStep, Controller, SimError};
+use crate::simulation::{ControlStep, Controller, SimError};
 use dcfo::link::{ActuationFrame, CommissioningReport, CommissioningRequest, Receiver, SensorFrame, encode};
 use std::collections::VecDeque;
 use std::io::{Read, Write};
 use std::path::{Path, PathBuf};
 
-pub use crate::qemu::{
-    GuestClock, MPS2_RAM_ORIGIN, QemuCpu, QemuSession, STACK_GUARD_BYTES, STACK_PAINT, STACK_SCAN_BYTES,
-    build_qemu_example, qemu_example_elf,
-};
+use crate::qemu::{GuestClock, QemuCpu, QemuSession, build_qemu_example, qemu_example_elf};
+use crate::target::ANSWER_TIMEOUT;
 use std::process::ChildStdin;
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
@@ -254,7 +253,7 @@ impl QemuSession {
     }
 
     /// [`QemuSession::start`] with `cmdline` for the image (e.g. the stroke axis,
-    /// `crate::stroke::qemu_cmdline`).
+    /// `crate::commands::stroke::qemu_cmdline`).
     pub fn start_with_cmdline(
         elf: &Path,
         cpu: QemuCpu,
@@ -274,164 +273,4 @@ pub fn default_qemu_elf(workspace: &Path, cpu: QemuCpu) -> PathBuf {
 /// Builds the QEMU HIL firmware (`examples/qemu_hil`) for `cpu` with cargo (release).
 pub fn build_qemu_firmware(workspace: &Path, cpu: QemuCpu) -> Result<PathBuf, SimError> {
     build_qemu_example(workspace, cpu, "qemu_hil")
-}
-
-/// What a HIL run measured.
-#[derive(Debug, serde::Serialize)]
-pub struct HilReport {
-    /// Scenario name.
-    pub scenario: String,
-    /// The scenario's figures over its measurement window; `None` when the run was
-    /// shortened (`--duration`) to end before the window.
-    pub figures: Option<crate::sim::scenarios::Figures>,
-    /// Lock-step round trips per second over the link.
-    pub round_trips_per_s: f64,
-    /// Simulated time, s.
-    pub simulated_s: f64,
-    /// The QEMU board (`None` for a board on a serial port).
-    pub qemu_cpu: Option<QemuCpu>,
-    /// With `--check`: samples compared, and whether every angle estimate was identical.
-    pub equivalence: Option<Equivalence>,
-    /// On QEMU: the firmware's deepest stack use since boot, bytes
-    /// ([`QemuSession::stack_high_water`]).
-    pub stack_high_water_bytes: Option<u32>,
-}
-
-/// Bit-for-bit comparison of the angle estimates of a HIL run and an in-process run.
-#[derive(Debug, serde::Serialize)]
-pub struct Equivalence {
-    /// Samples compared.
-    pub samples: usize,
-    /// Samples whose f32 angle estimate differed.
-    pub differing: usize,
-    /// Largest difference, electrical degrees.
-    pub max_diff_deg: f64,
-}
-
-/// Compares the link-reported angle estimates of two runs of the same scenario.
-pub fn compare_runs(a: &crate::sim::Run, b: &crate::sim::Run) -> Equivalence {
-    let mut differing = 0;
-    let mut max_diff_deg = 0.0f64;
-    let n = a.samples.len().min(b.samples.len());
-    for (x, y) in a.samples.iter().zip(&b.samples) {
-        if x.theta_hat_link.to_bits() != y.theta_hat_link.to_bits() || x.row.t != y.row.t {
-            differing += 1;
-            let d = crate::trace::wrap_angle(f64::from(x.theta_hat_link) - f64::from(y.theta_hat_link));
-            max_diff_deg = max_diff_deg.max(d.abs().to_degrees());
-        }
-    }
-    differing += a.samples.len().max(b.samples.len()) - n;
-    Equivalence { samples: n, differing, max_diff_deg }
-}
-
-pub use crate::target::{ANSWER_TIMEOUT, Target};
-
-/// What `dcfo hil` is asked to do.
-#[derive(Debug, Clone)]
-pub struct Params {
-    /// Where the drive runs: the HIL image on QEMU (built with cargo,
-    /// [`build_qemu_firmware`], when no image is given) or a board on a serial port
-    /// running the HIL firmware (f32).
-    pub target: Target,
-    /// Scenario by name (steady, speed-step or load-step: the link carries no observer
-    /// offsets).
-    pub scenario: String,
-    /// Simulated time, s (`None`: the scenario's full duration).
-    pub duration_s: Option<f64>,
-    /// Also run the scenario in this process (same numeric type as the firmware) and
-    /// require the link-reported angle estimates to be identical bit for bit.
-    pub check: bool,
-    /// Directory for the trace, summary and figures.
-    pub out: PathBuf,
-}
-
-/// `dcfo hil`: runs the scenario over the link, writes the outputs into `params.out`,
-/// prints the figures; an error when `check` finds a difference.
-pub fn run_hil(params: &Params) -> anyhow::Result<HilReport> {
-    use crate::sim::{Setup, run_with, scenarios};
-    use anyhow::Context;
-    let Some(mut scenario) = scenarios::scenario(&params.scenario) else {
-        anyhow::bail!("unknown scenario `{}`", params.scenario);
-    };
-    if let Some(d) = params.duration_s {
-        anyhow::ensure!(d.is_finite() && d > 0.0, "--duration must be a positive number of seconds");
-        scenario.duration_s = d;
-        scenario.window_s = scenario.window_s.min((d - scenario.event_s).max(0.0));
-    }
-    // The firmware runs the DCFO drive of the paper axis.
-    let setup = Setup::paper(dcfo::observer::ObserverKind::Dcfo);
-    std::fs::create_dir_all(&params.out).with_context(|| format!("creating {}", params.out.display()))?;
-    let bar = indicatif::ProgressBar::new(1000);
-    let progress = |f: f64| bar.set_position((f * 1000.0) as u64);
-    let mut stack = None;
-    let (hil_run, rate) = match &params.target {
-        Target::Qemu { cpu, elf } => {
-            let workspace = Path::new(env!("CARGO_MANIFEST_DIR")).parent().unwrap_or(Path::new("."));
-            let elf = match elf {
-                Some(e) => e.clone(),
-                None => build_qemu_firmware(workspace, *cpu)?,
-            };
-            let (session, mut link) = QemuSession::start(&elf, *cpu)?;
-            let run = run_with(&setup, &scenario, &mut link, progress)?;
-            // A monitor that does not answer costs the figure, not the run.
-            stack = match session.stack_high_water() {
-                Ok(bytes) => Some(bytes),
-                Err(e) => {
-                    eprintln!("no stack figure: {e}");
-                    None
-                }
-            };
-            (run, link.round_trips_per_s())
-        }
-        Target::Port { device, baud } => {
-            let (serial, reader) = crate::target::open_serial(device, *baud)?;
-            let mut link = SerialController::new(serial, reader);
-            let run = run_with(&setup, &scenario, &mut link, progress)?;
-            (run, link.round_trips_per_s())
-        }
-    };
-    bar.finish_and_clear();
-    let qemu_cpu = params.target.qemu_cpu();
-    let figures = (scenario.window_s > 0.0).then(|| scenarios::figures(&hil_run, &scenario));
-    let equivalence = if params.check {
-        // A board on a serial port runs the f32 firmware.
-        let cpu = qemu_cpu.unwrap_or(QemuCpu::M4f);
-        let local = run_with(&setup, &scenario, cpu.local_drive(&setup)?.as_mut(), |_| {})?;
-        Some(compare_runs(&hil_run, &local))
-    } else {
-        None
-    };
-    let report = HilReport {
-        scenario: scenario.name.to_string(),
-        figures,
-        round_trips_per_s: rate,
-        qemu_cpu,
-        simulated_s: hil_run.simulated_s,
-        equivalence,
-        stack_high_water_bytes: stack,
-    };
-    crate::sim::report::write_run_outputs(&hil_run, &scenario, &params.out, "hil")?;
-    std::fs::write(params.out.join("summary.json"), serde_json::to_string_pretty(&report)?)
-        .with_context(|| format!("writing {}/summary.json", params.out.display()))?;
-    let figures_text = match figures {
-        Some(f) => {
-            format!("theta_err max {:.2} deg, rms {:.2} deg", f.theta_err_max_deg, f.theta_err_rms_deg)
-        }
-        None => format!("no figures (the run ends before the window at {} s)", scenario.event_s),
-    };
-    println!(
-        "{} over the HIL link: {figures_text}; {rate:.0} round trips/s; {:.2} s simulated",
-        report.scenario, hil_run.simulated_s
-    );
-    if let Some(bytes) = stack {
-        println!("deepest stack of the firmware since boot: {bytes} bytes");
-    }
-    if let Some(e) = &report.equivalence {
-        println!(
-            "equivalence with the in-process drive: {} of {} angle estimates differ (max {:.2e} deg)",
-            e.differing, e.samples, e.max_diff_deg
-        );
-        anyhow::ensure!(e.differing == 0, "the HIL run's angle estimates differ from the in-process run's");
-    }
-    Ok(report)
 }
