@@ -494,7 +494,9 @@ impl<T: Scalar> Drive<T> {
             // A speed drive: its speed loop on the speed reference, from the q current.
             return;
         }
-        let (omega_cmd, iq_ff) = self.position_command();
+        let omega_cmd = self.position_command();
+        let iq_ff =
+            self.positioning.as_ref().map_or(T::ZERO, |p| Self::accel_feed_forward(p, &p.profile.setpoint()));
         let iq = self.i_dq_ref.q;
         self.pi_speed.preset(iq - iq_ff, omega_cmd - self.omega_filtered);
         if let Some(p) = &mut self.positioning {
@@ -504,17 +506,20 @@ impl<T: Scalar> Drive<T> {
         self.state = DriveState::Running;
     }
 
-    /// The position loop's speed command (electrical, working units) and the
-    /// acceleration feed-forward (thrust current, working units) for the present setpoint.
-    fn position_command(&self) -> (T, T) {
+    /// The position loop's speed command (electrical, working units) for the present
+    /// setpoint.
+    fn position_command(&self) -> T {
         let Some(p) = &self.positioning else {
-            return (T::ZERO, T::ZERO);
+            return T::ZERO;
         };
         let sp = p.profile.setpoint();
         let v_cmd = sp.speed_m_per_s + p.position_gain * (sp.position_m - self.position_m());
-        let omega_cmd = T::from_f32(v_cmd * p.rad_per_m * self.k.inv_omega_base);
-        let iq_ff = T::from_f32(sp.accel_m_per_s2 * p.accel_current_per_m_s2);
-        (omega_cmd, iq_ff)
+        T::from_f32(v_cmd * p.rad_per_m * self.k.inv_omega_base)
+    }
+
+    /// The acceleration feed-forward (thrust current, working units) of the setpoint `sp`.
+    fn accel_feed_forward(p: &Positioning<T>, sp: &Setpoint) -> T {
+        T::from_f32(sp.accel_m_per_s2 * p.accel_current_per_m_s2)
     }
 
     /// Into the low-speed mode on the control frame at `theta` turning at `omega`
@@ -564,6 +569,10 @@ impl<T: Scalar> Drive<T> {
 
     /// Sensorless positioning: position loop on `x_hat` with the profile's speed and
     /// acceleration fed forward; enters the low-speed mode when the reference slows.
+    ///
+    /// The position loop runs with the speed loop, once per `speed_loop_divider` periods:
+    /// its speed command feeds the speed loop alone (and the overload supervision, which
+    /// sees the command of the last update).
     pub(super) fn positioning_references(&mut self, estimate: &Estimate<T>) -> Option<(Angle, T)> {
         let dt_s = self.k.dt_s;
         let p = self.positioning.as_mut()?;
@@ -578,29 +587,25 @@ impl<T: Scalar> Drive<T> {
         let alpha =
             T::from_f32(sp.accel_m_per_s2 * p.rad_per_m * self.k.inv_omega_base * self.k.inv_omega_base);
         self.estimator.set_commanded_acceleration(alpha);
-        let (omega_cmd, iq_ff) = self.position_command();
-        self.omega_ref = omega_cmd;
+        let iq_ff = Self::accel_feed_forward(p, &sp);
         // Learn the thrust beyond acceleration (friction, load) along the motion.
-        if let Some(p) = &mut self.positioning {
-            let sp = p.profile.setpoint();
-            if sp.speed_m_per_s != 0.0 {
-                let thrust = p.thrust_n_per_a * self.i_dq_measured.q.to_f32() * self.k.base.current_a;
-                let along = (thrust - p.mass_kg * sp.accel_m_per_s2) * sp.speed_m_per_s.signum();
-                if along.is_finite() {
-                    p.load_force_n += p.load_filter_rate * (along - p.load_force_n);
-                }
+        if sp.speed_m_per_s != 0.0 {
+            let thrust = p.thrust_n_per_a * self.i_dq_measured.q.to_f32() * self.k.base.current_a;
+            let along = (thrust - p.mass_kg * sp.accel_m_per_s2) * sp.speed_m_per_s.signum();
+            if along.is_finite() {
+                p.load_force_n += p.load_filter_rate * (along - p.load_force_n);
             }
         }
         self.speed_divider_count += 1;
-        let speed_loop_due = self.speed_divider_count >= self.k.speed_loop_divider;
-        if speed_loop_due {
+        if self.speed_divider_count >= self.k.speed_loop_divider {
             self.speed_divider_count = 0;
-        }
-        let error = self.omega_ref - self.omega_filtered;
-        if let Some(p) = &mut self.positioning {
-            if speed_loop_due {
-                p.speed_loop_out = self.pi_speed.update(error);
+            self.omega_ref = self.position_command();
+            let out = self.pi_speed.update(self.omega_ref - self.omega_filtered);
+            if let Some(p) = &mut self.positioning {
+                p.speed_loop_out = out;
             }
+        }
+        if let Some(p) = &mut self.positioning {
             // The trapezoid's acceleration steps; its feed-forward is slewed like every
             // other change of the current reference (bounded jerk of the thrust).
             let step = p.slew_step;
