@@ -160,6 +160,11 @@ pub(super) struct Positioning<T> {
     /// Thrust (N) the axis needed beyond acceleration while running sensorless (friction
     /// and load, along the motion), filtered: the low-speed mode's load-angle estimate.
     pub(super) load_force_n: f32,
+    /// With HFI moving in the low-speed mode, the learned load's thrust current as fed
+    /// forward (working current as `f32`, along the motion) and the load it was formed
+    /// from (N): formed again only when the load changed.
+    pub(super) friction_ff_a: f32,
+    pub(super) friction_ff_of_n: f32,
     /// Rate of that filter per period (dimensionless).
     pub(super) load_filter_rate: f32,
     /// Settling dither: time at rest (s), angular frequency (rad/s), decay rate (1/s).
@@ -719,14 +724,18 @@ impl<T: Scalar> Drive<T> {
         // current loops follow their reference within a few periods). At rest the thrust
         // current holds the reference: `M (k_v (v_ref - v_hat) + k_x (x_ref - x_hat))` plus
         // the estimated load, no integrator to wind up against static friction.
+        // The observer runs every period; the hold's thrust law only at rest, where it
+        // holds (moving, the speed loop has the thrust).
         let hold = match &mut p.hold_observer {
             Some(o) => {
                 o.update(x_hat, iq_applied_a * p.thrust_n_per_a);
                 let wc = p.hold_bandwidth_rad_s;
-                let accel = sp.accel_m_per_s2
-                    + 2.0 * wc * (sp.speed_m_per_s - o.speed_m_per_s())
-                    + wc * wc * (sp.position_m - o.position_m());
-                Some(T::from_f32((p.mass_kg * accel + o.load_n()) / p.thrust_n_per_a / current_a))
+                at_rest.then(|| {
+                    let accel = sp.accel_m_per_s2
+                        + 2.0 * wc * (sp.speed_m_per_s - o.speed_m_per_s())
+                        + wc * wc * (sp.position_m - o.position_m());
+                    T::from_f32((p.mass_kg * accel + o.load_n()) / p.thrust_n_per_a / current_a)
+                })
             }
             None => None,
         };
@@ -744,9 +753,18 @@ impl<T: Scalar> Drive<T> {
         // Feed forward the profile's acceleration and, along the motion, the friction
         // learned while running sensorless (the speed loop's integrator then only takes
         // what is unexpected); at rest the hold's load estimate carries the friction.
-        let direction = if at_rest { 0.0 } else { sp.speed_m_per_s.signum() };
-        let friction_ff = T::from_f32(direction * p.load_force_n / p.thrust_n_per_a / self.k.base.current_a);
-        let iq_ff = iq_ff + friction_ff;
+        // The learned load changes only while running: its thrust current (two divisions)
+        // is formed again only when it has changed.
+        let iq_ff = if at_rest {
+            iq_ff
+        } else {
+            if p.friction_ff_of_n.to_bits() != p.load_force_n.to_bits() {
+                p.friction_ff_of_n = p.load_force_n;
+                p.friction_ff_a = p.load_force_n / p.thrust_n_per_a / self.k.base.current_a;
+            }
+            let friction_a = if sp.speed_m_per_s < 0.0 { -p.friction_ff_a } else { p.friction_ff_a };
+            iq_ff + T::from_f32(friction_a)
+        };
         let slew = p.slew_step;
         p.accel_ff_applied = p.accel_ff_applied + (iq_ff - p.accel_ff_applied).clamp_to(-slew, slew);
         if let (true, Some(iq_hold)) = (holding, hold) {
