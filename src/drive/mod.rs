@@ -517,6 +517,8 @@ impl<T: Scalar> Drive<T> {
                 mass_kg: config.moving_mass_kg,
                 thrust_n_per_a: motor.thrust_constant_n_per_a(),
                 load_force_n: 0.0,
+                friction_ff_a: 0.0,
+                friction_ff_of_n: 0.0,
                 // 50 ms
                 load_filter_rate: (ts / 0.05).min(1.0),
                 mover_offset_rad: 0.0,

@@ -160,6 +160,11 @@ pub(super) struct Positioning<T> {
     /// Thrust (N) the axis needed beyond acceleration while running sensorless (friction
     /// and load, along the motion), filtered: the low-speed mode's load-angle estimate.
     pub(super) load_force_n: f32,
+    /// With HFI moving in the low-speed mode, the learned load's thrust current as fed
+    /// forward (working current as `f32`, along the motion) and the load it was formed
+    /// from (N): formed again only when the load changed.
+    pub(super) friction_ff_a: f32,
+    pub(super) friction_ff_of_n: f32,
     /// Rate of that filter per period (dimensionless).
     pub(super) load_filter_rate: f32,
     /// Settling dither: time at rest (s), angular frequency (rad/s), decay rate (1/s).
@@ -494,7 +499,9 @@ impl<T: Scalar> Drive<T> {
             // A speed drive: its speed loop on the speed reference, from the q current.
             return;
         }
-        let (omega_cmd, iq_ff) = self.position_command();
+        let omega_cmd = self.position_command();
+        let iq_ff =
+            self.positioning.as_ref().map_or(T::ZERO, |p| Self::accel_feed_forward(p, &p.profile.setpoint()));
         let iq = self.i_dq_ref.q;
         self.pi_speed.preset(iq - iq_ff, omega_cmd - self.omega_filtered);
         if let Some(p) = &mut self.positioning {
@@ -504,17 +511,20 @@ impl<T: Scalar> Drive<T> {
         self.state = DriveState::Running;
     }
 
-    /// The position loop's speed command (electrical, working units) and the
-    /// acceleration feed-forward (thrust current, working units) for the present setpoint.
-    fn position_command(&self) -> (T, T) {
+    /// The position loop's speed command (electrical, working units) for the present
+    /// setpoint.
+    fn position_command(&self) -> T {
         let Some(p) = &self.positioning else {
-            return (T::ZERO, T::ZERO);
+            return T::ZERO;
         };
         let sp = p.profile.setpoint();
         let v_cmd = sp.speed_m_per_s + p.position_gain * (sp.position_m - self.position_m());
-        let omega_cmd = T::from_f32(v_cmd * p.rad_per_m * self.k.inv_omega_base);
-        let iq_ff = T::from_f32(sp.accel_m_per_s2 * p.accel_current_per_m_s2);
-        (omega_cmd, iq_ff)
+        T::from_f32(v_cmd * p.rad_per_m * self.k.inv_omega_base)
+    }
+
+    /// The acceleration feed-forward (thrust current, working units) of the setpoint `sp`.
+    fn accel_feed_forward(p: &Positioning<T>, sp: &Setpoint) -> T {
+        T::from_f32(sp.accel_m_per_s2 * p.accel_current_per_m_s2)
     }
 
     /// Into the low-speed mode on the control frame at `theta` turning at `omega`
@@ -564,6 +574,10 @@ impl<T: Scalar> Drive<T> {
 
     /// Sensorless positioning: position loop on `x_hat` with the profile's speed and
     /// acceleration fed forward; enters the low-speed mode when the reference slows.
+    ///
+    /// The position loop runs with the speed loop, once per `speed_loop_divider` periods:
+    /// its speed command feeds the speed loop alone (and the overload supervision, which
+    /// sees the command of the last update).
     pub(super) fn positioning_references(&mut self, estimate: &Estimate<T>) -> Option<(Angle, T)> {
         let dt_s = self.k.dt_s;
         let p = self.positioning.as_mut()?;
@@ -578,29 +592,25 @@ impl<T: Scalar> Drive<T> {
         let alpha =
             T::from_f32(sp.accel_m_per_s2 * p.rad_per_m * self.k.inv_omega_base * self.k.inv_omega_base);
         self.estimator.set_commanded_acceleration(alpha);
-        let (omega_cmd, iq_ff) = self.position_command();
-        self.omega_ref = omega_cmd;
+        let iq_ff = Self::accel_feed_forward(p, &sp);
         // Learn the thrust beyond acceleration (friction, load) along the motion.
-        if let Some(p) = &mut self.positioning {
-            let sp = p.profile.setpoint();
-            if sp.speed_m_per_s != 0.0 {
-                let thrust = p.thrust_n_per_a * self.i_dq_measured.q.to_f32() * self.k.base.current_a;
-                let along = (thrust - p.mass_kg * sp.accel_m_per_s2) * sp.speed_m_per_s.signum();
-                if along.is_finite() {
-                    p.load_force_n += p.load_filter_rate * (along - p.load_force_n);
-                }
+        if sp.speed_m_per_s != 0.0 {
+            let thrust = p.thrust_n_per_a * self.i_dq_measured.q.to_f32() * self.k.base.current_a;
+            let along = (thrust - p.mass_kg * sp.accel_m_per_s2) * sp.speed_m_per_s.signum();
+            if along.is_finite() {
+                p.load_force_n += p.load_filter_rate * (along - p.load_force_n);
             }
         }
         self.speed_divider_count += 1;
-        let speed_loop_due = self.speed_divider_count >= self.k.speed_loop_divider;
-        if speed_loop_due {
+        if self.speed_divider_count >= self.k.speed_loop_divider {
             self.speed_divider_count = 0;
-        }
-        let error = self.omega_ref - self.omega_filtered;
-        if let Some(p) = &mut self.positioning {
-            if speed_loop_due {
-                p.speed_loop_out = self.pi_speed.update(error);
+            self.omega_ref = self.position_command();
+            let out = self.pi_speed.update(self.omega_ref - self.omega_filtered);
+            if let Some(p) = &mut self.positioning {
+                p.speed_loop_out = out;
             }
+        }
+        if let Some(p) = &mut self.positioning {
             // The trapezoid's acceleration steps; its feed-forward is slewed like every
             // other change of the current reference (bounded jerk of the thrust).
             let step = p.slew_step;
@@ -714,14 +724,18 @@ impl<T: Scalar> Drive<T> {
         // current loops follow their reference within a few periods). At rest the thrust
         // current holds the reference: `M (k_v (v_ref - v_hat) + k_x (x_ref - x_hat))` plus
         // the estimated load, no integrator to wind up against static friction.
+        // The observer runs every period; the hold's thrust law only at rest, where it
+        // holds (moving, the speed loop has the thrust).
         let hold = match &mut p.hold_observer {
             Some(o) => {
                 o.update(x_hat, iq_applied_a * p.thrust_n_per_a);
                 let wc = p.hold_bandwidth_rad_s;
-                let accel = sp.accel_m_per_s2
-                    + 2.0 * wc * (sp.speed_m_per_s - o.speed_m_per_s())
-                    + wc * wc * (sp.position_m - o.position_m());
-                Some(T::from_f32((p.mass_kg * accel + o.load_n()) / p.thrust_n_per_a / current_a))
+                at_rest.then(|| {
+                    let accel = sp.accel_m_per_s2
+                        + 2.0 * wc * (sp.speed_m_per_s - o.speed_m_per_s())
+                        + wc * wc * (sp.position_m - o.position_m());
+                    T::from_f32((p.mass_kg * accel + o.load_n()) / p.thrust_n_per_a / current_a)
+                })
             }
             None => None,
         };
@@ -739,9 +753,18 @@ impl<T: Scalar> Drive<T> {
         // Feed forward the profile's acceleration and, along the motion, the friction
         // learned while running sensorless (the speed loop's integrator then only takes
         // what is unexpected); at rest the hold's load estimate carries the friction.
-        let direction = if at_rest { 0.0 } else { sp.speed_m_per_s.signum() };
-        let friction_ff = T::from_f32(direction * p.load_force_n / p.thrust_n_per_a / self.k.base.current_a);
-        let iq_ff = iq_ff + friction_ff;
+        // The learned load changes only while running: its thrust current (two divisions)
+        // is formed again only when it has changed.
+        let iq_ff = if at_rest {
+            iq_ff
+        } else {
+            if p.friction_ff_of_n.to_bits() != p.load_force_n.to_bits() {
+                p.friction_ff_of_n = p.load_force_n;
+                p.friction_ff_a = p.load_force_n / p.thrust_n_per_a / self.k.base.current_a;
+            }
+            let friction_a = if sp.speed_m_per_s < 0.0 { -p.friction_ff_a } else { p.friction_ff_a };
+            iq_ff + T::from_f32(friction_a)
+        };
         let slew = p.slew_step;
         p.accel_ff_applied = p.accel_ff_applied + (iq_ff - p.accel_ff_applied).clamp_to(-slew, slew);
         if let (true, Some(iq_hold)) = (holding, hold) {
