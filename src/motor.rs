@@ -136,6 +136,12 @@ impl MotorParams {
         core::f32::consts::PI * speed_m_per_s / self.pole_pitch_m
     }
 
+    /// Electrical radians per metre of travel, `pi / pole_pitch_m` (rad/m): a pole pitch
+    /// is half an electrical turn. Electrical speed (rad/s) per linear speed (m/s) too.
+    pub fn rad_per_m(&self) -> f32 {
+        core::f32::consts::PI / self.pole_pitch_m
+    }
+
     /// Thrust constant `1.5 * (pi / pole_pitch_m) * psi_f_wb`, N/A (for i_d = 0, Ld = Lq).
     pub fn thrust_constant_n_per_a(&self) -> f32 {
         1.5 * core::f32::consts::PI / self.pole_pitch_m * self.psi_f_wb

@@ -145,7 +145,7 @@ impl VirtualMotor {
         if !(axis.period_s.is_finite() && axis.period_s > 0.0) {
             return Err(VirtualMotorError::Axis("period_s"));
         }
-        let pi_per_tau = core::f32::consts::PI / motor.pole_pitch_m;
+        let pi_per_tau = motor.rad_per_m();
         Ok(VirtualMotor {
             rs: motor.rs_ohm,
             ld: motor.ld_h,
@@ -392,7 +392,7 @@ mod tests {
         }
         let s = m.state();
         let mass = motor.mass_kg + 10.0;
-        let thrust = 1.5 * core::f32::consts::PI / motor.pole_pitch_m * motor.psi_f_wb * s.i_dq_a.q;
+        let thrust = motor.thrust_constant_n_per_a() * s.i_dq_a.q;
         assert!((s.thrust_n - thrust).abs() < 1e-3 * thrust);
         // v = ∫F/M dt with the current settled in about 5 ms of the 100 ms.
         let expected_v = thrust / mass * 0.1;

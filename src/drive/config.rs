@@ -219,7 +219,7 @@ pub fn back_emf_floor_m_per_s(motor: &MotorParams, drive: &DriveConfig) -> f32 {
         .dead_time_compensation
         .map_or(0.0, |c| c.dead_time_s / drive.control_period_s * nominal_bus_v(drive) + c.device_drop_v);
     let omega = (voltage_error_v / motor.psi_f_wb).max(4.0 * drive.estimator.dcfo.omega_floor_rad_s);
-    omega / (core::f32::consts::PI / motor.pole_pitch_m)
+    omega / motor.rad_per_m()
 }
 
 impl MotionConfig {
@@ -411,9 +411,8 @@ impl DriveConfig {
     /// allowed bus drives in the linear range (`bus_min_v * modulation_limit / sqrt 3`),
     /// m/s: no profile may reach it.
     pub fn bus_speed_limit_m_per_s(&self, motor: &MotorParams) -> f32 {
-        let omega_per_speed = core::f32::consts::PI / motor.pole_pitch_m;
         let max_phase_v = self.faults.bus_min_v * self.modulation_limit * 0.577_350_26;
-        max_phase_v / (omega_per_speed * motor.psi_f_wb)
+        max_phase_v / (motor.rad_per_m() * motor.psi_f_wb)
     }
 
     /// The drive a board runs for a motor image, the one function every drive image

@@ -358,7 +358,7 @@ impl<T: Scalar> Drive<T> {
             .map_err(|_| DriveConfigError { field: "estimator" })?;
         let ts = config.control_period_s;
         let speed_ts = ts * f32::from(config.speed_loop_divider);
-        let omega_per_speed = core::f32::consts::PI / motor.pole_pitch_m;
+        let omega_per_speed = motor.rad_per_m();
         // Current PI: kp = L w_c (V/A), ki = R w_c (V/(A s)).
         let v_per_a = base.current_a / base.voltage_v;
         let wc = config.current_bandwidth_rad_s;

@@ -131,7 +131,7 @@ fn score(
     let false_locks =
         rows.iter().zip(est).zip(&err).filter(|((_, e), x)| e.1 && x.abs() > FALSE_LOCK_DEG).count();
     let first_lock = est.iter().position(|e| e.1);
-    let w_per_v = std::f64::consts::PI / f64::from(motor.pole_pitch_m);
+    let w_per_v = crate::plant::rad_per_m(motor);
     // Segments above the floor, between passages below it.
     let mut segments: Vec<(usize, usize)> = Vec::new();
     let mut start = None;

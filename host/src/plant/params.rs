@@ -45,6 +45,13 @@ fn finite(field: &'static str, x: f64) -> Result<(), PlantError> {
     check(x.is_finite(), field, "must be a finite number")
 }
 
+/// Electrical radians per metre of `motor`'s travel, `pi / pole_pitch_m` (rad/m), in
+/// `f64`: the plant's and the tools' figure (the drive's is
+/// [`MotorParams::rad_per_m`], in `f32`).
+pub fn rad_per_m(motor: &MotorParams) -> f64 {
+    core::f64::consts::PI / f64::from(motor.pole_pitch_m)
+}
+
 /// Rated thrust, newton, of a motor at its rated RMS current with `i_d = 0`:
 /// `1.5 (pi / tau) psi_f sqrt(2) I_rated`. About 149 N for the paper motor.
 pub fn rated_thrust_n(motor: &MotorParams) -> f64 {

@@ -330,7 +330,7 @@ mod tests {
         let thrust = |m: &MotorParams| {
             1.5 * PI / f64::from(m.pole_pitch_m) * f64::from(m.psi_f_wb) * f64::from(m.rated_current_a)
         };
-        let omega_per_speed = |m: &MotorParams| PI / f64::from(m.pole_pitch_m);
+        let omega_per_speed = crate::plant::rad_per_m;
         let paper_axis_kg = f64::from(paper.mass_kg) + f64::from(dcfo::drive::PAPER_AXIS_PAYLOAD_KG);
         let scale = PaperScale::for_motor(&motor);
         // The motor's values are f32: equal to their precision.
