@@ -4,9 +4,9 @@
 
 use dcfo::drive::DriveState;
 use dcfo::observer::ObserverKind;
+use dcfo_host::commands::sim::load_scenario;
 use dcfo_host::motor_file::load_motor;
 use dcfo_host::simulation::{Run, Setup, run};
-use dcfo_host::commands::sim::load_scenario;
 
 const ROOT: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/..");
 
@@ -42,11 +42,18 @@ fn check(name: &str, setup: &Setup) {
         let expected = if in_band { DriveState::LowSpeed } else { DriveState::Running };
         assert_eq!(DriveState::from_code(end.state), Some(expected), "{name}: at {to} s; states {t:?}");
         // Mean true speed over the last 0.3 s before the next command.
-        let tail: Vec<f64> =
-            r.samples.iter().filter(|s| s.row.t > to - 0.31 && s.row.t < to - 0.01).filter_map(|s| s.row.v).collect();
+        let tail: Vec<f64> = r
+            .samples
+            .iter()
+            .filter(|s| s.row.t > to - 0.31 && s.row.t < to - 0.01)
+            .filter_map(|s| s.row.v)
+            .collect();
         let mean = tail.iter().sum::<f64>() / tail.len() as f64;
         eprintln!("{name}: mean speed {mean:+.3} m/s before {to} s (target {v:+})");
-        assert!((mean - v).abs() < 0.2 * v.abs(), "{name}: mean speed {mean:.3} m/s before {to} s, target {v}");
+        assert!(
+            (mean - v).abs() < 0.2 * v.abs(),
+            "{name}: mean speed {mean:.3} m/s before {to} s, target {v}"
+        );
     }
 }
 

@@ -641,15 +641,30 @@ mod tests {
         // 3.2 kN, far above the current limit's thrust; 10 m/s is 2 kV of back-EMF on a
         // 311 V bus; 200 kg of payload need more than the current limit at 3 m/s^2.
         for (spoil, field) in [
-            (MotorAxis { limits: ProfileLimits { max_accel_m_per_s2: 300.0, ..STROKE_AXIS_LIMITS }, ..axis }, ProfileField::MaxAccel),
-            (MotorAxis { limits: ProfileLimits { max_speed_m_per_s: 10.0, ..STROKE_AXIS_LIMITS }, ..axis }, ProfileField::MaxSpeed),
+            (
+                MotorAxis {
+                    limits: ProfileLimits { max_accel_m_per_s2: 300.0, ..STROKE_AXIS_LIMITS },
+                    ..axis
+                },
+                ProfileField::MaxAccel,
+            ),
+            (
+                MotorAxis { limits: ProfileLimits { max_speed_m_per_s: 10.0, ..STROKE_AXIS_LIMITS }, ..axis },
+                ProfileField::MaxSpeed,
+            ),
             (MotorAxis { payload_kg: 200.0, ..axis }, ProfileField::MaxAccel),
         ] {
             let image = image.with_axis(spoil).unwrap();
             assert_eq!(DriveConfig::check_image_axis(&image), Err(field), "{spoil:?}");
-            assert_eq!(DriveConfig::for_image(&image, 1e-4, None), Err(DriveConfigError { field: field.config_path() }));
+            assert_eq!(
+                DriveConfig::for_image(&image, 1e-4, None),
+                Err(DriveConfigError { field: field.config_path() })
+            );
         }
-        assert_eq!(DriveConfig::check_image_axis(&image.with_axis(MotorAxis { payload_kg: 0.0, ..axis }).unwrap()), Ok(()));
+        assert_eq!(
+            DriveConfig::check_image_axis(&image.with_axis(MotorAxis { payload_kg: 0.0, ..axis }).unwrap()),
+            Ok(())
+        );
         assert_eq!(DriveConfig::check_image_axis(&image), Ok(()));
         let too_fast =
             MotorAxis { limits: ProfileLimits { max_accel_m_per_s2: 300.0, ..STROKE_AXIS_LIMITS }, ..axis };

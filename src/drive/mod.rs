@@ -474,12 +474,16 @@ impl<T: Scalar> Drive<T> {
         // speed the bus can drive (no stroke: the profile follows a speed, no targets).
         let follows_speed = config.motion.is_none();
         let motion = config.motion.unwrap_or_else(|| {
-            MotionConfig::for_drive(motor, config, crate::motion::ProfileLimits {
-                max_speed_m_per_s: config.bus_speed_limit_m_per_s(motor),
-                max_accel_m_per_s2: config.accel_limit_m_per_s2,
-                stroke_min_m: f32::MIN,
-                stroke_max_m: f32::MAX,
-            })
+            MotionConfig::for_drive(
+                motor,
+                config,
+                crate::motion::ProfileLimits {
+                    max_speed_m_per_s: config.bus_speed_limit_m_per_s(motor),
+                    max_accel_m_per_s2: config.accel_limit_m_per_s2,
+                    stroke_min_m: f32::MIN,
+                    stroke_max_m: f32::MAX,
+                },
+            )
         });
         let positioning = Some(motion).map(|m| -> Result<Positioning<T>, DriveConfigError> {
             // A profile the motor cannot follow is refused (`DriveConfig::check_profile`).

@@ -102,12 +102,12 @@
 //! aligns to when the drive is first enabled (electrical angle 0; later enables align to
 //! the last angle): a non-salient motor has no other absolute reference.
 
+#[cfg(doc)]
+use super::MotionConfig;
 use super::{Drive, DriveState};
 use crate::estimator::Estimate;
 use crate::hfi::Hfi;
 use crate::motion::{MotionError, Move, Profile, Setpoint};
-#[cfg(doc)]
-use super::MotionConfig;
 use crate::num::{Angle, Scalar, asin, sin_cos};
 use crate::transforms::{AlphaBeta, Dq};
 

@@ -55,11 +55,11 @@
 //! | 8 | u8 | how the samples' words read ([`CaptureFormat::code`]: 0 `f32` SI, 1 Q8.24 per unit) |
 //! | 9 | 6 × 36 B | [`CaptureSample::to_le_bytes`]: nine 32-bit words each, the drive's own bits; unused slots zero |
 
-use super::wire::{EncodeError, LinkError, PROTOCOL_VERSION, Reader, Writer};
 use super::frame::{
     ACTUATION_FLAG_BRIDGE_ENABLED, ACTUATION_FLAG_ESTIMATE_VALID, ACTUATION_FLAG_MOTION_IDLE,
     ACTUATION_FLAG_POSITION_VALID, CRC_LEN, Frame, PositionReport, state_code_ok, wire_len,
 };
+use super::wire::{EncodeError, LinkError, PROTOCOL_VERSION, Reader, Writer};
 use crate::capture::{CaptureFormat, CaptureSample, CaptureState};
 use crate::motion::Move;
 

@@ -6,12 +6,12 @@
 
 use super::board::{BoardCommand, BoardTelemetry};
 use super::codec::{Receiver, decode_raw, encode};
-use super::wire::LinkError;
 use super::frame::{
     ActuationFrame, COMMISSIONING_ERROR_CODES, CommissioningReport, CommissioningRequest,
     CommissioningStatus, EstimateReport, PositionReport, STATE_CODES, SensorFrame,
 };
 use super::session::{LinkStats, LinkWatchdog, SequenceOrder, SequenceTracker};
+use super::wire::LinkError;
 use crate::drive::{Commands, CommissioningError, Drive, DriveState, Faults, Measurements, StepOutput};
 use crate::motion::MotionError;
 use crate::num::Scalar;

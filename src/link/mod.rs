@@ -210,13 +210,13 @@ pub use frame::{
     ACTUATION_FLAG_BRIDGE_ENABLED, ACTUATION_FLAG_ESTIMATE_VALID, ACTUATION_FLAG_MOTION_IDLE,
     ACTUATION_FLAG_POSITION_VALID, ActuationFrame, COMMISSIONING_ERROR_CODES, COMMISSIONING_QUERY,
     COMMISSIONING_START, CRC_LEN, CommissioningReport, CommissioningRequest, CommissioningStatus,
-    EstimateReport, Frame, PositionReport, SENSOR_FLAG_CLEAR_FAULTS, SENSOR_FLAG_ENABLE,
-    SENSOR_FLAG_MOVE, STATE_CODES, SensorFrame,
+    EstimateReport, Frame, PositionReport, SENSOR_FLAG_CLEAR_FAULTS, SENSOR_FLAG_ENABLE, SENSOR_FLAG_MOVE,
+    STATE_CODES, SensorFrame,
 };
-pub use wire::{EncodeError, LinkError, PROTOCOL_VERSION};
 pub use session::{
     LinkStats, LinkWatchdog, SILENT_LINK_PERIODS, SequenceOrder, SequenceTracker, classify_sequence,
 };
+pub use wire::{EncodeError, LinkError, PROTOCOL_VERSION};
 
 #[cfg(test)]
 mod tests {

@@ -169,4 +169,3 @@ impl<'a> Reader<'a> {
         if duty_ok(x) { Ok(x) } else { Err(LinkError::Value) }
     }
 }
-

@@ -407,7 +407,9 @@ pub fn motor_image(
                     .map_err(|f| format!("axis `{}` is more than the motor can do", f.name()))
             })
             .map_err(|e| {
-                IdentifyError::Setup(format!("the existing image's axis does not fit the identified motor: {e}"))
+                IdentifyError::Setup(format!(
+                    "the existing image's axis does not fit the identified motor: {e}"
+                ))
             })?;
     }
     let bytes = image.encode();

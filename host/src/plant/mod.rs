@@ -54,7 +54,8 @@ use core::f64::consts::PI;
 pub use inverter::svpwm_duties;
 use inverter::{Devices, LegCommand, LegMode, PeriodSchedule, leg_output};
 pub use params::{
-    CurrentSensing, InverterParams, PlantError, PlantParams, SensorParams, SimParams, rad_per_m, rated_thrust_n,
+    CurrentSensing, InverterParams, PlantError, PlantParams, SensorParams, SimParams, rad_per_m,
+    rated_thrust_n,
 };
 pub use sensors::SensorReading;
 use sensors::Sensors;
