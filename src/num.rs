@@ -228,8 +228,9 @@ impl Scalar for f32 {
     fn to_f32(self) -> f32 {
         self
     }
+    /// One `vabs.f32` on FPv4 (core's `f32::abs`, no library call): `-0.0` gives `+0.0`.
     fn abs(self) -> f32 {
-        if self < 0.0 { -self } else { self }
+        f32::abs(self)
     }
     fn sqrt(self) -> f32 {
         if self.is_nan() {
