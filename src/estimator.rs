@@ -251,6 +251,13 @@
 //!   period without one ([`CALM_ANGLE_RAD`]): without that hold a detector dipping under
 //!   its limit mid-disturbance let 2 and 78 samples above 15 deg through (the +2 V and
 //!   the doubled-Rs scenarios, one event phase each of eight).
+//!   Last, a resistance error up to [`EstimatorConfig::resistance_uncertainty_ohm`] (the
+//!   motor file's resistance again) could not turn the angle beyond
+//!   [`LOCK_ANGLE_RAD`] at the present current, speed and flux: the flag is down while a
+//!   large current lies along the flux at low speed (an I/f start, a drive's low-speed
+//!   mode), where every other check passes while the angle is 15-55 deg off (every
+//!   `dcfo sim` scenario on every motor file: `host/tests/sim_lock_flag.rs`): two
+//!   products, two [`approx_norm`]s and a held peak.
 
 use crate::arc_fit::{ArcFit, ArcFitOutcome};
 use crate::fll::{Fll, FllConfig, FllConfigError};
@@ -440,7 +447,44 @@ pub struct EstimatorConfig {
     /// The frequency-locked loop (used by the DCFO unless `notch_tuning` is
     /// [`NotchTuning::Pll`]).
     pub fll: FllConfig,
+    /// How far the motor's resistance, as the observer sees it, may be from the motor
+    /// file's (ohm): what [`Estimate::locked`] allows for (see [`LOCK_ANGLE_RAD`]).
+    pub resistance_uncertainty_ohm: f32,
 }
+
+/// The angle error [`Estimate::locked`] vouches for (rad): 15 deg.
+///
+/// A resistance error `dR` reads as a voltage `dR i` the observer integrates: a flux
+/// error `dR i / (j w)`, whose part across the flux turns the angle by
+/// `atan(dR i_d / (w psi_f))`. With the estimate within this angle of the flux,
+/// `|i_d| <= |i_d_hat| + |i| sin(LOCK_ANGLE_RAD)`, so the flag requires
+/// `dR (|i_d_hat| + |i| sin(LOCK_ANGLE_RAD)) <= tan(LOCK_ANGLE_RAD) |w_hat| psi_f`
+/// (the motor file's flux: a flux estimate the error inflates does not loosen it),
+/// the left side held at its peak and let decay at [`LOCK_ERROR_DECAY_PER_RAD`]: the
+/// flux error a voltage error left behind outlasts it (at the hand-over from an I/f
+/// start, 16 deg for 7 ms after the current left d on `motors/low_r.toml`).
+/// The flag thus
+/// drops while a large current lies along the flux at low speed (an I/f start, the
+/// low-speed mode) and wherever the resistance could turn the angle this far.
+pub const LOCK_ANGLE_RAD: f32 = 15.0 * core::f32::consts::PI / 180.0;
+
+/// `sin(`[`LOCK_ANGLE_RAD`]`)` (dimensionless; a constant, so that fixed point folds it).
+pub const LOCK_ANGLE_SIN: f32 = 0.258_819_04;
+
+/// `tan(`[`LOCK_ANGLE_RAD`]`)` (dimensionless).
+pub const LOCK_ANGLE_TAN: f32 = 0.267_949_2;
+
+/// [`EstimatorConfig::resistance_uncertainty_ohm`] per ohm of the motor file's
+/// resistance (dimensionless): the flag vouches for a resistance up to twice the file's. A
+/// copper winding gains 39 % from 20 to 120 deg C, and a motor file leaves out the leads
+/// and the inverter's on-state slope resistance (on `motors/low_r.toml` with the
+/// simulated inverter's 0.12 ohm, 40 % of the file's 0.3 ohm before any heating).
+pub const RESISTANCE_UNCERTAINTY_SHARE: f32 = 1.0;
+
+/// How fast the held voltage error of [`LOCK_ANGLE_RAD`]'s check decays, per radian of
+/// electrical travel (dimensionless): the DCFO's slowest pole at its default tuning,
+/// `0.26 w` ([`crate::observer::dcfo`]), rounded down.
+pub const LOCK_ERROR_DECAY_PER_RAD: f32 = 0.25;
 
 /// What tunes the DCFO's notch frequency (and feeds the PLL forward).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -480,6 +524,7 @@ impl EstimatorConfig {
                 Base::for_motor(motor).voltage_v,
                 dcfo.omega_floor_rad_s,
             ),
+            resistance_uncertainty_ohm: RESISTANCE_UNCERTAINTY_SHARE * motor.rs_ohm,
         }
     }
 }
@@ -523,8 +568,9 @@ pub struct Estimate<T> {
     pub psi_ab: AlphaBeta<T>,
     /// The observer's disturbance estimate (Wb), where it has one.
     pub disturbance_ab: Option<AlphaBeta<T>>,
-    /// `true` while the estimate can be trusted: the PLL is locked and, for the DCFO
-    /// with an FLL, the FLL agrees (see the module docs).
+    /// `true` while the estimate can be trusted to within [`LOCK_ANGLE_RAD`]: the PLL is
+    /// locked, for the DCFO with an FLL the FLL agrees, and the resistance allowance
+    /// holds (see the module docs, "Two flags").
     pub locked: bool,
     /// `true` while the FLL tunes the notch to find a frequency not yet known (from reset
     /// or [`Estimator::reacquire`], or always with [`NotchTuning::Fll`]); not while it
@@ -682,6 +728,12 @@ pub struct Estimator<T> {
     offset_level_rate: T,
     /// [`FLL_TRUST_LEVEL_MULTIPLE`].
     fll_trust_level_multiple: T,
+    /// [`EstimatorConfig::resistance_uncertainty_ohm`] over `tan(`[`LOCK_ANGLE_RAD`]`)`
+    /// (ohm).
+    lock_resistance: T,
+    /// The held voltage error of the lock check over `tan(`[`LOCK_ANGLE_RAD`]`)`, times
+    /// `|psi|` (V Wb).
+    lock_error: T,
 }
 
 impl<T: Scalar> Estimator<T> {
@@ -766,6 +818,8 @@ impl<T: Scalar> Estimator<T> {
             offset_level: T::ZERO,
             offset_level_rate: T::from_f32(OFFSET_READING_MEAN_RATE_PER_RAD),
             fll_trust_level_multiple: T::from_f32(FLL_TRUST_LEVEL_MULTIPLE),
+            lock_resistance: base.resistance(config.resistance_uncertainty_ohm / LOCK_ANGLE_TAN),
+            lock_error: T::ZERO,
         })
     }
 
@@ -820,7 +874,8 @@ impl<T: Scalar> Estimator<T> {
         }
         let (Some(fll), Some(increment)) = (&mut self.fll, flux.flux_increment_ab) else {
             let out = self.pll.update(flux.psi_ab, dt).map_err(EstimatorFault::Pll)?;
-            return Ok(Estimate::from_parts(&out, flux, out.locked, out.locked, false));
+            let locked = out.locked && self.resistance_allows_lock(i, flux.psi_ab, out.omega_e, dt);
+            return Ok(Estimate::from_parts(&out, flux, locked, out.locked, false));
         };
         fll.set_steering(self.fll_steers);
         let f = fll.update(flux.psi_ab, increment, dt);
@@ -959,7 +1014,26 @@ impl<T: Scalar> Estimator<T> {
             }
             (out, locked, out.locked && agree)
         };
+        let locked = locked && self.resistance_allows_lock(i, flux.psi_ab, out.omega_e, dt);
         Ok(Estimate::from_parts(&out, flux, locked, tracking, acquiring))
+    }
+
+    /// Whether a resistance error within [`EstimatorConfig::resistance_uncertainty_ohm`]
+    /// leaves the angle within [`LOCK_ANGLE_RAD`] at current `i`, flux `psi` and
+    /// frequency `omega_e` ([`LOCK_ANGLE_RAD`]). Multiplied through by `|psi|` (no
+    /// division): the current along the flux is `i . psi / |psi|`; `|i|` and `|psi|` come
+    /// from [`approx_norm`] (at most 12 % high: `|i|` on the safe side, `|psi|` on both
+    /// sides of the inequality).
+    /// Not inlined: one copy for its two callers.
+    #[inline(never)]
+    fn resistance_allows_lock(&mut self, i: AlphaBeta<T>, psi: AlphaBeta<T>, omega_e: T, dt: T) -> bool {
+        let psi_norm = approx_norm(psi);
+        let along = (i.alpha * psi.alpha + i.beta * psi.beta).abs();
+        let error = self.lock_resistance * (along + T::from_f32(LOCK_ANGLE_SIN) * approx_norm(i) * psi_norm);
+        let w = omega_e.abs();
+        let decay = (T::from_f32(LOCK_ERROR_DECAY_PER_RAD) * w * dt).min(T::ONE);
+        self.lock_error = error.max(self.lock_error - decay * self.lock_error);
+        self.lock_error <= w * self.psi_f * psi_norm
     }
 
     /// Turns the output angle back by the phase the notch's mistuning gives the flux
@@ -1198,6 +1272,7 @@ impl<T: Scalar> Estimator<T> {
             fit.restart();
         }
         self.clear_compensation();
+        self.lock_error = T::ZERO;
     }
 
     /// `true` while the circle fit of [`crate::arc_fit`] is still looking for the mover
@@ -1272,6 +1347,14 @@ mod tests {
     use crate::observer::ObserverKind;
 
     const DT: f64 = 1e-4;
+
+    /// The lock check's constants are the sine and tangent of its angle, to f32.
+    #[test]
+    fn lock_angle_constants_are_its_sine_and_tangent() {
+        let a = f64::from(LOCK_ANGLE_RAD);
+        assert!((f64::from(LOCK_ANGLE_SIN) - a.sin()).abs() < 1e-7);
+        assert!((f64::from(LOCK_ANGLE_TAN) - a.tan()).abs() < 1e-7);
+    }
 
     /// An estimator of `motor` with its compensations armed, as after a period of lock.
     fn armed(motor: &MotorParams) -> Estimator<f64> {

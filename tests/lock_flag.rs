@@ -100,3 +100,55 @@ fn dc_steps_at_other_speeds_never_leave_the_flag_set_on_a_wrong_angle() {
         assert!(a.locked_at_end, "{a:?}");
     }
 }
+
+/// The last sample's (flag, |angle error| deg) of the estimator seeded on a consistent
+/// plant turning at `w` rad/s with a current `i_d` A held along the flux (the voltage
+/// `R i + d/dt((psi_f + L i_d) e^{j theta})`): the estimate itself is right.
+fn along_flux(w: f64, i_d: f64) -> (bool, f64) {
+    let m = MotorParams::paper();
+    let (psi, r, l) = (f64::from(m.psi_f_wb), f64::from(m.rs_ohm), f64::from(m.ld_h));
+    let cfg = EstimatorConfig::for_motor(&m, ObserverKind::Dcfo);
+    let mut est = Estimator::<f32>::new(&m, &cfg, &Base::SI).unwrap();
+    let mut th = 0.3f64;
+    est.seed(
+        Angle::from_radians(th as f32),
+        w as f32,
+        AlphaBeta::new((i_d * th.cos()) as f32, (i_d * th.sin()) as f32),
+    );
+    let total = psi + l * i_d;
+    let mut last = (false, 0.0);
+    for _ in 0..(1.5 / DT) as usize {
+        let th_next = th + w * DT;
+        let u = AlphaBeta::new(
+            (r * i_d * th.cos() + total * (th_next.cos() - th.cos()) / DT) as f32,
+            (r * i_d * th.sin() + total * (th_next.sin() - th.sin()) / DT) as f32,
+        );
+        th = th_next;
+        let i = AlphaBeta::new((i_d * th.cos()) as f32, (i_d * th.sin()) as f32);
+        let e = est.update(u, i, DT as f32).unwrap();
+        last = (e.locked, wrap_deg(th - f64::from(e.theta_e.to_radians::<f32>())).abs());
+    }
+    last
+}
+
+/// The resistance allowance (`estimator::LOCK_ANGLE_RAD`): a resistance error up to the
+/// file's own would turn the angle by `atan(dR i_d / (w psi_f))`; with the current along
+/// the flux the flag holds below `I* = tan(15 deg) w psi_f / (dR (1 + sin(15 deg)))` and
+/// drops above it, whatever the estimate's own accuracy. The bound's norms are
+/// approximate (within 12 %), so the test brackets `I*` at 0.7 and 1.5 times it.
+#[test]
+fn a_current_along_the_flux_drops_the_flag_where_a_resistance_error_could_turn_the_angle() {
+    use dcfo::estimator::{LOCK_ANGLE_RAD, RESISTANCE_UNCERTAINTY_SHARE};
+    let m = MotorParams::paper();
+    let dr = f64::from(RESISTANCE_UNCERTAINTY_SHARE * m.rs_ohm);
+    let a = f64::from(LOCK_ANGLE_RAD);
+    for w in [62.8f64, -125.6, 251.2] {
+        let i_star = a.tan() * w.abs() * f64::from(m.psi_f_wb) / (dr * (1.0 + a.sin()));
+        let below = along_flux(w, 0.7 * i_star);
+        let above = along_flux(w, 1.5 * i_star);
+        println!("w {w} rad/s, I* {i_star:.3} A: 0.7 I* {below:?}, 1.5 I* {above:?}");
+        assert!(below.0 && below.1 < 5.0, "{below:?}");
+        // The estimate is right on this consistent plant; the flag says it cannot vouch.
+        assert!(!above.0 && above.1 < 5.0, "{above:?}");
+    }
+}

@@ -33,14 +33,23 @@ pub struct Params {
     pub out: PathBuf,
 }
 
-/// `dcfo sim`: loads the scenario and the motor, then [`run_sim`].
+/// `dcfo sim`: loads the scenario and the motor ([`setup_for`]), then [`run_sim`].
 pub fn run_command(params: &Params) -> Result<()> {
-    let mut scenario = load_scenario(&params.scenario)?;
-    // A paper experiment on another motor is scaled to it; a scenario file says what it
-    // means in its own units.
-    let paper_experiment = crate::simulation::scenarios::scenario(&params.scenario).is_some();
-    let mut setup = match &params.motor {
-        None => Setup::paper(params.observer),
+    let (mut setup, scenario) = setup_for(&params.scenario, params.motor.as_deref(), params.observer)?;
+    setup.drive.compensation_signs = params.compensation_signs;
+    run_sim(&setup, &scenario, &params.out)?;
+    Ok(())
+}
+
+/// The drive and the scenario `dcfo sim` runs for `scenario` (a paper experiment by name
+/// or a scenario file) on `motor` (a preset or motor file; `None`: the paper axis): a
+/// paper experiment on another motor is scaled to it, a scenario file is taken in its
+/// own units.
+pub fn setup_for(scenario: &str, motor: Option<&str>, observer: ObserverKind) -> Result<(Setup, Scenario)> {
+    let mut loaded = load_scenario(scenario)?;
+    let paper_experiment = crate::simulation::scenarios::scenario(scenario).is_some();
+    let setup = match motor {
+        None => Setup::paper(observer),
         Some(m) => {
             let motor = load_motor(m)?;
             // The speed loop is tuned on the moving mass: a placeholder would tune it
@@ -52,14 +61,12 @@ pub fn run_command(params: &Params) -> Result<()> {
                 );
             }
             if paper_experiment {
-                scenario = scenario.scaled(&PaperScale::for_motor(&motor.params));
+                loaded = loaded.scaled(&PaperScale::for_motor(&motor.params));
             }
-            Setup::for_axis(&motor.params, &scenario, params.observer)
+            Setup::for_axis(&motor.params, &loaded, observer)
         }
     };
-    setup.drive.compensation_signs = params.compensation_signs;
-    run_sim(&setup, &scenario, &params.out)?;
-    Ok(())
+    Ok((setup, loaded))
 }
 
 /// Every fifth sample in the display window of `sc` as (t, value).

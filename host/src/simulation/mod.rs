@@ -503,7 +503,9 @@ mod tests {
     fn fixed_point_runs_log_the_detailed_output() {
         let setup = Setup::paper(ObserverKind::Dcfo);
         let mut sc = scenarios::scenario("steady").expect("scenario");
-        sc.duration_s = 1.5;
+        // Past the hand-over from the I/f start (about 1.7 s): the flag is down while
+        // the start's current lies along the flux.
+        sc.duration_s = 2.5;
         let f = run(&setup, &sc, |_| {}).expect("f32 run");
         let q = run_with(&setup, &sc, &mut LocalDrive::fixed_point(&setup).expect("drive"), |_| {})
             .expect("q24 run");
