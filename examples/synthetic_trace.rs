@@ -4,12 +4,12 @@
 //!
 //! `cargo run --release --example synthetic_trace`
 
+use dcfo::algorithms::observer::ObserverKind;
+use dcfo::algorithms::transforms::AlphaBeta;
 use dcfo::estimator::{Estimator, EstimatorConfig};
 use dcfo::motor::MotorParams;
 use dcfo::num::Scalar;
-use dcfo::observer::ObserverKind;
-use dcfo::transforms::AlphaBeta;
-use dcfo::units::Base;
+use dcfo::num::units::Base;
 
 const TS: f64 = 1e-4;
 

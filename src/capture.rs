@@ -37,8 +37,8 @@
 //! trace writer's number format), an SI value therefore carries the Q8.24 value exactly.
 
 use crate::drive::{DriveState, StepOutput};
+use crate::num::units::Base;
 use crate::num::{Angle, Q24, Scalar};
-use crate::units::Base;
 
 /// How a [`CaptureSample`]'s words are to be read: the drive's number type and its
 /// working units.
@@ -488,10 +488,10 @@ impl<const N: usize> Capture<N> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::algorithms::observer::ObserverKind;
+    use crate::algorithms::transforms::Abc;
     use crate::drive::{Drive, DriveConfig, Measurements};
     use crate::motor::MotorParams;
-    use crate::observer::ObserverKind;
-    use crate::transforms::Abc;
 
     fn drive() -> Drive<f32> {
         let m = MotorParams::paper();

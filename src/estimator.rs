@@ -3,7 +3,7 @@
 //!
 //! Per sample: the observer takes the voltage applied during the period that just
 //! ended and the currents sampled now; its flux estimate feeds the PLL (and, for the
-//! DCFO, the FLL of [`crate::fll`]); one of them tunes the DCFO's notch for the *next*
+//! DCFO, the FLL of [`crate::algorithms::fll`]); one of them tunes the DCFO's notch for the *next*
 //! sample. Having this composition in one place is what makes a replayed trace
 //! reproduce a closed-loop run's estimates bit for bit.
 //!
@@ -17,7 +17,7 @@
 //!      |  after zero speed, not accelerating): PLL integrator := FLL frequency     |
 //!      v                                                     FLL below 1.25 notch |
 //!                                                            floors --------------+
-//!   PLL steers: notch = PLL integrator (the paper's loop, see crate::pll)
+//!   PLL steers: notch = PLL integrator (the paper's loop, see crate::algorithms::pll)
 //!               + its lag on the ramp the drive commands (set_commanded_acceleration),
 //!               the integrator held within zeta * NOTCH_PHASE_BUDGET_RAD (7 %) of a
 //!               settled FLL's frequency (20 % while only its frequency has settled),
@@ -38,7 +38,7 @@
 //! peak crossed 20 % was a coin flip between f32 and Q8.24 on the same inputs (12 deg
 //! apart on the +2 V step; 0.1 deg now). The band's correction is continuous in the
 //! disagreement and withheld while the flux amplitude shows a DC offset
-//! ([`crate::fll::FllOutput::flux_undisturbed`]); it is taken out at the FLL's own
+//! ([`crate::algorithms::fll::FllOutput::flux_undisturbed`]); it is taken out at the FLL's own
 //! tracking rate `4 w` rather than at once, because the integrator is the speed
 //! estimate (moved in one step, the speed step's speed-estimate error rose from 0.026 to
 //! 0.086 m/s, and the Q8.24 drive's load step drifted 2 deg from f32's). Over the
@@ -78,7 +78,7 @@
 //! follows the mover to within 1 rad/s. The notch's phase error is known to first
 //! order, `(w_notch - w) / (zeta w)` (docs/method.md §8), so `(w_notch - omega_hat) / (zeta
 //! |w_notch|)` estimates it. It cannot tune the notch or drive the PLL: that closes the
-//! loop the [`crate::pll`] docs analyse (`c kp = 8 > 1`, unstable). It *can* correct the
+//! loop the [`crate::algorithms::pll`] docs analyse (`c kp = 8 > 1`, unstable). It *can* correct the
 //! angle the estimator reports, an open path with no stability question: the output
 //! angle is the PLL's angle turned back by that phase. What keeps the correction clean:
 //! - It is `c kp = 8` times the PLL's phase error, so whatever disturbs that error is
@@ -129,7 +129,7 @@
 //! `delta` in the flux estimate that the DCFO removes through its slowest pole (`0.26 w`);
 //! meanwhile the estimate's angle is off by the offset's part across the flux, and as
 //! the flux turns that part sweeps the whole offset (17 deg at the worst phase of +2 V,
-//! `crate::observer::dcfo`, "DC steps"). The same offset is visible at once in the
+//! `crate::algorithms::observer::dcfo`, "DC steps"). The same offset is visible at once in the
 //! estimate's *magnitude*: with `delta_dq = delta e^{-j theta}`, `|psi_hat| = psi_f +
 //! Re(delta_dq)` to first order, and for a constant `delta`, `d Re(delta_dq) / dt = w
 //! Im(delta_dq)`. So the angle error is the magnitude's rate over `w |psi_hat|`, where
@@ -137,7 +137,7 @@
 //! phase compensation ([`COMPENSATION_ARM_RAD`]: off while acquiring, when the magnitude
 //! is the acquisition's):
 //! - the DCFO feeds the magnitude's deviation from its slow mean back along the flux
-//!   ([`crate::observer::Dcfo::set_magnitude_feedback`]): what is radial now was across
+//!   ([`crate::algorithms::observer::Dcfo::set_magnitude_feedback`]): what is radial now was across
 //!   the flux a quarter period ago, so the offset is taken out by the rotation faster
 //!   than by the notch alone;
 //! - the angle output is turned back by [`OFFSET_PHASE_SHARE`] of the rate's reading
@@ -159,7 +159,7 @@
 //!   step's angle transient), and the compensation, confirmed by the same ripple, turned
 //!   the angle the wrong way (by 7.7 deg at one phase of the paper's +2 V step). The
 //!   FLL's own detector, the flux amplitude's held peak
-//!   ([`crate::fll::FllOutput::flux_undisturbed`]), sees an offset from about a tenth of
+//!   ([`crate::algorithms::fll::FllOutput::flux_undisturbed`]), sees an offset from about a tenth of
 //!   the flux; the band-passed reading from a few hundredths. A speed
 //!   change on a flux without offset (the 40 N load step: a third of the speed lost in
 //!   90 ms) leaves the magnitude alone and the trust full, so the band still bounds the
@@ -200,7 +200,7 @@
 //! FLL's band widened by the reading, and its confirmation narrowed, instead of the
 //! trust (+2 V 11.0-11.5 / 12.8-13.5 deg).
 //!
-//! ## Cold starts: the circle fit ([`crate::arc_fit`])
+//! ## Cold starts: the circle fit ([`crate::algorithms::arc_fit`])
 //! From reset and on [`Estimator::reacquire`] the integrated back-EMF's arc is fitted
 //! with a circle through the start; about a third of a period later the fit gives the
 //! mover flux's angle and frequency, and the estimator seeds itself with them as a
@@ -222,7 +222,7 @@
 //! the load step's median was 6.65).
 //!
 //! Since 2026-11-26 the fit also gives the DC error in the observer's inputs, from the
-//! circle the back-EMF itself draws (its centre; [`crate::arc_fit`], "DC errors"), and
+//! circle the back-EMF itself draws (its centre; [`crate::algorithms::arc_fit`], "DC errors"), and
 //! the seed starts the DCFO with its disturbance estimate holding it. Before, +2 V at
 //! 0.1 m/s (60 % of the back-EMF) bent the chord's arc by tens of degrees and the DCFO
 //! then took the error on through its slowest pole: 51 of 576 cold starts over budget,
@@ -233,11 +233,11 @@
 //! - [`Estimate::tracking`]: the PLL is locked and, with an FLL, both frequencies
 //!   agree. What a drive may close its loops on (the hand-over from I/f, the lock
 //!   supervision).
-//! - [`Estimate::locked`]: `tracking`, and the FLL is [settled](crate::fll::FllOutput::settled):
+//! - [`Estimate::locked`]: `tracking`, and the FLL is [settled](crate::algorithms::fll::FllOutput::settled):
 //!   the flux estimate is steady and has been for the DCFO's settling time. What a user
 //!   may trust the angle by: over the acquisition sweep (576 cold starts) and the paper
 //!   scenarios (eight event phases each) it is never set while the true error exceeds
-//!   15 deg. It also needs the FLL [undisturbed](crate::fll::FllOutput::undisturbed)
+//!   15 deg. It also needs the FLL [undisturbed](crate::algorithms::fll::FllOutput::undisturbed)
 //!   and the observer's DC estimate quiet: the increment of the DCFO's disturbance
 //!   estimate `d`, low-passed at the notch frequency, below [`MAX_DISTURBANCE_DRIFT`]
 //!   of the back-EMF `w |psi| dt`. After a DC step the observer moves its DC state for
@@ -257,19 +257,19 @@
 //!   large current lies along the flux at low speed (an I/f start, a drive's low-speed
 //!   mode), where every other check passes while the angle is 15-55 deg off (every
 //!   `dcfo sim` scenario on every motor file: `host/tests/sim_lock_flag.rs`): two
-//!   products, two [`approx_norm`]s and a held peak.
+//!   products, two approximate norms and a held peak.
 
-use crate::arc_fit::{ArcFit, ArcFitOutcome};
-use crate::fll::{Fll, FllConfig, FllConfigError};
-use crate::motor::MotorParams;
-use crate::num::{Angle, Scalar};
-use crate::observer::{
+use crate::algorithms::arc_fit::{ArcFit, ArcFitOutcome};
+use crate::algorithms::fll::{Fll, FllConfig, FllConfigError};
+use crate::algorithms::observer::{
     AnyObserver, Dcfo, DcfoConfig, DcfoConfigError, FluxEstimate, FluxObserver, LpfConfigError, LpfObserver,
     ObserverFault, ObserverInput, ObserverKind, ObserverMotor, PureIntegrator,
 };
-use crate::pll::{Pll, PllConfig, PllConfigError, PllFault, PllOutput};
-use crate::transforms::{AlphaBeta, CosSin};
-use crate::units::Base;
+use crate::algorithms::pll::{Pll, PllConfig, PllConfigError, PllFault, PllOutput};
+use crate::algorithms::transforms::{AlphaBeta, CosSin};
+use crate::motor::MotorParams;
+use crate::num::units::Base;
+use crate::num::{Angle, Scalar};
 
 /// Largest drift of the observer's disturbance estimate, relative to the back-EMF
 /// `w |psi|` (dimensionless), for [`Estimate::locked`]: an uncancelled DC voltage of a
@@ -299,7 +299,7 @@ pub const ZERO_SPEED_PER_NOTCH_FLOOR: f32 = 1.25;
 pub const HANDOVER_PER_NOTCH_FLOOR: f32 = 1.5;
 
 /// Rate at which the PLL's integrator is brought back into the FLL's band, per rad/s of
-/// the frequency (dimensionless): the FLL's own tracker rate `4 w` (`crate::fll`).
+/// the frequency (dimensionless): the FLL's own tracker rate `4 w` (`crate::algorithms::fll`).
 pub const CORRECTION_RATE_PER_OMEGA: f32 = 4.0;
 
 /// Part of the notch's phase error the angle output leaves uncompensated (rad; module
@@ -483,7 +483,7 @@ pub const RESISTANCE_UNCERTAINTY_SHARE: f32 = 1.0;
 
 /// How fast the held voltage error of [`LOCK_ANGLE_RAD`]'s check decays, per radian of
 /// electrical travel (dimensionless): the DCFO's slowest pole at its default tuning,
-/// `0.26 w` ([`crate::observer::dcfo`]), rounded down.
+/// `0.26 w` ([`Dcfo`]), rounded down.
 pub const LOCK_ERROR_DECAY_PER_RAD: f32 = 0.25;
 
 /// What tunes the DCFO's notch frequency (and feeds the PLL forward).
@@ -500,7 +500,7 @@ pub enum NotchTuning {
     /// The FLL, always, with its frequency fed forward to the PLL: the fastest transients
     /// (the 40 N load step: 3.8 deg instead of 27), but a DC step in the observer's input
     /// disturbs it more, and the closed-loop drive oscillates with a plant resistance
-    /// twice the motor file's (see [`crate::fll`]).
+    /// twice the motor file's (see [`crate::algorithms::fll`]).
     Fll,
 }
 
@@ -692,7 +692,7 @@ pub struct Estimator<T> {
     /// [`MAX_DISTURBANCE_DRIFT`] (dimensionless).
     max_drift: T,
     /// The circle fit that seeds the observer from a cold start or a re-acquisition
-    /// ([`crate::arc_fit`]); with the FLL only.
+    /// ([`crate::algorithms::arc_fit`]); with the FLL only.
     arc_fit: Option<ArcFit<T>>,
     /// The observer was seeded by the circle fit and the PLL has not taken the notch
     /// since: the hand-over takes the FLL's mean frequency.
@@ -1275,7 +1275,7 @@ impl<T: Scalar> Estimator<T> {
         self.lock_error = T::ZERO;
     }
 
-    /// `true` while the circle fit of [`crate::arc_fit`] is still looking for the mover
+    /// `true` while the circle fit of [`crate::algorithms::arc_fit`] is still looking for the mover
     /// (from reset and [`Estimator::reacquire`] until it seeds the estimator or gives
     /// up): the angle until then is the unseeded acquisition's.
     pub fn fitting(&self) -> bool {
@@ -1293,7 +1293,7 @@ impl<T: Scalar> Estimator<T> {
     }
 
     /// Advances the PLL's linear model on the commanded ramp `a` by one sample of `dt`
-    /// (s): `u += (a - ki x) dt`, `x += (u - kp x) dt` (see [`crate::pll`]); bounded by
+    /// (s): `u += (a - ki x) dt`, `x += (u - kp x) dt` (see [`crate::algorithms::pll`]); bounded by
     /// the speed range.
     fn advance_ramp_model(&mut self, dt: T) {
         if self.commanded_accel == T::ZERO && self.ramp_lag == T::ZERO && self.ramp_phase == T::ZERO {
@@ -1315,7 +1315,7 @@ impl<T: Scalar> Estimator<T> {
     /// Tells the estimator the electrical acceleration (rad/s^2, working units, signed)
     /// the drive is commanding from the next sample on (its speed reference ramp, a
     /// move's acceleration): the PLL-tuned notch is led by the integrator's lag on that
-    /// ramp (`kp a / ki` once it has lasted, see [`crate::pll`]), so a commanded ramp
+    /// ramp (`kp a / ki` once it has lasted, see [`crate::algorithms::pll`]), so a commanded ramp
     /// costs the observer little phase. Zero (the default) for none; a non-finite value
     /// is ignored. Replay needs it too: traces carry it (host `trace` module).
     pub fn set_commanded_acceleration(&mut self, alpha_e: T) {
@@ -1344,7 +1344,7 @@ impl<T: Scalar> Estimator<T> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::observer::ObserverKind;
+    use crate::algorithms::observer::ObserverKind;
 
     const DT: f64 = 1e-4;
 
@@ -1521,7 +1521,7 @@ mod tests {
     }
 
     /// While a DC step's offset turns in the flux, the FLL reads it as a ripple at `w`
-    /// (the [`crate::fll`] docs) and its band would drag the notch; trusted only as far as
+    /// (the [`crate::algorithms::fll`] docs) and its band would drag the notch; trusted only as far as
     /// the offset reading allows, it leaves the notch to the PLL's integrator. Measured:
     /// the notch at most 0.102 of the mover's frequency off (0.145 trusting the FLL), the
     /// angle 9.60 deg (12.42); the rest of the notch's excursion is the PLL integrator's

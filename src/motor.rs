@@ -2,7 +2,8 @@
 //!
 //! Field names are the keys of the motor file (`docs/motor-format.md`).
 //! Values are SI and `f32`: this is configuration, converted once into the numeric
-//! type and unit system of the control code (see [`crate::units`]).
+//! type and unit system of the control code (see `num::units`, which imports this
+//! module: the motor's parameters stand on the ground floor and import nothing).
 
 /// Which motor parameter was refused, and why. Returned by [`MotorParams::new`].
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

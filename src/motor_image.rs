@@ -32,8 +32,8 @@
 //! [`MotorImage::encode`] writes version 3 only. Any other version is
 //! [`MotorImageError::UnsupportedVersion`].
 
-use crate::dead_time::DeadTimeCompensation;
-use crate::motion::ProfileLimits;
+use crate::algorithms::dead_time::DeadTimeCompensation;
+use crate::algorithms::motion::ProfileLimits;
 use crate::motor::{MotorParams, ParamError};
 use crc::{CRC_16_IBM_3740, Crc};
 

@@ -2,13 +2,13 @@
 //! and Q8.24, on synthetic measurements (the identification's accuracy is checked
 //! against the simulated plant in `host/tests/identify.rs`).
 
+use dcfo::algorithms::observer::ObserverKind;
+use dcfo::algorithms::transforms::Abc;
 use dcfo::drive::{
     CommissioningConfig, CommissioningError, Drive, DriveConfig, DriveState, Faults, Measurements,
 };
+use dcfo::num::units::Base;
 use dcfo::num::{Q24, Scalar};
-use dcfo::observer::ObserverKind;
-use dcfo::transforms::Abc;
-use dcfo::units::Base;
 
 fn config() -> CommissioningConfig {
     CommissioningConfig { rated_current_a: 2.1, rated_voltage_v: 220.0, bus_v: 311.0, pole_pitch_m: 0.015 }

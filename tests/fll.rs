@@ -1,9 +1,9 @@
 //! The FLL's frequency discriminator against the band-pass analysis: exact frequency
 //! whatever the notch error, in either direction, from the flux a mistuned DCFO passes.
 
-use dcfo::fll::{Fll, FllConfig};
-use dcfo::transforms::AlphaBeta;
-use dcfo::units::Base;
+use dcfo::algorithms::fll::{Fll, FllConfig};
+use dcfo::algorithms::transforms::AlphaBeta;
+use dcfo::num::units::Base;
 
 /// The steady output of the DCFO's band-pass `D(jw) = 1 / (1 + j X)`,
 /// `X = (w / w_n - w_n / w) / (2 zeta)` (SOGI gain `2 zeta`), for a flux vector
@@ -87,7 +87,7 @@ fn without_a_flux_the_notch_sweeps_down_to_its_floor_and_never_settles() {
 
 #[test]
 fn bad_settings_are_refused_by_name() {
-    use dcfo::fll::FllConfigError;
+    use dcfo::algorithms::fll::FllConfigError;
     let ok = FllConfig::for_motor(0.16, 179.6, 12.6);
     assert!(Fll::<f32>::new(&ok, &Base::SI).is_ok());
     let bad = |c: FllConfig| Fll::<f32>::new(&c, &Base::SI).err();

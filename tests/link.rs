@@ -1,16 +1,16 @@
 //! The HIL serial link: byte-exact round trips, every error path with recovery,
 //! sequence numbers across the wrap, the silent-link watchdog, and random streams.
 
+use dcfo::algorithms::motion::Move;
+use dcfo::algorithms::observer::ObserverKind;
 use dcfo::drive::{Drive, DriveConfig, DriveState, Faults};
 use dcfo::link::{
     ActuationFrame, EncodeError, EstimateReport, Frame, LinkError, LinkStats, LinkWatchdog, PROTOCOL_VERSION,
     PositionReport, RX_CAPACITY, Receiver, SILENT_LINK_PERIODS, SensorFrame, SequenceOrder, SequenceTracker,
     classify_sequence, decode_in_place, decode_raw, encode,
 };
-use dcfo::motion::Move;
 use dcfo::motor::MotorParams;
-use dcfo::observer::ObserverKind;
-use dcfo::units::Base;
+use dcfo::num::units::Base;
 use proptest::prelude::*;
 
 // ---------------------------------------------------------------- helpers

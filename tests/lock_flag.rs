@@ -5,12 +5,12 @@
 //! (issue floor), must drop while the observer is disturbed, and must come back once
 //! the estimate has recovered.
 
+use dcfo::algorithms::observer::ObserverKind;
+use dcfo::algorithms::transforms::AlphaBeta;
 use dcfo::estimator::{Estimator, EstimatorConfig};
 use dcfo::motor::MotorParams;
 use dcfo::num::Angle;
-use dcfo::observer::ObserverKind;
-use dcfo::transforms::AlphaBeta;
-use dcfo::units::Base;
+use dcfo::num::units::Base;
 
 const DT: f64 = 1e-4;
 const STEP_S: f64 = 1.0;

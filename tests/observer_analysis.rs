@@ -6,9 +6,11 @@
 mod common;
 
 use common::*;
+use dcfo::algorithms::observer::{
+    Dcfo, DcfoConfig, FluxObserver, LpfObserver, ObserverMotor, PureIntegrator,
+};
 use dcfo::motor::MotorParams;
-use dcfo::observer::{Dcfo, DcfoConfig, FluxObserver, LpfObserver, ObserverMotor, PureIntegrator};
-use dcfo::units::Base;
+use dcfo::num::units::Base;
 use std::f64::consts::PI;
 
 /// The default notch damping under test (the analysis holds for any zeta > 0, h < 0).
@@ -163,7 +165,7 @@ fn dc_step_case(u_offset: [f64; 2], i_offset: [f64; 2]) {
     syn.offset_from_s = 1.0;
     let w = syn.omega;
     let mut pi = PureIntegrator::new(motor());
-    pi.set_stator_flux(dcfo::transforms::AlphaBeta::new(syn.psi_s(0.0)[0], syn.psi_s(0.0)[1]));
+    pi.set_stator_flux(dcfo::algorithms::transforms::AlphaBeta::new(syn.psi_s(0.0)[0], syn.psi_s(0.0)[1]));
     let mut obs = dcfo();
     let n = (4.0 / TS) as usize;
     let mut pi_err_at = Vec::new();
@@ -234,7 +236,7 @@ fn dc_step_of_0_2_amperes_on_i_beta_pure_integrator_drifts_dcfo_recovers() {
     dc_step_case([0.0, 0.0], [0.0, 0.2]);
 }
 
-/// The DCFO's flux error after a DC step, in closed form (`dcfo::observer::dcfo`, "DC
+/// The DCFO's flux error after a DC step, in closed form (`dcfo::algorithms::observer::dcfo`, "DC
 /// steps: the transient"): an equivalent DC voltage `du` (V) and a flux step `dpsi` (Wb)
 /// on one axis from t = 0 give, on that axis,
 /// `e(s) = 2 zeta w (du + s dpsi) / (s^3 + (2 zeta - eta) w s^2 + w^2 s - eta w^3)`.

@@ -3,11 +3,11 @@
 mod common;
 
 use common::*;
+use dcfo::algorithms::pll::{Pll, PllConfig};
+use dcfo::algorithms::transforms::AlphaBeta;
 use dcfo::motor::MotorParams;
 use dcfo::num::Angle;
-use dcfo::pll::{Pll, PllConfig};
-use dcfo::transforms::AlphaBeta;
-use dcfo::units::Base;
+use dcfo::num::units::Base;
 use std::f64::consts::PI;
 
 /// Time within which the PLL locks from any initial angle error, s. The loop starts
@@ -103,7 +103,7 @@ fn low_flux_coasts_and_bad_input_is_refused() {
 /// phase errors below 0.00076 rad did not move it, so the loop held the frequency with
 /// `kp eps` and left the integrator up to 0.6 % off (`kp` 168 rad/s). Measured: -1.2e-2 (as it was),
 /// -6.0e-3 (rounded to nearest), 2e-5 to 6e-5 with the residue of
-/// `dcfo::pll::INTEGRAL_RESIDUE_SCALE`.
+/// `dcfo::algorithms::pll::INTEGRAL_RESIDUE_SCALE`.
 #[test]
 fn the_fixed_point_frequency_integrator_settles_on_the_true_frequency() {
     use dcfo::num::Q24;

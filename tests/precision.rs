@@ -4,11 +4,11 @@
 mod common;
 
 use common::*;
+use dcfo::algorithms::observer::{Dcfo, DcfoConfig, FluxObserver, ObserverMotor};
+use dcfo::algorithms::pll::{Pll, PllConfig};
 use dcfo::motor::MotorParams;
+use dcfo::num::units::Base;
 use dcfo::num::{Angle, Q24, Scalar};
-use dcfo::observer::{Dcfo, DcfoConfig, FluxObserver, ObserverMotor};
-use dcfo::pll::{Pll, PllConfig};
-use dcfo::units::Base;
 
 /// DCFO + PLL in type T, the PLL's frequency integrator tuning the notch (as in the drive).
 struct Chain<T> {

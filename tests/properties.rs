@@ -1,9 +1,9 @@
 //! Property tests: transforms, SVPWM and the PI controller, in f64, f32 and Q24.
 
+use dcfo::algorithms::pi::Pi;
+use dcfo::algorithms::svpwm::svpwm;
+use dcfo::algorithms::transforms::*;
 use dcfo::num::{Angle, Q24, Scalar};
-use dcfo::pi::Pi;
-use dcfo::svpwm::svpwm;
-use dcfo::transforms::*;
 use proptest::prelude::*;
 
 /// Relative tolerances of the checks, per type. Results are read back through f32, so

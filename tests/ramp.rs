@@ -2,12 +2,12 @@
 //! by the analytic `8 a / w^2` of observer phase (pll module docs) unless the commanded
 //! ramp is fed forward; a seeded estimator starts without error.
 
+use dcfo::algorithms::observer::ObserverKind;
+use dcfo::algorithms::transforms::AlphaBeta;
 use dcfo::estimator::{Estimator, EstimatorConfig, NotchTuning};
 use dcfo::motor::MotorParams;
 use dcfo::num::Angle;
-use dcfo::observer::ObserverKind;
-use dcfo::transforms::AlphaBeta;
-use dcfo::units::Base;
+use dcfo::num::units::Base;
 
 const DT: f64 = 1e-4;
 const PSI: f64 = 0.16;

@@ -54,7 +54,7 @@ mod firmware {
     use cortex_m_rt::{entry, exception};
     use dcfo::drive::{Drive, DriveState};
     use dcfo::link::board::CaptureChunk;
-    use dcfo::units::Base;
+    use dcfo::num::units::Base;
     use dcfo_firmware::board::b_g431b_esc1::{
         self as esc1, CONTROL_IRQ, ClockSource, DEFAULT_DEAD_TIME_NS, DEFAULT_PWM_HZ, Esc1Config,
         Esc1PowerStage, Esc1Sensors, StatusLed, stop,

@@ -28,10 +28,10 @@ fn main() {
 mod firmware {
     use cortex_m::peripheral::syst::SystClkSource;
     use cortex_m_rt::{entry, exception};
+    use dcfo::algorithms::observer::ObserverKind;
     use dcfo::drive::{Drive, DriveConfig};
     use dcfo::motor::MotorParams;
-    use dcfo::observer::ObserverKind;
-    use dcfo::units::Base;
+    use dcfo::num::units::Base;
     use dcfo_firmware::board::b_g431b_esc1::{self as esc1, Esc1Config, SYSCLK_HZ, stop};
     use dcfo_firmware::hil::HilServer;
     use dcfo_firmware::queue::{Producer, Queue};

@@ -1,6 +1,6 @@
 //! The ESC1 drive image with the virtual motor in place of the power stage: the drive of
 //! the motor image (or, without one, the paper motor) runs closed loop on
-//! `dcfo::virtual_motor` inside the STM32G431 while the bridge stays off (TIM1 MOE is
+//! `dcfo::plant` inside the STM32G431 while the bridge stays off (TIM1 MOE is
 //! never set), operated from the host over the board link on USART2 (`dcfo board --port`),
 //! as `qemu_drive` on QEMU. **Not tried on hardware** (none here); it builds in CI.
 //!
@@ -39,8 +39,8 @@ mod firmware {
     use dcfo::link::board::CaptureChunk;
     use dcfo::motor::MotorParams;
     use dcfo::motor_image::MotorImage;
-    use dcfo::units::Base;
-    use dcfo::virtual_motor::VirtualMotor;
+    use dcfo::num::units::Base;
+    use dcfo::plant::VirtualMotor;
     use dcfo_firmware::board::b_g431b_esc1::{self as esc1, DEFAULT_PWM_HZ, Esc1Config, SYSCLK_HZ, stop};
     use dcfo_firmware::board::virtual_motor::VirtualBoard;
     use dcfo_firmware::board_link::{BoardLinkServer, LinkClock};

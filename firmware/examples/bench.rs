@@ -2,7 +2,7 @@
 //! and `mps2-an385` (Cortex-M3, `Drive<Q24>`), run by `host/src/bin/bench_qemu.rs`.
 //!
 //! # What it runs
-//! Every `Drive::step` of a scripted run against the virtual motor (`dcfo::virtual_motor`:
+//! Every `Drive::step` of a scripted run against the virtual motor (`dcfo::plant`:
 //! the motor of the image on the command line, the salient `motors/salient.toml` from
 //! `bench_qemu`, with the paper axis's carriage), timed one by one:
 //! 1. *speed*: a speed drive (`DriveConfig::for_motor`, DCFO): enable, calibration, the
@@ -61,26 +61,26 @@ mod firmware {
     use cortex_m::peripheral::SYST;
     use cortex_m::peripheral::syst::SystClkSource;
     use cortex_m_rt::entry;
-    use dcfo::dead_time::InverterErrorModel;
+    use dcfo::algorithms::dead_time::InverterErrorModel;
+    use dcfo::algorithms::motion::{Move, ProfileLimits};
+    use dcfo::algorithms::observer::{Dcfo, FluxObserver, ObserverInput, ObserverKind, ObserverMotor};
+    use dcfo::algorithms::pi::Pi;
+    use dcfo::algorithms::pll::Pll;
+    use dcfo::algorithms::svpwm::svpwm;
+    use dcfo::algorithms::transforms::{Abc, AlphaBeta, CosSin, Dq, clarke, inverse_park, park};
     use dcfo::drive::{
         DeadTimeCompensation, Drive, DriveConfig, DriveState, Measurements, MotionConfig,
         PAPER_AXIS_PAYLOAD_KG, STROKE_AXIS_LIMITS, StepOutput,
     };
     use dcfo::estimator::Estimator;
     use dcfo::link::{SensorFrame, encode};
-    use dcfo::motion::{Move, ProfileLimits};
     use dcfo::motor::MotorParams;
     use dcfo::motor_image::MotorImage;
     #[cfg(not(target_abi = "eabihf"))]
     use dcfo::num::Q24;
+    use dcfo::num::units::Base;
     use dcfo::num::{Angle, Scalar};
-    use dcfo::observer::{Dcfo, FluxObserver, ObserverInput, ObserverKind, ObserverMotor};
-    use dcfo::pi::Pi;
-    use dcfo::pll::Pll;
-    use dcfo::svpwm::svpwm;
-    use dcfo::transforms::{Abc, AlphaBeta, CosSin, Dq, clarke, inverse_park, park};
-    use dcfo::units::Base;
-    use dcfo::virtual_motor::{VirtualAxis, VirtualMotor};
+    use dcfo::plant::{VirtualAxis, VirtualMotor};
     use dcfo_firmware::board::mps2::{CmsdkUart, semihosting_cmdline, semihosting_exit as exit};
     use dcfo_firmware::hil::HilServer;
     use dcfo_firmware::image_drive::motor_image_from_hex;

@@ -17,7 +17,7 @@
 //! the commands and its telemetry carries the position report; without one (or a
 //! version-1 or -2 image) a speed drive, which reports every move refused. Without a
 //! command line: the paper motor's speed drive at the paper axis's bus, on the paper
-//! axis's carriage (`PAPER_AXIS_PAYLOAD_KG`). The virtual motor (`dcfo::virtual_motor`)
+//! axis's carriage (`PAPER_AXIS_PAYLOAD_KG`). The virtual motor (`dcfo::plant`)
 //! derives everything from the same `MotorParams`, with the axis's payload.
 //!
 //! | context | priority | work | budget |
@@ -69,8 +69,8 @@ mod firmware {
     use dcfo::link::board::CaptureChunk;
     use dcfo::motor::MotorParams;
     use dcfo::motor_image::MotorImage;
-    use dcfo::units::Base;
-    use dcfo::virtual_motor::VirtualMotor;
+    use dcfo::num::units::Base;
+    use dcfo::plant::VirtualMotor;
     use dcfo_firmware::board::mps2::{CmsdkUart, HostClock, SYSCLK_HZ, halt};
     use dcfo_firmware::board::virtual_motor::VirtualBoard;
     use dcfo_firmware::board_link::{BoardLinkServer, LinkClock};

@@ -63,11 +63,11 @@ mod firmware {
     #[cfg(target_abi = "eabihf")]
     use cortex_m::peripheral::scb::FpuAccessMode;
     use cortex_m_rt::{entry, exception};
+    use dcfo::algorithms::observer::ObserverKind;
     use dcfo::drive::{Drive, DriveConfig};
     use dcfo::motor::MotorParams;
     use dcfo::motor_image::MotorImage;
-    use dcfo::observer::ObserverKind;
-    use dcfo::units::Base;
+    use dcfo::num::units::Base;
     use dcfo_firmware::board::mps2::{self, CmsdkUart, UART0_RX_IRQN, Uart0RxIrq, UartRx, UartTx, halt};
     use dcfo_firmware::hil::HilServer;
     use dcfo_firmware::queue::{Producer, Queue};

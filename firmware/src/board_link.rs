@@ -32,7 +32,7 @@ use dcfo::drive::{DriveState, Faults, StepOutput};
 use dcfo::link::board::{BoardCommand, BoardTelemetry, CAPTURE_CHUNK_SAMPLES, CaptureChunk, NO_CAPTURE_READ};
 use dcfo::link::{LinkStats, PositionReport, Receiver};
 use dcfo::num::Scalar;
-use dcfo::units::Base;
+use dcfo::num::units::Base;
 
 use crate::board::PhaseSample;
 use crate::control::Setpoints;
@@ -264,11 +264,11 @@ mod tests {
     use super::*;
     use crate::board::virtual_motor::VirtualBoard;
     use crate::control::ControlLoop;
+    use dcfo::algorithms::observer::ObserverKind;
     use dcfo::drive::{Drive, DriveConfig, PAPER_AXIS_PAYLOAD_KG};
     use dcfo::link::encode;
     use dcfo::motor::MotorParams;
-    use dcfo::observer::ObserverKind;
-    use dcfo::virtual_motor::{VirtualAxis, VirtualMotor};
+    use dcfo::plant::{VirtualAxis, VirtualMotor};
 
     const BUS_V: f32 = 311.0;
 
@@ -405,7 +405,7 @@ mod tests {
         let target = 0.03;
         let go = BoardCommand {
             speed_ref: 0.0,
-            move_to: Some(dcfo::motion::Move { target_m: target, dwell_s: 0.0 }),
+            move_to: Some(dcfo::algorithms::motion::Move { target_m: target, dwell_s: 0.0 }),
             ..command(1, true, false, NO_CAPTURE_READ)
         };
         // Sent twice with one sequence number (a resend): one move.
@@ -433,7 +433,7 @@ mod tests {
         assert!((x - target).abs() < tol, "the mover at {x} m, target {target} m (idle from {idle_at:?})");
         // Outside the stroke: refused by the drive, counted, reported.
         let far = BoardCommand {
-            move_to: Some(dcfo::motion::Move { target_m: 10.0, dwell_s: 0.0 }),
+            move_to: Some(dcfo::algorithms::motion::Move { target_m: 10.0, dwell_s: 0.0 }),
             ..command(2, true, false, NO_CAPTURE_READ)
         };
         let c = feed(&mut server, &far, &sp, status.periods).unwrap();
@@ -446,7 +446,7 @@ mod tests {
         // A full mailbox (two moves before a control period) is a counted refusal too.
         for seq in [3, 4] {
             let m = BoardCommand {
-                move_to: Some(dcfo::motion::Move { target_m: 0.0, dwell_s: 0.0 }),
+                move_to: Some(dcfo::algorithms::motion::Move { target_m: 0.0, dwell_s: 0.0 }),
                 ..command(seq, true, false, NO_CAPTURE_READ)
             };
             feed(&mut server, &m, &sp, status.periods).unwrap();

@@ -17,11 +17,11 @@
 
 use core::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 
+use dcfo::algorithms::motion::Move;
 use dcfo::drive::{Commands, Drive, DriveState, Faults, Measurements, StepOutput};
 use dcfo::link::{ActuationFrame, LinkStats, PositionReport};
-use dcfo::motion::Move;
 use dcfo::num::Scalar;
-use dcfo::units::Base;
+use dcfo::num::units::Base;
 
 use crate::board::{PhaseSample, PhaseSensors, PowerStage};
 use crate::queue::Producer;
@@ -287,10 +287,10 @@ mod tests {
     use super::*;
     use crate::board::fake::{FakeBoard, InjectedFault};
     use crate::queue::Queue;
+    use dcfo::algorithms::observer::ObserverKind;
     use dcfo::drive::DriveConfig;
     use dcfo::motor::MotorParams;
     use dcfo::num::Q24;
-    use dcfo::observer::ObserverKind;
 
     const BUS_V: f32 = 311.0;
 

@@ -86,11 +86,11 @@ impl<T: Scalar> HilServer<T> {
 mod tests {
     use super::*;
     use crate::queue::{Consumer, Queue};
+    use dcfo::algorithms::observer::ObserverKind;
     use dcfo::drive::{DriveConfig, DriveState};
     use dcfo::link::{Receiver, SensorFrame, encode};
     use dcfo::motor::MotorParams;
-    use dcfo::observer::ObserverKind;
-    use dcfo::units::Base;
+    use dcfo::num::units::Base;
 
     fn server() -> HilServer<f32> {
         let m = MotorParams::paper();

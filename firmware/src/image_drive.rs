@@ -12,7 +12,7 @@
 
 use dcfo::drive::{DeadTimeCompensation, DriveConfig, DriveConfigError, PAPER_AXIS_PAYLOAD_KG};
 use dcfo::motor_image::MotorImage;
-use dcfo::virtual_motor::VirtualAxis;
+use dcfo::plant::VirtualAxis;
 
 /// The inverter behind the drive, as [`drive_config`] needs to know it.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -24,7 +24,7 @@ pub enum Inverter {
         /// The bridge's programmed dead time, s.
         dead_time_s: f32,
     },
-    /// The virtual motor's averaged inverter (`dcfo::virtual_motor`): ideal, so no
+    /// The virtual motor's averaged inverter (`dcfo::plant`): ideal, so no
     /// compensation. It moves the image's axis payload or, without an axis, the paper
     /// axis's carriage ([`PAPER_AXIS_PAYLOAD_KG`]: a bare mover trips after the I/f
     /// hand-over), and the speed drive is tuned for that mass ([`virtual_axis`]).
@@ -161,7 +161,8 @@ mod tests {
         assert_eq!(drive_config(&image, 1.0 / 10_000.0, Inverter::Virtual), Ok(former));
         // And the speed drive without an image: `for_motor` moving the carriage.
         let speed = MotorImage::new(motor, PAPER_AXIS_BUS_V).unwrap();
-        let mut former = DriveConfig::for_motor(&motor, PAPER_AXIS_BUS_V, dcfo::observer::ObserverKind::Dcfo);
+        let mut former =
+            DriveConfig::for_motor(&motor, PAPER_AXIS_BUS_V, dcfo::algorithms::observer::ObserverKind::Dcfo);
         former.moving_mass_kg = motor.mass_kg + PAPER_AXIS_PAYLOAD_KG;
         former.control_period_s = 1.0 / 10_000.0;
         assert_eq!(drive_config(&speed, 1.0 / 10_000.0, Inverter::Virtual), Ok(former));

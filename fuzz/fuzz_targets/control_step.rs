@@ -20,10 +20,10 @@
 use dcfo::drive::{Drive, DriveConfig, DriveState, Faults, Measurements};
 use dcfo::motor::MotorParams;
 use dcfo::num::Scalar;
-use dcfo::observer::ObserverKind;
-use dcfo::units::Base;
+use dcfo::algorithms::observer::ObserverKind;
+use dcfo::num::units::Base;
 
-pub use dcfo::transforms::Abc;
+pub use dcfo::algorithms::transforms::Abc;
 
 /// The four words of a record as physical SI values: currents within +-10 A, the bus
 /// within 50..150 % of the paper axis' nominal bus (V).

@@ -6,7 +6,7 @@ mod control_step;
 
 use control_step::{Abc, physical};
 use dcfo::drive::Measurements;
-use dcfo::units::Base;
+use dcfo::num::units::Base;
 use libfuzzer_sys::fuzz_target;
 
 fuzz_target!(|data: &[u8]| {

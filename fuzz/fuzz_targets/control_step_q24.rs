@@ -11,7 +11,7 @@ use control_step::{Abc, physical};
 use dcfo::drive::Measurements;
 use dcfo::motor::MotorParams;
 use dcfo::num::Q24;
-use dcfo::units::Base;
+use dcfo::num::units::Base;
 use libfuzzer_sys::fuzz_target;
 
 fuzz_target!(|data: &[u8]| {

@@ -14,8 +14,8 @@ use dcfo::drive::{Drive, DriveConfig};
 use dcfo::link::board::{BoardCommand, BoardTelemetry, CaptureChunk};
 use dcfo::link::{self, ActuationFrame, LinkServer, Receiver, SensorFrame};
 use dcfo::motor::MotorParams;
-use dcfo::observer::ObserverKind;
-use dcfo::units::Base;
+use dcfo::algorithms::observer::ObserverKind;
+use dcfo::num::units::Base;
 use libfuzzer_sys::fuzz_target;
 
 fn round_trips<F: link::Frame + PartialEq + core::fmt::Debug>(frame: &F) {

@@ -18,7 +18,7 @@
 //! ([`dcfo_host::commands::paper::run_all`]): about 30 s for 8 phases on two cores.
 
 use anyhow::{Context, Result, bail};
-use dcfo::observer::ObserverKind;
+use dcfo::algorithms::observer::ObserverKind;
 use dcfo_host::commands::paper::run_all;
 use dcfo_host::simulation::figures::figures;
 use dcfo_host::simulation::scenarios::{Event, Scenario, paper_scenarios, scenario};

@@ -19,7 +19,7 @@ use std::process::ExitCode;
 
 use anyhow::bail;
 use clap::{Args, Parser, Subcommand, ValueEnum};
-use dcfo::observer::ObserverKind;
+use dcfo::algorithms::observer::ObserverKind;
 
 use crate::summary::DEFAULT_SETTLE_S;
 
@@ -543,7 +543,7 @@ pub struct ReplayArgs {
 pub enum NumericArg {
     /// f32 in SI units.
     F32,
-    /// Q8.24 fixed point in the motor's per-unit base (dcfo::units::Base::for_motor).
+    /// Q8.24 fixed point in the motor's per-unit base (dcfo::num::units::Base::for_motor).
     Q24,
 }
 
@@ -634,7 +634,9 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                 demo: a.demo,
                 speed_m_per_s: a.speed,
                 json: a.json,
-                move_to: a.move_to.map(|target_m| dcfo::motion::Move { target_m, dwell_s: a.dwell }),
+                move_to: a
+                    .move_to
+                    .map(|target_m| dcfo::algorithms::motion::Move { target_m, dwell_s: a.dwell }),
                 image: a.image,
             })?;
             Ok(ExitCode::SUCCESS)

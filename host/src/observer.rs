@@ -1,8 +1,8 @@
 //! The host's one mapping between the library's flux observers
-//! ([`dcfo::observer::ObserverKind`]) and their names on the command line, in file
+//! ([`dcfo::algorithms::observer::ObserverKind`]) and their names on the command line, in file
 //! names, summaries and messages: `pi`, `cfo`, `dcfo`.
 
-use dcfo::observer::ObserverKind;
+use dcfo::algorithms::observer::ObserverKind;
 
 /// Every observer kind, in the order the names are listed.
 pub const ALL: [ObserverKind; 3] = [ObserverKind::PureIntegrator, ObserverKind::Cfo, ObserverKind::Dcfo];

@@ -12,14 +12,14 @@
 //! `dcfo track` (reversals, speed steps) replay such recordings through the estimator
 //! alone.
 
+use dcfo::algorithms::pi::Pi;
+use dcfo::algorithms::svpwm::svpwm;
+use dcfo::algorithms::transforms::{AlphaBeta, CosSin, Dq, inverse_clarke, inverse_park, park};
 use dcfo::drive::{COMPENSATION_REFERENCE_FROM_BANDS, CompensationSigns};
 use dcfo::estimator::Estimator;
 use dcfo::motor::MotorParams;
 use dcfo::num::Scalar;
-use dcfo::pi::Pi;
-use dcfo::svpwm::svpwm;
-use dcfo::transforms::{AlphaBeta, CosSin, Dq, inverse_clarke, inverse_park, park};
-use dcfo::units::Base;
+use dcfo::num::units::Base;
 
 use crate::closed_loop::{Bridge, ClosedLoop};
 use crate::plant::Plant;
@@ -134,10 +134,17 @@ pub fn record(
     let (mut pi_d, mut pi_q) = (pi(vmax)?, pi(vmax)?);
     let kf = f64::from(motor.thrust_constant_n_per_a());
     let mass = setup.plant.plant.mass_kg;
-    let comp = setup
-        .drive
-        .dead_time_compensation
-        .map(|c| (c, dcfo::dead_time::InverterErrorModel::<f64>::for_drive(&c, ts as f32, motor, &Base::SI)));
+    let comp = setup.drive.dead_time_compensation.map(|c| {
+        (
+            c,
+            dcfo::algorithms::dead_time::InverterErrorModel::<f64>::for_drive(
+                &c,
+                ts as f32,
+                motor,
+                &Base::SI,
+            ),
+        )
+    });
     let skip = (0.1 / ts).round() as usize;
     let n = skip + (duration_s / ts).round() as usize;
     let mut rows = Vec::with_capacity(n);
@@ -160,7 +167,7 @@ pub fn record(
         let apply = theta + 1.5 * omega * ts;
         let cs_apply = CosSin { cos: apply.cos(), sin: apply.sin() };
         let u_ab = inverse_park(Dq::new(u_d, u_q), &cs_apply);
-        // The drive's inverter compensation (`dcfo::dead_time`), from the current carried
+        // The drive's inverter compensation (`dcfo::algorithms::dead_time`), from the current carried
         // to the window: the measured current blended into the reference as the drive
         // does (`Drive::compensation_current`).
         let c = match comp {

@@ -3,7 +3,7 @@
 //! and without +0.2 A / +2 V offsets present from the first sample, f32 and Q8.24.
 //!
 //! Measured on this subset (144 starts) with the back-EMF circle fit that gives the
-//! DC error with the seed (`src/arc_fit.rs`, 2026-11-26): every start within its budget
+//! DC error with the seed (`src/algorithms/arc_fit.rs`, 2026-11-26): every start within its budget
 //! (at 0.1 m/s, 0.5 s at most of 0.6 s; before the fit 25 of the 48 starts there were
 //! over, the +2 V ones by 2.1 budgets in the median); no false lock. Q8.24 within
 //! 0.20 deg of f32 once both are locked and seeded (the floor is 1 deg): 1.37
@@ -12,7 +12,7 @@
 //! pass its checks (the two types passed a sample apart, 1.2 deg apart; now the mean of
 //! the circles over the next eighth of the fit).
 
-use dcfo::observer::ObserverKind;
+use dcfo::algorithms::observer::ObserverKind;
 use dcfo_host::commands::acquire::{Offset, Options, PlantModel, sweep};
 use dcfo_host::simulation::Setup;
 
@@ -72,7 +72,7 @@ fn on_ideal_inputs_the_estimator_locks_well_within_budget() {
 
 /// The steady angle error of a cold-started estimator is the inverter's period-average
 /// voltage error across the mover flux over the back-EMF, and the compensation with
-/// the ripple at the switching edges (`dcfo::dead_time`) and the reference's signs
+/// the ripple at the switching edges (`dcfo::algorithms::dead_time`) and the reference's signs
 /// removes most of it.
 ///
 /// The DCFO passes the fundamental with unity gain and zero phase (docs/method.md §3,
@@ -150,7 +150,7 @@ fn another_motor_is_swept_at_the_benchmarks_electrical_frequencies_and_load_shar
 /// On a motor whose back-EMF carries as much of the current sensors' noise as signal at
 /// low speed (`motors/salient_high_l.toml`: through `Ls di/dt`, 1.5 times the back-EMF
 /// at 3.3 Hz), the circle fit takes the noise's variance out of its points
-/// (`dcfo::arc_fit`, "Noise") and every start at 5 and 6.7 Hz, with and without the
+/// (`dcfo::algorithms::arc_fit`, "Noise") and every start at 5 and 6.7 Hz, with and without the
 /// offsets, locks within its budget. Measured (2026-11-26, f32): all 96 (the plain
 /// algebraic fit, biased towards small circles by the noise: 22 over budget, up to 0.95 s
 /// of 0.4).

@@ -1,6 +1,6 @@
 //! The virtual motor and the board path (issue 12, items 2 to 5).
 //!
-//! - The firmware's virtual motor (`dcfo::virtual_motor`, f32, averaged inverter) agrees
+//! - The firmware's virtual motor (`dcfo::plant`, f32, averaged inverter) agrees
 //!   with the host's f64 plant (switched ideal inverter, RK4) on the same duties.
 //! - The drive on the virtual motor, captured as the drive image captures it, replays
 //!   through `dcfo replay`'s code bit for bit (in process, no QEMU), in f32 (the M4F
@@ -15,14 +15,14 @@
 //! The QEMU tests skip with a message when `qemu-system-arm` or the thumb target is
 //! missing, unless `DCFO_REQUIRE_QEMU=1` (CI sets it), as `qemu_hil.rs` does.
 
+use dcfo::algorithms::observer::ObserverKind;
+use dcfo::algorithms::svpwm::svpwm;
+use dcfo::algorithms::transforms::{Abc, AlphaBeta};
 use dcfo::capture::{Capture, CaptureFormat, CaptureScalar, CaptureState, Quantity};
 use dcfo::drive::{Drive, DriveConfig, DriveState, Measurements, PAPER_AXIS_BUS_V, PAPER_AXIS_PAYLOAD_KG};
 use dcfo::motor::MotorParams;
 use dcfo::num::Q24;
-use dcfo::observer::ObserverKind;
-use dcfo::svpwm::svpwm;
-use dcfo::transforms::{Abc, AlphaBeta};
-use dcfo::virtual_motor::{VirtualAxis, VirtualMotor};
+use dcfo::plant::{VirtualAxis, VirtualMotor};
 use dcfo_host::commands::board::capture::{CaptureData, capture_trace, replay_matches, write_capture_trace};
 use dcfo_host::commands::board::link::{Board, BoardLink, DriveClock};
 use dcfo_host::commands::replay::working_base;

@@ -1,7 +1,7 @@
 //! A trace written by the closed-loop simulation and replayed through `dcfo replay`
 //! reproduces the run's estimates exactly: same code, same arithmetic, same inputs.
 
-use dcfo::observer::ObserverKind;
+use dcfo::algorithms::observer::ObserverKind;
 use dcfo_host::commands::replay::replay_trace;
 use dcfo_host::commands::sim::trace_of;
 use dcfo_host::simulation::{Setup, run, scenarios};

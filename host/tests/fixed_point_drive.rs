@@ -5,11 +5,11 @@
 //! The estimator's own numerics are compared open-loop, on identical inputs, so that the
 //! closed loop's amplification of rounding does not hide or fake a difference.
 
+use dcfo::algorithms::observer::ObserverKind;
+use dcfo::algorithms::transforms::AlphaBeta;
 use dcfo::estimator::Estimator;
 use dcfo::num::Q24;
-use dcfo::observer::ObserverKind;
-use dcfo::transforms::AlphaBeta;
-use dcfo::units::Base;
+use dcfo::num::units::Base;
 use dcfo_host::simulation::{LocalDrive, Setup, figures, run, run_with, scenarios};
 use dcfo_host::trace::wrap_angle;
 

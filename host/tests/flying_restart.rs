@@ -2,8 +2,8 @@
 //! must not trip, must stop pushing on an untrusted angle (`Reacquiring`: zero current
 //! references), find the mover again and resume closed-loop control.
 
+use dcfo::algorithms::observer::ObserverKind;
 use dcfo::drive::DriveState;
-use dcfo::observer::ObserverKind;
 use dcfo_host::simulation::{self, Event, Scenario, Setup, theta_err_deg};
 
 /// (time to resume Running, peak current, lowest speed, max error over the last 0.1 s,

@@ -5,11 +5,11 @@
 //! quantisation) with d-axis saturation (incremental Ld 10 % lower at the rated peak
 //! current). The mover rests at positions the estimator is not told.
 
-use dcfo::hfi::{Hfi, HfiConfig};
+use dcfo::algorithms::hfi::{Hfi, HfiConfig};
+use dcfo::algorithms::transforms::AlphaBeta;
 use dcfo::motor::MotorParams;
+use dcfo::num::units::Base;
 use dcfo::num::{Angle, Q24};
-use dcfo::transforms::AlphaBeta;
-use dcfo::units::Base;
 use dcfo_host::closed_loop::{Bridge, ClosedLoop};
 use dcfo_host::commands::stroke::plant_for;
 use dcfo_host::motor_file::load_motor;
@@ -106,7 +106,7 @@ fn standstill<T: dcfo::num::Scalar>(
     }
 }
 
-/// Error budget at standstill on this plant (module docs of `dcfo::hfi`): sensor noise
+/// Error budget at standstill on this plant (module docs of `dcfo::algorithms::hfi`): sensor noise
 /// (20 mA RMS, 10 mA steps) through the loop, about 1.3 deg RMS, 4.5 deg at 3.5 sigma; the
 /// dead time's tilt of the injected vector at zero current, up to 2 deg; the phases'
 /// unequal gain errors (+0.5 %, -0.8 %) as an apparent saliency, up to 2 deg: 10 deg

@@ -6,10 +6,10 @@
 //! position (polarity included) without moving the mover to align it. The same runs with
 //! HFI switched off (the open-loop current vector of before) are printed for comparison.
 
+use dcfo::algorithms::motion::Move;
 use dcfo::drive::{Drive, DriveState};
-use dcfo::motion::Move;
 use dcfo::motor::MotorParams;
-use dcfo::units::Base;
+use dcfo::num::units::Base;
 use dcfo_host::closed_loop::ClosedLoop;
 use dcfo_host::commands::stroke::{drive_for, plant_for};
 use dcfo_host::motor_file::load_motor;

@@ -3,10 +3,10 @@
 //! over a socket pair. The closed loop through the link must reproduce the in-process
 //! run's angle estimates bit for bit, and survive a noisy line.
 
+use dcfo::algorithms::observer::ObserverKind;
 use dcfo::drive::Drive;
 use dcfo::link::LinkServer;
-use dcfo::observer::ObserverKind;
-use dcfo::units::Base;
+use dcfo::num::units::Base;
 use dcfo_host::commands::hil::compare_runs;
 use dcfo_host::hil_link::SerialController;
 use dcfo_host::simulation::{Setup, run, run_with, scenarios};

@@ -218,7 +218,7 @@ fn the_motor_image_carries_the_identified_motor_and_compensation() {
         MotorImage::decode(&dcfo_host::commands::identify::motor_image(&r, &m, Some(axis)).unwrap()).unwrap();
     assert_eq!(kept, MotorImage { axis: Some(axis), ..image });
     let too_fast = dcfo::motor_image::MotorAxis {
-        limits: dcfo::motion::ProfileLimits { max_speed_m_per_s: 100.0, ..axis.limits },
+        limits: dcfo::algorithms::motion::ProfileLimits { max_speed_m_per_s: 100.0, ..axis.limits },
         ..axis
     };
     let e = dcfo_host::commands::identify::motor_image(&r, &m, Some(too_fast)).unwrap_err().to_string();

@@ -5,12 +5,12 @@
 //! lost periods stays close to it; one that steps them as one period falls behind by a
 //! period's angle at each loss.
 
+use dcfo::algorithms::observer::ObserverKind;
+use dcfo::algorithms::transforms::Abc;
 use dcfo::drive::{Drive, DriveConfig, Measurements, PAPER_AXIS_BUS_V, PAPER_AXIS_PAYLOAD_KG};
 use dcfo::motor::MotorParams;
-use dcfo::observer::ObserverKind;
-use dcfo::transforms::Abc;
-use dcfo::units::Base;
-use dcfo::virtual_motor::{VirtualAxis, VirtualMotor};
+use dcfo::num::units::Base;
+use dcfo::plant::{VirtualAxis, VirtualMotor};
 
 struct Axis {
     drive: Drive<f32>,

@@ -153,8 +153,8 @@ fn dcfo_lock_flag_is_honest_in_every_scenario() {
 /// floor (1.1 / 0.5 deg): measured 0.70 / 0.25 against the measured signs' 1.23 / 0.54.
 #[test]
 fn steady_with_the_compensation_signs_from_the_reference() {
+    use dcfo::algorithms::observer::ObserverKind;
     use dcfo::drive::CompensationSigns;
-    use dcfo::observer::ObserverKind;
     use dcfo_host::simulation::{Setup, run, scenarios};
     let sc = scenarios::scenario("steady").expect("scenario");
     // The default, as `dcfo paper` runs it.

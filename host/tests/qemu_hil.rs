@@ -11,9 +11,9 @@
 //! Skips with a message when `qemu-system-arm` or a thumb target is missing, unless
 //! `DCFO_REQUIRE_QEMU=1` (CI sets it), which turns a skip into a failure.
 
+use dcfo::algorithms::observer::ObserverKind;
 use dcfo::drive::{DriveState, Faults};
 use dcfo::link::SensorFrame;
-use dcfo::observer::ObserverKind;
 use dcfo_host::commands::hil::compare_runs;
 use dcfo_host::qemu::{QemuCpu, QemuSession};
 use dcfo_host::simulation::{Controller, Setup, figures, run_with, scenarios};

@@ -4,8 +4,8 @@
 //! more than 15 deg off (`false_lock_samples`, docs/trace-format.md). The closed loop is
 //! the command's own ([`setup_for`]), so what this counts is what `dcfo sim` reports.
 
+use dcfo::algorithms::observer::ObserverKind;
 use dcfo::drive::DriveState;
-use dcfo::observer::ObserverKind;
 use dcfo_host::commands::sim::setup_for;
 use dcfo_host::simulation::scenarios::paper_scenarios;
 use dcfo_host::simulation::{Sample, run, theta_err_deg};

@@ -2,8 +2,8 @@
 //! m/s) on the paper axis and on every motor file in `motors/`, through the low-speed
 //! mode at each passage through zero speed and back to the sensorless loop.
 
+use dcfo::algorithms::observer::ObserverKind;
 use dcfo::drive::DriveState;
-use dcfo::observer::ObserverKind;
 use dcfo_host::commands::sim::load_scenario;
 use dcfo_host::motor_file::load_motor;
 use dcfo_host::simulation::{Run, Setup, run};

@@ -49,7 +49,7 @@ fn salient_motor_stroke_meets_the_floors() {
     let m = load_motor(path).expect("motor file");
     assert!(m.params.lq_h / m.params.ld_h >= 1.15);
     // At rest the salient motor's position comes from HFI, whose standstill angle budget
-    // is 10 deg electrical (src/hfi.rs: 7.3 deg measured over 16 positions): the final
+    // is 10 deg electrical (src/algorithms/hfi.rs: 7.3 deg measured over 16 positions): the final
     // error is held to that, tau / 18. The tau / 60 (3 deg) is not a bound with
     // HFI: where the mover stops decides whether it is met (it has been, and has not,
     // as the estimator changed the trajectory); the current vector meets it.
@@ -66,7 +66,7 @@ fn low_resistance_motor_stroke_meets_the_floors() {
 #[test]
 fn a_profile_the_motor_cannot_follow_is_refused_by_name() {
     use dcfo::drive::Drive;
-    use dcfo::units::Base;
+    use dcfo::num::units::Base;
     let m = MotorParams::paper();
     let ok = dcfo_host::commands::stroke::drive_for(&m);
     assert!(Drive::<f32>::new(&m, &ok, &Base::SI).is_ok());
@@ -85,6 +85,6 @@ fn a_profile_the_motor_cannot_follow_is_refused_by_name() {
     assert_eq!(err.field, "motion.limits.max_speed_m_per_s");
     // A target outside the stroke is refused, and the queue is unchanged.
     let mut d = Drive::<f32>::new(&m, &ok, &Base::SI).unwrap();
-    let bad = dcfo::motion::Move { target_m: 1.0, dwell_s: 0.0 };
-    assert_eq!(d.push_move(bad), Err(dcfo::motion::MotionError::Unreachable));
+    let bad = dcfo::algorithms::motion::Move { target_m: 1.0, dwell_s: 0.0 };
+    assert_eq!(d.push_move(bad), Err(dcfo::algorithms::motion::MotionError::Unreachable));
 }

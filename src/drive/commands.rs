@@ -6,9 +6,9 @@
 //! through these, so the mapping exists once.
 
 use super::{Drive, DriveState, Measurements};
+use crate::algorithms::transforms::Abc;
 use crate::num::Scalar;
-use crate::transforms::Abc;
-use crate::units::Base;
+use crate::num::units::Base;
 
 /// The operator's commands for one control period, SI units.
 ///

@@ -1,13 +1,13 @@
 //! Drive settings (SI) and the controller gains derived from them.
 
-use crate::dead_time::DeadTimeCompensation;
+use crate::algorithms::dead_time::DeadTimeCompensation;
+use crate::algorithms::hfi::HfiConfig;
+use crate::algorithms::motion::{ProfileField, ProfileLimits};
+use crate::algorithms::observer::ObserverKind;
 use crate::estimator::EstimatorConfig;
-use crate::hfi::HfiConfig;
-use crate::motion::{ProfileField, ProfileLimits};
 use crate::motor::MotorParams;
 use crate::motor_image::MotorImage;
 use crate::num::{non_negative, positive};
-use crate::observer::ObserverKind;
 
 /// Open-loop (I/f) start-up: a current vector of fixed amplitude turned at a
 /// ramping frequency drags the mover up to a speed where the back-EMF is observable.
@@ -58,7 +58,7 @@ pub enum CompensationSigns {
     /// The current reference where it is clear of the sensors' noise (above
     /// [`super::COMPENSATION_REFERENCE_FROM_BANDS`] bands, fully from twice that), the
     /// measured current near zero: the default. It needs the PWM ripple at the switching
-    /// edges modelled ([`crate::dead_time`]), without which it loses at 1.0-1.5 m/s; with
+    /// edges modelled ([`crate::algorithms::dead_time`]), without which it loses at 1.0-1.5 m/s; with
     /// it, it beats [`Self::Measured`] on the paper axis's steady state at every speed and
     /// in the cold starts (`docs/inverter-compensation.md`).
     ReferenceAboveNoise,

@@ -78,15 +78,19 @@ pub use positioning::MOVE_QUEUE;
 use positioning::Positioning;
 
 /// The inverter compensation's settings, a part of [`DriveConfig`].
-pub use crate::dead_time::DeadTimeCompensation;
-use crate::dead_time::InverterErrorModel;
+pub use crate::algorithms::dead_time::DeadTimeCompensation;
+use crate::algorithms::dead_time::InverterErrorModel;
+use crate::algorithms::hfi::Hfi;
+use crate::algorithms::load_observer::{LoadObserver, LoadObserverConfig};
+use crate::algorithms::motion::{Profile, ProfileLimits};
+use crate::algorithms::observer::ObserverKind;
+use crate::algorithms::pi::Pi;
+use crate::algorithms::svpwm::{Duties, svpwm};
+use crate::algorithms::transforms::{Abc, AlphaBeta, CosSin, Dq, clarke, inverse_clarke, inverse_park, park};
 use crate::estimator::{Estimate, Estimator};
 use crate::motor::MotorParams;
+use crate::num::units::Base;
 use crate::num::{Angle, Scalar};
-use crate::pi::Pi;
-use crate::svpwm::{Duties, svpwm};
-use crate::transforms::{Abc, AlphaBeta, CosSin, Dq, clarke, inverse_clarke, inverse_park, park};
-use crate::units::Base;
 
 /// Where the drive's state machine is.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -203,7 +207,7 @@ struct Constants<T> {
     at_limit_sq: T,
     reacquire_timeout_samples: u32,
     delay_periods: T,
-    /// The inverter's error as compensated ([`crate::dead_time`]); `None`: no
+    /// The inverter's error as compensated ([`crate::algorithms::dead_time`]); `None`: no
     /// compensation. Its `inv_band_sqrt` also measures the reference in bands
     /// ([`Drive::compensation_current`]).
     inverter: Option<InverterErrorModel<T>>,
@@ -477,7 +481,7 @@ impl<T: Scalar> Drive<T> {
             MotionConfig::for_drive(
                 motor,
                 config,
-                crate::motion::ProfileLimits {
+                ProfileLimits {
                     max_speed_m_per_s: config.bus_speed_limit_m_per_s(motor),
                     max_accel_m_per_s2: config.accel_limit_m_per_s2,
                     stroke_min_m: f32::MIN,
@@ -497,8 +501,8 @@ impl<T: Scalar> Drive<T> {
             // the filters and the dither of the low-speed mode (`positioning` docs).
             let stiffness = motor.thrust_constant_n_per_a() * m.low_speed_current_a * omega_per_speed;
             let wn = libm::sqrtf(stiffness / config.moving_mass_kg);
-            let profile = crate::motion::Profile::new(m.limits, 0.0)
-                .map_err(|_| DriveConfigError { field: "motion.limits" })?;
+            let profile =
+                Profile::new(m.limits, 0.0).map_err(|_| DriveConfigError { field: "motion.limits" })?;
             Ok(Positioning {
                 profile,
                 follows_speed,
@@ -534,17 +538,16 @@ impl<T: Scalar> Drive<T> {
                 accel_ff_applied: T::ZERO,
                 mover_filter_rate: (wn * ts).min(1.0),
                 hfi: match m.hfi {
-                    Some(h) => Some(
-                        crate::hfi::Hfi::new(&h, base)
-                            .map_err(|_| DriveConfigError { field: "motion.hfi" })?,
-                    ),
+                    Some(h) => {
+                        Some(Hfi::new(&h, base).map_err(|_| DriveConfigError { field: "motion.hfi" })?)
+                    }
                     None => None,
                 },
                 hfi_speed_filter_rate: T::from_f32((ts / config.speed_filter_s).min(1.0)),
                 holding: false,
                 hold_observer: match m.hfi {
                     Some(h) => Some(
-                        crate::load_observer::LoadObserver::new(&crate::load_observer::LoadObserverConfig {
+                        LoadObserver::new(&LoadObserverConfig {
                             mass_kg: config.moving_mass_kg,
                             bandwidth_rad_s: HOLD_OBSERVER_SHARE * h.bandwidth_rad_s,
                             dt_s: ts,
@@ -670,7 +673,7 @@ impl<T: Scalar> Drive<T> {
     /// `BadSetting` naming the setting the drive refused, or the commissioning's own.
     pub fn for_commissioning(config: CommissioningConfig, like: &Base) -> Result<Self, CommissioningError> {
         let motor = config.placeholder_motor();
-        let drive_config = DriveConfig::for_motor(&motor, config.bus_v, crate::observer::ObserverKind::Dcfo);
+        let drive_config = DriveConfig::for_motor(&motor, config.bus_v, ObserverKind::Dcfo);
         let base = if *like == Base::SI { Base::SI } else { Base::for_motor(&motor) };
         let mut drive =
             Drive::new(&motor, &drive_config, &base).map_err(|e| CommissioningError::BadSetting(e.field))?;
@@ -1143,7 +1146,7 @@ impl<T: Scalar> Drive<T> {
     /// through zero thrust current); the measured current's noise averages the
     /// compensation to about what the inverter loses there. The blend from 4 to 8 bands
     /// did better on the paper axis than 2 to 4 or the reference alone. It relies on the
-    /// PWM ripple at the switching edges being modelled ([`crate::dead_time`]); without
+    /// PWM ripple at the switching edges being modelled ([`crate::algorithms::dead_time`]); without
     /// that the reference's signs lost at 1.0-1.5 m/s. Filtering the measured current
     /// instead (at the current loop's bandwidth, in a frame turning with it) puts a lag
     /// inside that 600 V/A path and lost the steady state. `docs/inverter-compensation.md`

@@ -43,8 +43,8 @@
 
 #![forbid(unsafe_code)]
 
+use crate::algorithms::transforms::Abc;
 use crate::num::Scalar;
-use crate::transforms::Abc;
 
 /// The phase-loss check's state (see the module docs). Working units throughout.
 #[derive(Clone, Copy, Debug)]

@@ -45,7 +45,7 @@
 //!   angle is no reference).
 //!
 //! - **With HFI** (salient motors, [`MotionConfig::hfi`]): the
-//!   low-speed mode is closed loop on the [`crate::hfi`] estimate instead of the current
+//!   low-speed mode is closed loop on the [`crate::algorithms::hfi`] estimate instead of the current
 //!   vector. On enable the current loops are held and the bridge applies the injection
 //!   alone while HFI converges and tests the magnet's polarity (0.13 s, the mover does
 //!   not move); the position estimate then starts from the HFI angle (zero at electrical
@@ -55,7 +55,7 @@
 //!   command; the q reference is slewed (a step reads as an HF response) and the
 //!   friction learned while running is fed forward. At rest (reference speed zero) the
 //!   speed loop gives way to a hold on a position, speed and load observer
-//!   ([`crate::load_observer`], at a quarter of HFI's bandwidth): thrust `M (k_v (v_ref -
+//!   ([`crate::algorithms::load_observer`], at a quarter of HFI's bandwidth): thrust `M (k_v (v_ref -
 //!   v_hat) + k_x (x_ref - x_hat))` plus the estimated load, a critically damped PD at
 //!   half the observer's bandwidth. The observer's speed integrates the commanded thrust
 //!   instead of differentiating HFI's noisy angle, and its load estimate replaces an
@@ -105,11 +105,12 @@
 #[cfg(doc)]
 use super::MotionConfig;
 use super::{Drive, DriveState};
+use crate::algorithms::hfi::Hfi;
+use crate::algorithms::load_observer::LoadObserver;
+use crate::algorithms::motion::{MotionError, Move, Profile, Setpoint};
+use crate::algorithms::transforms::{AlphaBeta, Dq};
 use crate::estimator::Estimate;
-use crate::hfi::Hfi;
-use crate::motion::{MotionError, Move, Profile, Setpoint};
 use crate::num::{Angle, Scalar, asin, sin_cos};
-use crate::transforms::{AlphaBeta, Dq};
 
 /// Capacity of the drive's move queue.
 pub const MOVE_QUEUE: usize = 8;
@@ -198,9 +199,9 @@ pub(super) struct Positioning<T> {
     /// With HFI: the position estimate's angle (the HFI angle).
     pub(super) hfi_position_angle: Angle,
     /// With HFI: position, speed and load observer on the HFI position and the commanded
-    /// thrust ([`crate::load_observer`]); at rest the drive holds the reference with a
+    /// thrust ([`crate::algorithms::load_observer`]); at rest the drive holds the reference with a
     /// PD law on its estimates and its load estimate fed forward.
-    pub(super) hold_observer: Option<crate::load_observer::LoadObserver>,
+    pub(super) hold_observer: Option<LoadObserver>,
     /// Closed-loop bandwidth of that hold, rad/s (critically damped PD: `k_v = 2 w_c`,
     /// `k_x = w_c^2`).
     pub(super) hold_bandwidth_rad_s: f32,

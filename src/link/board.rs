@@ -60,8 +60,8 @@ use super::frame::{
     ACTUATION_FLAG_POSITION_VALID, CRC_LEN, Frame, PositionReport, state_code_ok, wire_len,
 };
 use super::wire::{EncodeError, LinkError, PROTOCOL_VERSION, Reader, Writer};
+use crate::algorithms::motion::Move;
 use crate::capture::{CaptureFormat, CaptureSample, CaptureState};
-use crate::motion::Move;
 
 /// [`BoardCommand`] flag: the drive should run (clear: disable).
 pub const BOARD_FLAG_ENABLE: u8 = 1 << 0;

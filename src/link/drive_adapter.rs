@@ -12,10 +12,10 @@ use super::frame::{
 };
 use super::session::{LinkStats, LinkWatchdog, SequenceOrder, SequenceTracker};
 use super::wire::LinkError;
+use crate::algorithms::motion::MotionError;
 use crate::drive::{Commands, CommissioningError, Drive, DriveState, Faults, Measurements, StepOutput};
-use crate::motion::MotionError;
 use crate::num::Scalar;
-use crate::units::Base;
+use crate::num::units::Base;
 
 // The frames' state codes are exactly the drive's.
 const _: () = assert!(DriveState::ALL.len() == STATE_CODES as usize);
@@ -395,8 +395,9 @@ impl LinkServer {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::algorithms::motion::Move;
+    use crate::algorithms::observer::ObserverKind;
     use crate::drive::{DriveConfig, MOVE_QUEUE, PAPER_AXIS_BUS_V};
-    use crate::motion::Move;
     use crate::motor::MotorParams;
 
     /// Sends `frame` to `server` and decodes the answer.
@@ -460,9 +461,8 @@ mod tests {
         assert_eq!(server.moves_rejected(), 2);
 
         // A speed drive reports no position, and refuses every move.
-        let mut speed =
-            Drive::<f32>::new(&m, &DriveConfig::paper_axis(crate::observer::ObserverKind::Dcfo), &Base::SI)
-                .expect("speed drive");
+        let mut speed = Drive::<f32>::new(&m, &DriveConfig::paper_axis(ObserverKind::Dcfo), &Base::SI)
+            .expect("speed drive");
         let mut server = LinkServer::new();
         let a = exchange(&mut server, &mut speed, &frame(0, Some(mv)));
         assert_eq!(a.position, None);
@@ -477,7 +477,7 @@ mod tests {
     #[test]
     fn a_frame_that_skips_the_silent_link_limit_trips_an_active_drive_first() {
         let m = MotorParams::paper();
-        let config = DriveConfig::paper_axis(crate::observer::ObserverKind::Dcfo);
+        let config = DriveConfig::paper_axis(ObserverKind::Dcfo);
         let frame = |k: u16, enable| SensorFrame {
             sequence: k,
             i_a: 0.0,
@@ -532,10 +532,10 @@ mod tests {
 #[cfg(test)]
 mod commissioning_tests {
     use super::*;
+    use crate::algorithms::observer::ObserverKind;
     use crate::drive::{CommissioningConfig, CommissioningResult, DriveConfig, VoltageErrorPoint};
     use crate::link::{Frame, decode_in_place};
     use crate::motor::MotorParams;
-    use crate::observer::ObserverKind;
 
     fn told() -> CommissioningConfig {
         CommissioningConfig { rated_current_a: 3.0, rated_voltage_v: 24.0, bus_v: 34.0, pole_pitch_m: 0.015 }

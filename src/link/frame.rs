@@ -4,7 +4,7 @@
 
 use super::session::LinkStats;
 use super::wire::{EncodeError, LinkError, PROTOCOL_VERSION, Reader, Writer, duty_ok};
-use crate::motion::Move;
+use crate::algorithms::motion::Move;
 
 /// Bytes of the CRC after the payload (CRC-16, little-endian).
 pub const CRC_LEN: usize = 2;

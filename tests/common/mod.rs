@@ -3,10 +3,10 @@
 //! at period ends), plus measurement helpers.
 #![allow(dead_code)]
 
+use dcfo::algorithms::observer::ObserverInput;
+use dcfo::algorithms::transforms::AlphaBeta;
+use dcfo::num::units::Base;
 use dcfo::num::{Angle, Scalar};
-use dcfo::observer::ObserverInput;
-use dcfo::transforms::AlphaBeta;
-use dcfo::units::Base;
 use std::f64::consts::PI;
 
 /// Paper motor constants (docs/method.md §1).

@@ -1,5 +1,5 @@
 //! A virtual board: the library's [`VirtualMotor`] (a PMSLM and an averaged inverter,
-//! `dcfo::virtual_motor`) behind the same [`PhaseSensors`] and [`PowerStage`] traits as
+//! `dcfo::plant`) behind the same [`PhaseSensors`] and [`PowerStage`] traits as
 //! the real boards, so that a drive image runs its control loop unchanged with no power
 //! stage: on QEMU (`examples/qemu_drive.rs`), or on a board whose bridge stays off.
 //!
@@ -14,7 +14,7 @@
 //!
 //! No register is touched: it builds on every target and is tested on the host.
 
-use dcfo::virtual_motor::VirtualMotor;
+use dcfo::plant::VirtualMotor;
 
 use super::{PhaseSample, PhaseSensors, PowerStage};
 
@@ -72,7 +72,7 @@ impl PowerStage for VirtualBoard {
 mod tests {
     use super::*;
     use dcfo::motor::MotorParams;
-    use dcfo::virtual_motor::VirtualAxis;
+    use dcfo::plant::VirtualAxis;
 
     fn board() -> VirtualBoard {
         let axis = VirtualAxis { payload_kg: 10.0, load_n: 0.0, bus_v: 311.0, period_s: 1e-4 };

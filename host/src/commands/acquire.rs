@@ -19,8 +19,8 @@
 //! set while the true error exceeds 15 deg.
 
 use dcfo::motor::MotorParams;
+use dcfo::num::units::Base;
 use dcfo::num::{Q24, Scalar};
-use dcfo::units::Base;
 use serde::Serialize;
 
 use crate::recorder::{ConstantSpeed, Row, omega_e, record, replay};
@@ -582,7 +582,7 @@ pub struct Params {
 /// The motor could not be loaded, a run failed, or the results could not be written.
 pub fn run_command(params: &Params) -> anyhow::Result<()> {
     use anyhow::Context;
-    let observer = dcfo::observer::ObserverKind::Dcfo;
+    let observer = dcfo::algorithms::observer::ObserverKind::Dcfo;
     let (mut setup, options, motor_name) = match &params.motor {
         None => (Setup::paper(observer), Options::full(), "paper (test axis)".to_string()),
         Some(arg) => {

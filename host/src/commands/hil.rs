@@ -91,7 +91,7 @@ pub fn run_command(params: &Params) -> anyhow::Result<HilReport> {
         scenario.window_s = scenario.window_s.min((d - scenario.event_s).max(0.0));
     }
     // The firmware runs the DCFO drive of the paper axis.
-    let setup = Setup::paper(dcfo::observer::ObserverKind::Dcfo);
+    let setup = Setup::paper(dcfo::algorithms::observer::ObserverKind::Dcfo);
     std::fs::create_dir_all(&params.out).with_context(|| format!("creating {}", params.out.display()))?;
     let bar = indicatif::ProgressBar::new(1000);
     let progress = |f: f64| bar.set_position((f * 1000.0) as u64);

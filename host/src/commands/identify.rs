@@ -16,13 +16,13 @@
 use std::f64::consts::PI;
 use std::fmt::Write as _;
 
+use dcfo::algorithms::observer::ObserverKind;
 use dcfo::drive::{CommissioningConfig, CommissioningError, CommissioningResult, Drive, DriveState};
 use dcfo::link::{ActuationFrame, CommissioningStatus, LinkStats, SensorFrame};
 use dcfo::motor::MotorParams;
 use dcfo::motor_image::{MotorAxis, MotorImage};
+use dcfo::num::units::Base;
 use dcfo::num::{Q24, Scalar};
-use dcfo::observer::ObserverKind;
-use dcfo::units::Base;
 use serde::Serialize;
 
 use crate::closed_loop::ClosedLoop;

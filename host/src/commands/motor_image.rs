@@ -5,7 +5,7 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::Context;
-use dcfo::motion::ProfileLimits;
+use dcfo::algorithms::motion::ProfileLimits;
 use dcfo::motor_image::{MotorAxis, MotorImage};
 
 use crate::motor_file::load_motor;

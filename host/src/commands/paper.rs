@@ -10,7 +10,7 @@ use crate::simulation::figures::{Figures, figures};
 use crate::simulation::scenarios::{Scenario, paper_scenarios};
 use crate::simulation::{Run, Setup, run, theta_err_deg};
 use anyhow::{Context, Result, bail};
-use dcfo::observer::ObserverKind;
+use dcfo::algorithms::observer::ObserverKind;
 use indicatif::{ProgressBar, ProgressStyle};
 use std::path::{Path, PathBuf};
 use std::sync::Mutex;

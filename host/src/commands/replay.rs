@@ -41,14 +41,14 @@
 use std::fmt;
 use std::path::{Path, PathBuf};
 
+use dcfo::algorithms::observer::{ObserverFault, ObserverKind};
+use dcfo::algorithms::pll::PllFault;
+use dcfo::algorithms::transforms::AlphaBeta;
 use dcfo::capture::{CaptureFormat, CaptureScalar, Quantity};
 use dcfo::estimator::{Estimator, EstimatorConfig, EstimatorConfigError, EstimatorFault};
 use dcfo::motor::MotorParams;
 use dcfo::num::Q24;
-use dcfo::observer::{ObserverFault, ObserverKind};
-use dcfo::pll::PllFault;
-use dcfo::transforms::AlphaBeta;
-use dcfo::units::Base;
+use dcfo::num::units::Base;
 
 use crate::motor_file::load_motor;
 use crate::observer::observer_name;

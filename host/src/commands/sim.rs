@@ -12,7 +12,7 @@ use crate::trace::{
     COMMANDED_ACCEL_COLUMN, Estimate, GroundTruth, InputTrace, InputTraceWriter, write_output_trace,
 };
 use anyhow::{Context, Result, bail};
-use dcfo::observer::ObserverKind;
+use dcfo::algorithms::observer::ObserverKind;
 use indicatif::{ProgressBar, ProgressStyle};
 use std::path::{Path, PathBuf};
 use std::time::Instant;

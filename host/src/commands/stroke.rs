@@ -19,8 +19,8 @@
 
 use std::f64::consts::PI;
 
+use dcfo::algorithms::motion::Move;
 use dcfo::drive::{DriveConfig, DriveState};
-use dcfo::motion::Move;
 use dcfo::motor::MotorParams;
 use serde::Serialize;
 
@@ -124,7 +124,7 @@ pub struct StrokeSummary {
 /// surface-magnet motors' plants stay linear.
 pub fn plant_for(motor: &MotorParams) -> SimParams {
     let mut p = SimParams::from_motor(motor);
-    if motor.lq_h >= dcfo::hfi::MIN_SALIENCY * motor.ld_h {
+    if motor.lq_h >= dcfo::algorithms::hfi::MIN_SALIENCY * motor.ld_h {
         let rated_peak = f64::from(motor.rated_current_a) * 2f64.sqrt();
         p.plant.ld_saturation_per_a = PlantParams::d_saturation_for(0.1, rated_peak);
     }

@@ -31,7 +31,7 @@ use serde::Serialize;
 
 use dcfo::motor::MotorParams;
 use dcfo::num::Q24;
-use dcfo::units::Base;
+use dcfo::num::units::Base;
 
 use crate::commands::acquire::{FALSE_LOCK_DEG, recording_load_n};
 use crate::recorder::{PrefilteredSteps, Row, SampledProfile, record, replay};
@@ -245,7 +245,7 @@ pub fn run_profile(setup: &Setup, profile: &Profile) -> Result<Vec<Figures>, Str
 /// The axis a profile is recorded on: `motor` on the realistic inverter and sensors
 /// ([`Setup::for_motor`]) carrying the paper axis's mass per rated thrust.
 pub fn setup_for(motor: &MotorParams) -> Setup {
-    let observer = dcfo::observer::ObserverKind::Dcfo;
+    let observer = dcfo::algorithms::observer::ObserverKind::Dcfo;
     let mut setup = Setup::for_motor(motor, observer);
     let payload = PaperScale::for_motor(motor).payload_kg;
     setup.plant.plant.mass_kg += payload;

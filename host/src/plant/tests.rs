@@ -733,7 +733,7 @@ fn square_wave_response(p: &SimParams, theta: f64, dth: f64, u_hf: f64, u_bias: 
     (sd / keep as f64, sq / keep as f64)
 }
 
-/// The analytic response of the module docs of `dcfo::hfi`: per true axis the periodic
+/// The analytic response of the module docs of `dcfo::algorithms::hfi`: per true axis the periodic
 /// steady state of a square wave through R-L, `2 (U_x / R) tanh(R T / 2 L_x)` (`U T / L`
 /// to second order), rotated into the injection frame.
 fn square_wave_expected(rs: f64, ld: f64, lq: f64, ts: f64, dth: f64, u_hf: f64) -> (f64, f64) {
@@ -751,7 +751,7 @@ fn hf_square_wave_response_matches_the_analysis() {
     let m = salient_motor();
     let p = SimParams::ideal_from_motor(&m);
     let ts = p.inverter.pwm_period_s;
-    let u_hf = 38.18; // V; the response is linear in it (dcfo::hfi injects 63.6 V here)
+    let u_hf = 38.18; // V; the response is linear in it (dcfo::algorithms::hfi injects 63.6 V here)
     let (rs, ld, lq) = (p.plant.rs_ohm, p.plant.ld_h, p.plant.lq_h);
     let scale = u_hf * ts * 0.5 * (1.0 / ld + 1.0 / lq);
     for dth_deg in [0.0f64, 15.0, 45.0, -30.0, 80.0] {

@@ -16,13 +16,13 @@
 use std::f64::consts::PI;
 use std::path::{Path, PathBuf};
 
-use dcfo::estimator::EstimatorConfig;
-use dcfo::motor::MotorParams;
-use dcfo::observer::{
+use dcfo::algorithms::observer::{
     Dcfo, DcfoConfig, FluxObserver, LpfObserver, ObserverInput, ObserverKind, ObserverMotor, PureIntegrator,
 };
-use dcfo::transforms::AlphaBeta;
-use dcfo::units::Base;
+use dcfo::algorithms::transforms::AlphaBeta;
+use dcfo::estimator::EstimatorConfig;
+use dcfo::motor::MotorParams;
+use dcfo::num::units::Base;
 
 use super::{Figure, Panel, PlotError, Series, write_figure};
 

@@ -19,13 +19,13 @@ pub mod scenarios;
 use crate::closed_loop::{Bridge, ClosedLoop};
 use crate::plant::{Plant, PlantError, SensorReading, SimParams};
 use crate::trace::{TraceRow, wrap_angle};
+use dcfo::algorithms::observer::ObserverKind;
+use dcfo::algorithms::transforms::{Abc, AlphaBeta, clarke};
 use dcfo::drive::{Drive, DriveConfig, DriveState, Faults, PAPER_AXIS_PAYLOAD_KG, StepOutput};
 use dcfo::link::{ActuationFrame, LinkStats, PositionReport, SensorFrame};
 use dcfo::motor::MotorParams;
+use dcfo::num::units::Base;
 use dcfo::num::{Q24, Scalar};
-use dcfo::observer::ObserverKind;
-use dcfo::transforms::{Abc, AlphaBeta, clarke};
-use dcfo::units::Base;
 
 pub use scenarios::{Event, PlantChanges, Scenario};
 
@@ -240,7 +240,7 @@ pub fn sensor_frame(
     reading: &SensorReading,
     sequence: u16,
     speed_ref_m_per_s: f32,
-    move_to: Option<dcfo::motion::Move>,
+    move_to: Option<dcfo::algorithms::motion::Move>,
 ) -> SensorFrame {
     let [a, b, c] = reading.i_abc_a;
     SensorFrame {

@@ -8,9 +8,9 @@
 
 use std::path::Path;
 
+use dcfo::algorithms::observer::ObserverKind;
 use dcfo::capture::{Capture, CaptureFormat, CaptureSample, Quantity, SiSample};
 use dcfo::motor::MotorParams;
-use dcfo::observer::ObserverKind;
 
 use crate::commands::replay::{replay_trace_as, working_base};
 use crate::trace::{COMMANDED_ACCEL_COLUMN, GroundTruth, InputTrace, InputTraceWriter, TraceRow};

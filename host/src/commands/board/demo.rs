@@ -6,12 +6,12 @@ use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, bail};
+use dcfo::algorithms::motion::Move;
+use dcfo::algorithms::observer::ObserverKind;
 use dcfo::capture::CaptureState;
 use dcfo::drive::{DriveConfig, DriveState, PAPER_AXIS_BUS_V};
 use dcfo::link::board::BoardTelemetry;
-use dcfo::motion::Move;
 use dcfo::motor_image::MotorImage;
-use dcfo::observer::ObserverKind;
 
 use super::capture::{replay_matches, write_capture_trace};
 use super::link::{BoardOps, CONTROL_PERIOD_S, DriveClock, POLL_PERIOD, Wish};

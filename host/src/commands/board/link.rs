@@ -19,10 +19,10 @@ use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, bail};
+use dcfo::algorithms::motion::Move;
 use dcfo::drive::DriveState;
 use dcfo::link::board::{BoardCommand, BoardTelemetry, CaptureChunk, NO_CAPTURE_READ};
 use dcfo::link::{LinkError, decode_raw};
-use dcfo::motion::Move;
 
 use super::capture::CaptureData;
 use crate::commands::sim::fault_names;

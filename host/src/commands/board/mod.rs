@@ -19,7 +19,7 @@ use std::path::PathBuf;
 use std::time::Duration;
 
 use anyhow::bail;
-use dcfo::motion::Move;
+use dcfo::algorithms::motion::Move;
 
 use crate::target::Target;
 use demo::{run_demo, run_move_demo};

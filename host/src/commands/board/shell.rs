@@ -5,9 +5,9 @@ use std::io::BufRead;
 use std::path::Path;
 use std::sync::mpsc;
 
+use dcfo::algorithms::motion::Move;
 use dcfo::capture::CaptureState;
 use dcfo::link::board::BoardTelemetry;
-use dcfo::motion::Move;
 use dcfo::motor::MotorParams;
 use dcfo::motor_image::MotorImage;
 

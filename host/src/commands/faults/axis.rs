@@ -11,10 +11,10 @@
 
 use std::collections::VecDeque;
 
+use dcfo::algorithms::motion::Move;
 use dcfo::drive::{Drive, DriveState, Faults, MOVE_QUEUE, StepOutput};
 use dcfo::link::{self, ActuationFrame, LinkServer, SensorFrame};
-use dcfo::motion::Move;
-use dcfo::units::Base;
+use dcfo::num::units::Base;
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64;
 

@@ -9,8 +9,8 @@
 //! full scale, its pole pitch. So one list of cases serves any motor file, and the
 //! expectation of each case is fixed, as data, before the case runs.
 
+use dcfo::algorithms::motion::Move;
 use dcfo::drive::{Faults, LOW_SPEED_EXIT_RATIO, back_emf_floor_m_per_s};
-use dcfo::motion::Move;
 use dcfo::motor::MotorParams;
 
 use super::axis::Injection;
@@ -131,7 +131,7 @@ impl Bench {
     /// [`Bench::for_motor`] tells it the simulated inverter's 220 V times sqrt(2)).
     pub fn paper() -> Self {
         let mut bench = Bench::for_motor("paper", &MotorParams::paper());
-        bench.speed = Setup::paper(dcfo::observer::ObserverKind::Dcfo);
+        bench.speed = Setup::paper(dcfo::algorithms::observer::ObserverKind::Dcfo);
         bench
     }
 

@@ -55,7 +55,7 @@ use crate::commands::sim::fault_names;
 use dcfo::drive::{Drive, DriveState, Faults};
 use dcfo::link::SILENT_LINK_PERIODS;
 use dcfo::motor::MotorParams;
-use dcfo::units::Base;
+use dcfo::num::units::Base;
 use serde::Serialize;
 
 pub use axis::{Axis, Injection, LinkChecks, Period};
@@ -824,7 +824,7 @@ pub fn run_command(params: &Params) -> anyhow::Result<std::process::ExitCode> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use dcfo::observer::ObserverKind;
+    use dcfo::algorithms::observer::ObserverKind;
 
     /// The speed drive's axis of any motor file is the paper axis's for that motor: for
     /// the paper motor it is `dcfo paper`'s plant and drive (the firmware's settings) but

@@ -1,9 +1,10 @@
-//! Numbers: one [`Scalar`] trait, three implementations, and the binary [`Angle`].
+//! Numbers and units: one [`Scalar`] trait, three implementations, the binary [`Angle`], and
+//! the working [`units`].
 //!
 //! The control algorithms are written once, generic over `T: Scalar`:
 //! - `f32` for Cortex-M4F (single-precision FPU);
 //! - [`Q24`], a saturating fixed-point number with 24 fractional bits, for FPU-less
-//!   Cortex-M3/M0+ (used with the per-unit system of [`crate::units`]);
+//!   Cortex-M3/M0+ (used with the per-unit system of [`crate::num::units`]);
 //! - `f64` on the host, as the reference the other two are tested against.
 //!
 //! Why a trait and generics rather than macros or a type alias chosen by a feature:
@@ -17,6 +18,13 @@
 //! Angles are not `Scalar`s: an [`Angle`] is a 32-bit binary angle (a full turn is
 //! 2^32), so wrapping is exact and free, and phase accumulation never loses
 //! resolution however long the drive runs.
+//!
+//! # Layer
+//! The ground floor, beside [`crate::motor`]: [`units`] imports the motor's parameters
+//! (for [`units::Base::for_motor`]) and nothing else of the crate; the rest imports
+//! nothing of the crate at all.
+
+pub mod units;
 
 use core::ops::{Add, Mul, Neg, Sub};
 use fixed::types::I8F24;
@@ -364,7 +372,7 @@ impl Scalar for f64 {
 /// Range `[-128, 128)`, resolution 2^-24 ≈ 6.0e-8. Every operator saturates at the
 /// range limits instead of wrapping or panicking; [`Scalar::is_valid`] reports a value
 /// at either limit as invalid, so an overflow anywhere in a chain surfaces as a fault.
-/// Meant to carry per-unit quantities (see [`crate::units::Base::for_motor`]), where
+/// Meant to carry per-unit quantities (see [`crate::num::units::Base::for_motor`]), where
 /// the paper motor at twice rated current and twice its top speed stays within +-2.5 (currents reach 2 pu, the bus 1.7 pu).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, PartialOrd, Ord)]
 pub struct Q24(pub I8F24);

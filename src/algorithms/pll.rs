@@ -33,7 +33,7 @@
 //!   loop's linear model `x' = u - kp x, u' = a - ki x` on the commanded ramp `a` (its
 //!   `u` is the integrator's lag `w - integral`, `kp a / ki` once the ramp has lasted,
 //!   built up with the loop's own slow pole) and adds `u` to the notch
-//!   ([`crate::estimator::Estimator::set_commanded_acceleration`]) — a feed-forward, no loop.
+//!   (the estimator's `Estimator::set_commanded_acceleration`) — a feed-forward, no loop.
 //!   Estimating the lag from the loop's own error instead (`integral + kp eps_f`,
 //!   `eps_f` low-passed) closes the notch loop through the observer's phase response
 //!   (a step of notch error reaches its static phase shift after about `2.4 / w` and
@@ -41,9 +41,9 @@
 //!   filter slower than `w / 2` and made the closed-loop drive oscillate at 4 Hz even
 //!   at `w / 4`; the FLL's derivative as the acceleration was worse. This is what the
 //!   drive uses in steady state; while
-//!   acquiring and in speed transients the FLL of [`crate::fll`] tunes the notch and
-//!   feeds this loop forward ([`Pll::update_with_feedforward`], see
-//!   [`crate::estimator`]).
+//!   acquiring and in speed transients the FLL of [`crate::algorithms::fll`] tunes the notch and
+//!   feeds this loop forward ([`Pll::update_with_feedforward`], see the
+//!   estimator).
 //!
 //! ## Bandwidth scaled with speed
 //! That condition ties the PLL's bandwidth to the electrical speed, so the gains are
@@ -62,9 +62,9 @@
 //! on ramps: the notch lags by `kp a / ki` rad/s during a ramp of `a` rad/s^2, which a
 //! drive bounds by limiting its acceleration. Limits `2 pi [3, 40] Hz`.
 
+use crate::algorithms::transforms::{AlphaBeta, CosSin};
+use crate::num::units::Base;
 use crate::num::{Angle, Scalar, positive};
-use crate::transforms::{AlphaBeta, CosSin};
-use crate::units::Base;
 
 /// PLL tuning, SI.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -246,7 +246,7 @@ impl<T: Scalar> Pll<T> {
     }
 
     /// Processes `psi_ab` (Wb) with a frequency feed-forward `omega_ff` (rad/s, from an
-    /// independent frequency estimate such as [`crate::fll`]): the angle advances at
+    /// independent frequency estimate such as [`crate::algorithms::fll`]): the angle advances at
     /// `omega_ff + integral + kp eps_n`, so the integrator only tracks what the
     /// feed-forward misses and a speed ramp that the feed-forward follows costs no
     /// phase. `schedule_omega` (rad/s, >= 0) sets the bandwidth, `w_p = beta

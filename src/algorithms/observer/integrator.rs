@@ -2,8 +2,8 @@
 
 use super::voltage_model::StatorFlux;
 use super::{FluxEstimate, FluxObserver, ObserverFault, ObserverInput, ObserverMotor};
+use crate::algorithms::transforms::AlphaBeta;
 use crate::num::Scalar;
-use crate::transforms::AlphaBeta;
 
 /// Pure-integrator flux observer. Exact for ideal inputs; any DC offset in `u` or `i`
 /// (or a wrong `Rs`) makes it drift without bound, until the state overflows and the

@@ -2,10 +2,10 @@
 //! `integral(u - Rs i)` over one period, and the inductive correction `- Ls i`.
 
 use super::{FluxEstimate, ObserverFault, ObserverInput, check_input};
+use crate::algorithms::transforms::AlphaBeta;
 use crate::motor::MotorParams;
 use crate::num::Scalar;
-use crate::transforms::AlphaBeta;
-use crate::units::Base;
+use crate::num::units::Base;
 
 /// The motor constants an observer needs, in working units.
 #[derive(Clone, Copy, Debug, PartialEq)]

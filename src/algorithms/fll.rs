@@ -15,7 +15,7 @@
 //! any `w_n > 0`, `D(jw) = 1 / (1 + jX)`, so `Re D = |D|^2` and
 //! `Im(conj(D psi) j w psi) = w |psi|^2 |D|^2 = w |x1|^2`: while `|x1| >= psi_ref`,
 //! `dtheta / dt` is **exactly** `w`, whatever the notch error. The phase error that a
-//! mistuned notch puts on `x1` (`dw / (zeta w)`, see [`crate::observer::Dcfo`]) cancels
+//! mistuned notch puts on `x1` (`dw / (zeta w)`, see [`crate::algorithms::observer::Dcfo`]) cancels
 //! out. Sampled, the increment is a chord centred half a sample before `x1`, so the
 //! band-pass phase `phi` is read as `phi + w dt / 2`: a relative error up to
 //! `(|w| dt / 2) |tan phi|` while the notch is off (1.5 % at 400 rad/s with the notch at
@@ -30,7 +30,7 @@
 //! 0.16 Wb). A resistance error `dR` reads as `dR i_q / psi_f` rad/s (31 rad/s per
 //! ampere for a doubled Rs on the paper motor), a bias that grows with thrust. The
 //! PLL on `x1` has neither: it follows the rotation of the estimate, whatever its
-//! amplitude. Hence [`crate::estimator::NotchTuning::AcquireWithFll`]: the FLL finds
+//! amplitude. Hence the estimator's `NotchTuning::AcquireWithFll`: the FLL finds
 //! the frequency and takes over in speed transients; the PLL holds the steady state.
 //! Tried and not kept: the rotation rate of `x1` itself (`Im(conj(x1) dx1)`, unbiased,
 //! but it closes a loop through the band-pass phase: 1.7x peaking and a closed-loop
@@ -150,13 +150,13 @@
 //! The slower steadiness check of [`FllOutput::settled`] (a mean absolute deviation over
 //! two thirds of a period) saw the paper's +2 V step too late: the angle error passes
 //! 15 deg within 25 ms of the step, and the flag stayed set for 66 ms of it. Measured
-//! with both detectors and the estimator's drift check (`crate::estimator`): no sample
+//! with both detectors and the estimator's drift check: no sample
 //! locked above 15 deg in the paper's scenarios (eight event phases each) and in the
 //! 576 cold starts of `dcfo acquire`, with the flag's availability there unchanged.
 
+use crate::algorithms::transforms::AlphaBeta;
+use crate::num::units::Base;
 use crate::num::{Scalar, positive};
-use crate::transforms::AlphaBeta;
-use crate::units::Base;
 
 /// Largest mean absolute deviation of the frequency estimate from its mean, relative to
 /// the notch frequency (dimensionless), for [`FllOutput::undisturbed`] (module docs).
@@ -253,7 +253,7 @@ pub struct FllOutput<T> {
     /// The flux amplitude part of `undisturbed` alone: its recent peak deviation is
     /// below [`MAX_FLUX_SQ_PEAK`] of its mean. A DC offset in the flux estimate (a DC
     /// step being removed) trips it; a speed change, which leaves the amplitude alone,
-    /// does not: so it gates the FLL's bound on the PLL-tuned notch (`crate::estimator`).
+    /// does not: so it gates the FLL's bound on the PLL-tuned notch (in the estimator).
     pub flux_undisturbed: bool,
 }
 
@@ -475,14 +475,14 @@ impl<T: Scalar> Fll<T> {
 
     /// The frequency estimate low-passed at the notch frequency (rad/s, time constant
     /// `1 / w_n`): what the estimator's PLL takes at the hand-over after a seed by
-    /// [`crate::arc_fit`], where the estimate's ripple is the observer settling, not
+    /// [`crate::algorithms::arc_fit`], where the estimate's ripple is the observer settling, not
     /// the speed.
     pub fn omega_mean(&self) -> T {
         self.omega_mean
     }
 
     /// Whether the FLL's notch frequency is what the DCFO's notch is tuned to (`true`,
-    /// the default: acquisition, [`crate::estimator::NotchTuning::Fll`]) or only a
+    /// the default: acquisition, the estimator's `NotchTuning::Fll`) or only a
     /// reference for another loop's (`false`: the PLL steers). While steering, the notch
     /// follows the signed frequency's direction from a quarter of the notch on
     /// ([`DIRECTION_SHARE_GAIN`]), so that noise cannot hold it (and the DCFO's

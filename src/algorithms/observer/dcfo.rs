@@ -59,7 +59,7 @@
 //! notch error `dw` into `dw / (zeta w)` of phase. Measured in the closed-loop drive
 //! (2026-11-24, `+2 V` at eight event phases, replaying the drive's own inputs through the
 //! estimator with the notch forced to the true frequency and without the angle's phase
-//! compensation, `crate::estimator`), the cost of the loops around the observer:
+//! compensation, in the estimator), the cost of the loops around the observer:
 //!
 //! | +2 V, max over the window | zeta 1.0 / -0.2 | zeta 0.5 / -0.3 |
 //! |---|--:|--:|
@@ -86,7 +86,7 @@
 //! in the feedback, a DC-voltage estimator on the back-EMF residual, a band-pass
 //! narrowed after a detected step, a feedback on the flux magnitude) is worked out in the
 //! linear model in `docs/dc-step-analysis.md`. The last is built (below, "The magnitude
-//! feedback"), with the angle correction it makes possible in [`crate::estimator`].
+//! feedback"), with the angle correction it makes possible in the estimator.
 //!
 //! ## The magnitude feedback (armed by the estimator)
 //! A DC offset `delta` left in `psi_hat` shows in its magnitude at once, `|psi_hat| =
@@ -129,9 +129,9 @@
 
 use super::voltage_model::VoltageModel;
 use super::{FluxEstimate, FluxObserver, ObserverFault, ObserverInput, ObserverMotor, check_input};
+use crate::algorithms::transforms::AlphaBeta;
+use crate::num::units::Base;
 use crate::num::{Scalar, positive};
-use crate::transforms::AlphaBeta;
-use crate::units::Base;
 
 /// DCFO tuning, SI.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -279,7 +279,7 @@ impl<T: Scalar> Dcfo<T> {
     /// Arms the radial feedback (module docs, "The magnitude feedback") in the share
     /// `weight` (dimensionless, clamped to `[0, 1]`; 0, the state after [`Dcfo::new`], is
     /// the paper's DCFO). The estimator arms it once its loops have tracked the mover for
-    /// a period ([`crate::estimator`]); a non-finite weight is ignored.
+    /// a period (in the estimator); a non-finite weight is ignored.
     pub fn set_magnitude_feedback(&mut self, weight: T) {
         if weight.is_valid() {
             self.magnitude_weight = weight.clamp_to(T::ZERO, T::ONE);

@@ -8,8 +8,8 @@
 //! angle and is shortened to that circle (never wrapped or clipped per phase, which
 //! would distort the angle).
 
+use crate::algorithms::transforms::{AlphaBeta, inverse_clarke};
 use crate::num::Scalar;
-use crate::transforms::{AlphaBeta, inverse_clarke};
 
 /// Duty cycles of the three half-bridges: the fraction of the PWM period each upper
 /// switch is on, dimensionless in `[0, 1]`.

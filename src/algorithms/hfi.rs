@@ -105,10 +105,10 @@
 //! in per-unit ([`Base`]).
 #![forbid(unsafe_code)]
 
+use crate::algorithms::transforms::{AlphaBeta, CosSin, Dq, inverse_park, park};
 use crate::motor::MotorParams;
+use crate::num::units::Base;
 use crate::num::{Angle, Scalar, positive};
-use crate::transforms::{AlphaBeta, CosSin, Dq, inverse_park, park};
-use crate::units::Base;
 
 /// The smallest saliency `L_q / L_d` (dimensionless) HFI is offered for: below it the
 /// signal `U_h T D` is under 7 % of the HF current and the estimate is noise- and

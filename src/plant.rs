@@ -1,14 +1,15 @@
-//! A virtual motor: a PMSLM and an averaged two-level inverter, in `f32`, small enough
-//! to run inside a drive image in place of the power stage (as VESC's "virtual motor"
-//! does), so that a drive image runs closed loop with no plant outside it: on QEMU's
-//! `mps2-an386`, or on a board with its bridge held off.
+//! The plant, at the library's edge: a virtual motor, a PMSLM and an averaged two-level
+//! inverter, in `f32`, small enough to run inside a drive image in place of the power
+//! stage (as VESC's "virtual motor" does), so that a drive image runs closed loop with no
+//! plant outside it: on QEMU's `mps2-an386`, or on a board with its bridge held off.
 //!
 //! # Where it lives, and why
 //! The model is physics, not a board: it touches no register and knows nothing of how
 //! a board samples or switches. So it lives in the library (`#![forbid(unsafe_code)]`,
 //! `no_std`, no allocation, no panic, bounded time), where host tests can check it
-//! against analysis and run it in closed loop with the very [`crate::drive::Drive`] the
-//! image runs. The firmware's board layer wraps it as a *virtual board*
+//! against analysis and run it in closed loop with the very `Drive` the image runs. It
+//! imports only the motor's parameters, the numbers and the transforms, and nothing in
+//! the library imports it. The firmware's board layer wraps it as a *virtual board*
 //! (`dcfo_firmware::board::virtual_motor::VirtualBoard`) implementing the same
 //! `PhaseSensors` and `PowerStage` traits as the real boards, so the control loop cannot
 //! tell it from a power stage.
@@ -44,9 +45,9 @@
 //! period with the duties given; the firmware's virtual board applies the duties
 //! computed at sample `k` during `[t_{k+1}, t_{k+2})`, like the host's simulation.
 
+use crate::algorithms::transforms::{AlphaBeta, CosSin, Dq};
 use crate::motor::{MotorParams, ParamError};
 use crate::num::{Angle, Scalar};
-use crate::transforms::{AlphaBeta, CosSin, Dq};
 
 /// Sub-steps of the integration per PWM period: at the 100 µs default period, 12.5 µs,
 /// a fiftieth of the paper motor's 1.7 ms electrical time constant and a 1/12,000 of an
@@ -267,8 +268,8 @@ impl VirtualMotor {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::svpwm::svpwm;
-    use crate::transforms::inverse_park;
+    use crate::algorithms::svpwm::svpwm;
+    use crate::algorithms::transforms::inverse_park;
 
     fn axis(payload_kg: f32) -> VirtualAxis {
         VirtualAxis { payload_kg, load_n: 0.0, bus_v: 311.0, period_s: 1e-4 }

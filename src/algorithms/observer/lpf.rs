@@ -9,6 +9,7 @@
 
 use super::voltage_model::StatorFlux;
 use super::{FluxEstimate, FluxObserver, ObserverFault, ObserverInput, ObserverMotor};
+use crate::algorithms::transforms::AlphaBeta;
 use crate::num::Scalar;
 
 /// Why an LPF observer could not be built.
@@ -36,11 +37,7 @@ impl<T: Scalar> LpfObserver<T> {
     }
 
     /// Starts from mover flux `psi_mover` (Wb) at current `i_ab` (A).
-    pub fn seed(
-        &mut self,
-        psi_mover: crate::transforms::AlphaBeta<T>,
-        i_ab: crate::transforms::AlphaBeta<T>,
-    ) {
+    pub fn seed(&mut self, psi_mover: AlphaBeta<T>, i_ab: AlphaBeta<T>) {
         self.flux.seed(psi_mover, i_ab);
     }
 

@@ -13,7 +13,7 @@
 //!
 //! `p` runs on a circle of radius `|psi|` whose centre is `-psi(0)`: an offset as large
 //! as the flux itself. The DCFO removes it through its slowest pole (`docs/method.md`
-//! §3; [`crate::observer::Dcfo`]): more than an electrical period to bring the angle
+//! §3; [`crate::algorithms::observer::Dcfo`]): more than an electrical period to bring the angle
 //! error under 5 deg, of a budget of 2, and the FLL that tunes the notch meanwhile reads
 //! the observer's own correction `(h / Ls) d` as a ripple of about `0.2 w` on the
 //! frequency (enough to put the notch well off the mover at the hand-over). The offset is
@@ -88,7 +88,7 @@
 //! that a chord fit is held back while the back-EMF fit runs, and taken (turned on to
 //! the present) if the back-EMF fit gives up or is not borne out; above it the chord
 //! fit comes first. The seed then starts the observer with its disturbance estimate
-//! already holding the DC error ([`crate::observer::Dcfo::seed`]), instead of taking it
+//! already holding the DC error ([`crate::algorithms::observer::Dcfo::seed`]), instead of taking it
 //! on through its slowest pole.
 //!
 //! ## Noise: the back-EMF fit takes its variance out
@@ -126,9 +126,9 @@
 //! fit measured instead lost the drive's flying restart (`docs/acquisition.md`).
 #![forbid(unsafe_code)]
 
+use crate::algorithms::transforms::AlphaBeta;
+use crate::num::units::Base;
 use crate::num::{Angle, Scalar};
-use crate::transforms::AlphaBeta;
-use crate::units::Base;
 
 /// Smallest ratio of the arc's spread across to its spread along (eigenvalues of `G`,
 /// dimensionless) at which the circle is fitted: 0.04. On the acquisition sweep 0.02

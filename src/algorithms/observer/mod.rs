@@ -18,7 +18,7 @@
 //! trapezoidal rule between the previous and the present current sample.
 //!
 //! ## Units
-//! Working units of [`crate::units`]: V, A, rad/s, s, Wb (or per-unit).
+//! Working units of [`crate::num::units`]: V, A, rad/s, s, Wb (or per-unit).
 //!
 //! ## Saliency
 //! With `Ld != Lq` the observers use `Ls = Lq` and so estimate the *active flux*
@@ -34,8 +34,8 @@ pub use integrator::PureIntegrator;
 pub use lpf::{LpfConfigError, LpfObserver};
 pub use voltage_model::ObserverMotor;
 
+use crate::algorithms::transforms::AlphaBeta;
 use crate::num::Scalar;
-use crate::transforms::AlphaBeta;
 
 /// One sample of observer input, in working units.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -62,12 +62,12 @@ pub struct FluxEstimate<T> {
     /// The increment over this sample of the flux before the observer's output filter
     /// (Wb), where the observer has one: for the DCFO, of its integrator state `psi_i`
     /// (the back-EMF `e dt` plus the observer's DC correction). With `psi_ab` it gives
-    /// the frequency discriminator of [`crate::fll`].
+    /// the frequency discriminator of [`crate::algorithms::fll`].
     pub flux_increment_ab: Option<AlphaBeta<T>>,
     /// The increment over this sample of the model flux without any observer
     /// correction, `(u - Rs i) dt - Ls di` (Wb), where the observer has a correction to
     /// leave out: for the DCFO, `flux_increment_ab` less its feedback `(h/Ls) d dt`. It
-    /// draws the arc [`crate::arc_fit`] fits.
+    /// draws the arc [`crate::algorithms::arc_fit`] fits.
     pub emf_increment_ab: Option<AlphaBeta<T>>,
 }
 

@@ -75,7 +75,7 @@ impl ProfileField {
     }
 
     /// The field's path in a drive's settings (`"motion.limits.max_speed_m_per_s"`,
-    /// ...), as [`DriveConfigError`](crate::drive::DriveConfigError) names it.
+    /// ...), as the drive's `DriveConfigError` names it.
     pub fn config_path(self) -> &'static str {
         match self {
             ProfileField::MaxSpeed => "motion.limits.max_speed_m_per_s",
@@ -88,7 +88,7 @@ impl ProfileField {
 
 impl ProfileLimits {
     /// Checks the limits on their own (not against a motor: that is
-    /// [`DriveConfig::check_profile`](crate::drive::DriveConfig::check_profile)): the
+    /// the drive's `DriveConfig::check_profile`): the
     /// speed and the acceleration positive and finite, the stroke's ends finite with
     /// `stroke_min_m < stroke_max_m`. The first bad field is named.
     pub fn validate(&self) -> Result<(), ProfileField> {

@@ -25,7 +25,7 @@
 //!
 //! where `u` are the phase references (the mean phase voltages, `e_k ~ u_k` over a
 //! period), `j, m` the other two phases, and `d_k = 1/2 + (u_k + u_0) / Vdc` the duty
-//! with the min-max zero sequence `u_0` of [`crate::svpwm`]. Derivation: while leg `k`
+//! with the min-max zero sequence `u_0` of [`crate::algorithms::svpwm`]. Derivation: while leg `k`
 //! is high, leg `j` is high over `min(d_k, d_j) Ts/2` of that half, so
 //! `integral v_kn = Vdc (Ts/2) (2 d_k - min(d_k, d_j) - min(d_k, d_m)) / 3`, and
 //! `d_k - min(d_k, d_j) = max(0, u_k - u_j) / Vdc` (the zero sequence cancels).
@@ -65,10 +65,10 @@
 //! are in `docs/inverter-compensation.md`.
 #![forbid(unsafe_code)]
 
+use crate::algorithms::transforms::{Abc, AlphaBeta, clarke, inverse_clarke};
 use crate::motor::MotorParams;
 use crate::num::Scalar;
-use crate::transforms::{Abc, AlphaBeta, clarke, inverse_clarke};
-use crate::units::Base;
+use crate::num::units::Base;
 
 /// Compensation of the inverter's dead time and device drops, added to the voltage
 /// command per phase as `(dead_time / Ts * Vdc + device_drop) * sign(i)`
