@@ -31,27 +31,24 @@
 //! while the DCFO settles), which the PLL is not; so the PLL keeps the steady state,
 //! and the FLL only bounds how far the PLL's frequency may stray from it.
 //!
-//! Until 2026-11 a disagreement above 20 % handed the notch back to the FLL, and the
-//! next sample back to the PLL with its integrator set to the FLL's reading. After a
-//! DC step that reading ripples at `w` by about the offset over the back-EMF (+2 V at
-//! 10 Hz: 52-81 rad/s about 63), so the hand-over sampled a ripple peak, and whether a
-//! peak crossed 20 % was a coin flip between f32 and Q8.24 on the same inputs (12 deg
-//! apart on the +2 V step; 0.1 deg now). The band's correction is continuous in the
-//! disagreement and withheld while the flux amplitude shows a DC offset
-//! ([`crate::algorithms::fll::FllOutput::flux_undisturbed`]); it is taken out at the FLL's own
-//! tracking rate `4 w` rather than at once, because the integrator is the speed
-//! estimate (moved in one step, the speed step's speed-estimate error rose from 0.026 to
-//! 0.086 m/s, and the Q8.24 drive's load step drifted 2 deg from f32's). Over the
-//! paper's scenarios at eight event phases each (medians, before -> after): +2 V step
-//! 32.4 -> 17.6 deg, 40 N load step 12.5 -> 11.7, speed step 4.6 -> 4.6, +0.2 A
-//! 10.0 -> 10.0, R = 2 Rs 6.8 -> 7.3, steady 1.53 -> 1.46; `dcfo acquire` 292 of 576
-//! cold starts over budget (340 before), 7 never locked (5).
+//! The band's correction is continuous in the disagreement (f32 and Q8.24 stay within
+//! 0.1 deg of each other on the +2 V step) and withheld while the flux amplitude shows a
+//! DC offset ([`crate::algorithms::fll::FllOutput::flux_undisturbed`]); it is taken out at
+//! the FLL's own tracking rate `4 w` rather than at once, because the integrator is the
+//! speed estimate (moved in one step, the speed step's speed-estimate error rises from
+//! 0.026 to 0.086 m/s, and the Q8.24 drive's load step drifts 2 deg from f32's). The
+//! notch is not handed back to the FLL above a disagreement threshold, with the
+//! integrator set to the FLL's reading: after a DC step that reading ripples at `w` by
+//! about the offset over the back-EMF (+2 V at 10 Hz: 52-81 rad/s about 63), so such a
+//! hand-over samples a ripple peak, and whether a peak crosses the threshold parts f32
+//! and Q8.24 on the same inputs (12 deg apart on the +2 V step; docs/notch-tuning.md,
+//! "Tried and not kept").
 //!
 //! ## Through zero speed
 //! Near zero speed the flux turns too slowly for the PLL's integrator to tune the notch:
 //! through a reversal it lags the mover by the whole speed change, and the notch, at
 //! its floor, passes a flux that no longer turns at the PLL's frequency, so the estimate
-//! stayed 180 degrees off after the reversal. The FLL reads the rotation whatever its
+//! would stay 180 degrees off after the reversal. The FLL reads the rotation whatever its
 //! rate and direction. So when the FLL reads below [`ZERO_SPEED_PER_NOTCH_FLOOR`] notch
 //! floors, the FLL takes the notch again and feeds the PLL forward (its integrator
 //! cleared, so the PLL's frequency does not jump), exactly as while acquiring but
@@ -64,11 +61,11 @@
 //! track`, the estimator alone from zero state: within 10 degrees 1.3 to 1.7 electrical
 //! periods after `|v|` reaches the back-EMF floor on every reversal of the repository's
 //! motors, f32 and Q8.24 alike, no false lock; `dcfo paper`, `dcfo acquire` and the
-//! fault campaign as without it. An open phase makes the FLL's reading swing below the
-//! floor too; were that reported as `acquiring`, the drive would drop its current
-//! reference at once and the phase-loss check would not see the evidence (`dcfo
-//! faults`: LOCK_LOST after 605 ms instead of CURRENT_CONTROL after 79 ms); not
-//! reported, it trips as before.
+//! fault campaign are the same with it and without it. An open phase makes the FLL's
+//! reading swing below the floor too; were that reported as `acquiring`, the drive would
+//! drop its current reference at once and the phase-loss check would not see the
+//! evidence (`dcfo faults`: LOCK_LOST after 605 ms); not reported, it trips on
+//! CURRENT_CONTROL after 79 ms.
 //!
 //! ## Phase compensation of the angle output
 //! The notch tuned by the PLL's integrator lags a speed change nobody commanded: on the
@@ -85,44 +82,40 @@
 //!   amplified. The FLL reads the frequency independently (from the flux's rotation,
 //!   not the angle), so the compensation is applied only as far as the FLL's frequency
 //!   confirms that the notch is off the same way ([`COMPENSATION_FLL_SHARE`]); without
-//!   that check a 65 % bus sag rode through with 5.7 deg instead of 3.9 (`dcfo
-//!   faults`). The FLL's own reading as the estimate gained less on the load step: it
-//!   lags the mover.
+//!   that check a 65 % bus sag rides through with 5.7 deg instead of 3.9 (`dcfo
+//!   faults`). The FLL's own reading is not taken as the estimate: it lags the mover, and
+//!   gains less on the load step.
 //! - A DC offset in the flux estimate (a DC step being removed) makes the PLL's error
 //!   ripple at exactly `w`; a narrow notch at `w` ([`COMPENSATION_NOTCH_DAMPING`]) takes
 //!   that out and passes the slower error of a speed change.
 //! - A dead band ([`NOTCH_PHASE_DEADBAND_RAD`]) leaves the steady ripple alone, and a
 //!   limit ([`NOTCH_PHASE_COMPENSATION_LIMIT_RAD`]) bounds what a wrong frequency can do.
 //! - It is armed in proportion to the travel with [`Estimate::locked`] set since the
-//!   PLL took the notch, fully after one period ([`COMPENSATION_ARM_RAD`]; until
-//!   2026-11-27 at once by the first locked sample, which a flag set for a single sample
-//!   in Q8.24 and not in f32 armed in one of them only), and fades in over one period of
-//!   tracking ([`COMPENSATION_FADE_RAD`]): right after acquisition the
-//!   PLL's error is its own convergence, not a speed change (applied at once, 418 of 576
-//!   cold starts missed their budget instead of 292), and a fade rather than a switch
-//!   keeps Q8.24 with f32 where the two arm a few samples apart (before the FLL check:
-//!   3.7 deg apart at 0.1 m/s with a switch, 2.1 with the fade, as without
-//!   compensation). The FLL check is continuous for the same reason: a sign test there
-//!   put them 1.8 deg apart at 0.15 m/s.
+//!   PLL took the notch, fully after one period ([`COMPENSATION_ARM_RAD`]; it is not
+//!   armed at once by the first locked sample, because a flag set for a single sample
+//!   in Q8.24 and not in f32 would arm it in one of them only), and fades in over one
+//!   period of tracking ([`COMPENSATION_FADE_RAD`]): right after acquisition the
+//!   PLL's error is its own convergence, not a speed change (applied at once, many more
+//!   cold starts miss their budget; docs/notch-tuning.md, "Tried and not kept"), and a
+//!   fade rather than a switch keeps Q8.24 with f32 where the two arm a few samples
+//!   apart. The FLL check is continuous for the same reason: a sign test there puts
+//!   them 1.8 deg apart at 0.15 m/s.
 //! - It is dropped while the estimate is not [tracking](Estimate::tracking) and fades in
-//!   again after (from zero, while what was applied before the loss goes on fading out
-//!   beside it: resumed at the faded weight, the new reading replaced the old at once,
-//!   and a flag resuming a sample apart in f32 and Q8.24 put them 2.5 deg apart for
-//!   that sample in the paper's +2 V step; 0.1 deg now): a PLL that has lost the angle or disagrees with the FLL reports a
+//!   again after, from zero, while the compensation applied before the loss goes on
+//!   fading out beside it (it does not resume at the faded weight: the new reading would
+//!   replace the old at once, and a flag resuming a sample apart in f32 and Q8.24 puts
+//!   them 2.5 deg apart for that sample in the paper's +2 V step; they stay within
+//!   0.1 deg): a PLL that has lost the angle or disagrees with the FLL reports a
 //!   phase error that is not the notch's. Without that, a stuck current sensor (`dcfo
-//!   faults`) steered the drive on a compensated wrong angle for 605 ms with 27 A behind
+//!   faults`) steers the drive on a compensated wrong angle for 605 ms with 27 A behind
 //!   the sensor before LOCK_LOST, instead of the 69 ms to OVER_CURRENT it takes without
 //!   compensation.
 //!
 //! The loops inside keep their states: the PLL, the FLL, the notch and the lock flags
-//! see exactly what they saw before. Over the paper's scenarios at eight event phases
-//! each (medians before -> after, closed loop): 40 N load step 11.7 -> 7.5 deg (max
-//! 12.9 -> 8.7), speed step 4.6 -> 5.0 (max 6.4 -> 5.5), R = 2 Rs 7.3 -> 6.4, +2 V
-//! 17.6 -> 17.2, +0.2 A 10.0 -> 10.4; steady 0.3 m/s over eight 1 s windows from 3 s
-//! on 1.80 -> 1.64 median, 2.3 -> 2.3 worst window. The DC steps are where the FLL
-//! reads the offset as a ripple at `w` and the check holds the compensation back; they
-//! moved by about what moving the event moves them. `dcfo acquire`: 294 of 576 cold
-//! starts over budget (292), Q8.24 within 0.64 deg of f32 from 0.15 m/s up as before.
+//! see exactly what they would see without the compensation. It gains most on the 40 N
+//! load step; the DC steps are where the FLL reads the offset as a ripple at `w` and the
+//! check holds the compensation back (the figures as built are under "The DC offset's
+//! angle").
 //!
 //! ## The DC offset's angle
 //! A DC step in the observer's inputs (the paper's +2 V and +0.2 A) leaves a DC offset
@@ -143,8 +136,9 @@
 //! - the angle output is turned back by [`OFFSET_PHASE_SHARE`] of the rate's reading
 //!   (through a band-pass at `w` that passes the offset's ripple and not the inverter's
 //!   `6 w` harmonics, less [`OFFSET_PHASE_DEADBAND_RAD`], within
-//!   [`OFFSET_PHASE_LIMIT_RAD`]). An open path: the PLL and the notch see the flux as
-//!   before. It is kept while the loops disagree, since a DC step is what makes them;
+//!   [`OFFSET_PHASE_LIMIT_RAD`]). An open path: the PLL and the notch see the
+//!   uncorrected flux. It is kept while the loops disagree, since a DC step is what makes
+//!   them;
 //! - the FLL is trusted only as far as no offset is read: its band on the notch and its
 //!   confirmation of the notch's phase compensation are scaled by a trust that is full
 //!   while the reading's held peak stays within [`FLL_TRUST_OFFSET_RAD`] (or within
@@ -153,11 +147,11 @@
 //!   above it) and none as much again beyond. The FLL reads its frequency from the back-EMF's increment
 //!   across the flux estimate: a DC step puts the uncancelled DC voltage into the one
 //!   and the offset into the other, and both ripple the reading at `w` by about the
-//!   offset's share of the flux (+2 V at 10 Hz: 20 %). The band then pulled the
-//!   PLL-tuned notch after that ripple: 14.5 % off the mover after the step on ideal
-//!   inputs, 10.2 % with the trust (the rest is the PLL integrator's own response to the
-//!   step's angle transient), and the compensation, confirmed by the same ripple, turned
-//!   the angle the wrong way (by 7.7 deg at one phase of the paper's +2 V step). The
+//!   offset's share of the flux (+2 V at 10 Hz: 20 %). Trusted in full, the band pulls
+//!   the PLL-tuned notch after that ripple (14.5 % off the mover after the step on ideal
+//!   inputs; 10.2 % with the trust, the rest being the PLL integrator's own response to
+//!   the step's angle transient), and the compensation, confirmed by the same ripple,
+//!   turns the angle the wrong way (by 7.7 deg at one phase of the paper's +2 V step). The
 //!   FLL's own detector, the flux amplitude's held peak
 //!   ([`crate::algorithms::fll::FllOutput::flux_undisturbed`]), sees an offset from about a tenth of
 //!   the flux; the band-passed reading from a few hundredths. A speed
@@ -171,34 +165,20 @@
 //! example motor, 24 of 576 cold starts over budget instead of 8).
 //!
 //! In the linear model (`docs/dc_step_analysis.py`, section 5, worst of 16 phases at
-//! 10 Hz): +2 V 17.1 -> 11.7 deg with the feedback alone, 6.2 with both; +0.2 A 8.5
-//! -> 3.1; the phase error of a notch 10 % off the mover unchanged (6.1 / 5.4 deg). In
-//! the closed-loop drive over the paper's scenarios at eight event phases each
-//! (`paper_phases`, median / max, before -> after): +2 V 17.8 / 23.3 -> 12.5 / 15.3 deg,
-//! +0.2 A 10.6 / 12.1 -> 5.3 / 9.9, R = 2 Rs 7.9 / 9.9 -> 4.3 / 5.8, 40 N load step
-//! 6.5 / 6.7 -> 5.6 / 5.7, speed step 3.0 / 3.3 -> 2.9 / 3.1, steady 0.73 / 0.88 ->
-//! 0.62 / 0.75, reset at speed 1.6 / 5.3 -> 1.3 / 3.3 (before the FLL's trust). Feeding
-//! the PLL the corrected flux instead (a closed loop through the notch) gave 11.2 / 12.4
-//! deg on the +2 V step but put Q8.24 1.5 deg off f32 at 0.1 m/s in `dcfo acquire`; the
-//! output path kept it within 0.7 deg.
-//!
-//! The FLL's trust then (2026-11-27, median / max over eight phases, before -> after):
-//! +2 V 12.5 / 15.3 -> 9.5 / 10.5 deg (`dcfo paper` 11.9 -> 9.7), +0.2 A 5.3 / 9.9 ->
-//! 4.8 / 5.8, R = 2 Rs 4.3 / 5.8 -> 3.9 / 4.6; the speed step (2.9 / 3.1), the load
-//! step (5.6 / 5.7), steady (0.62 / 0.75) and the reset at speed (1.3 / 3.3 -> 1.4 /
-//! 3.1) as they were. `dcfo acquire`: none over budget as before, Q8.24 within 0.25 deg
-//! of f32 (0.67); on the 20 mm-pitch example motors 0.59 and 0.73 deg (1.22, 0.68). What is
-//! left of the +2 V step is the PLL integrator following the step's angle transient.
-//! Tried with the trust and not kept: the integrator fed the PLL's error less the
-//! offset's reading (+2 V 7.4-10.2 deg by phase at 0.7 of it, 10.2 at the paper's
-//! instant against 9.7; 8.0-12.1 at all of it), or through a notch at
-//! `w` (8.8 / 9.9, but the speed step 2.9 -> 3.5 deg and 4 cold starts over budget), or
-//! held while an offset is read (13.9 at one phase); the trust from the amplitude of the
-//! band-pass's two states instead of its held peak (the quadrature state integrates a
-//! speed change: the load step 5.6 -> 8.3 deg), or also from the drift of the
-//! observer's DC estimate (the load step lost: its notch leaks into that drift); the
-//! FLL's band widened by the reading, and its confirmation narrowed, instead of the
-//! trust (+2 V 11.0-11.5 / 12.8-13.5 deg).
+//! 10 Hz): +2 V 17.1 deg without either, 11.7 with the feedback alone, 6.2 with both;
+//! +0.2 A 8.5 without, 3.1 with both; the phase error of a notch 10 % off the mover
+//! unchanged (6.1 / 5.4 deg). In the closed-loop drive as built, with the FLL's trust,
+//! over the paper's scenarios at eight event phases each (`paper_phases`, median /
+//! max): +2 V 9.5 / 10.5 deg (`dcfo paper` 9.7), +0.2 A 4.8 / 5.8, R = 2 Rs 3.9 / 4.6,
+//! 40 N load step 5.6 / 5.7, speed step 2.9 / 3.1, steady 0.62 / 0.75, reset at speed
+//! 1.4 / 3.1. `dcfo acquire`: no cold start over budget, Q8.24 within 0.25 deg of f32;
+//! on the 20 mm-pitch example motors 0.59 and 0.73 deg. What is left of the +2 V step
+//! is the PLL integrator following the step's angle transient. The PLL is not fed the
+//! corrected flux (a closed loop through the notch): it gains on the +2 V step but puts
+//! Q8.24 1.5 deg off f32 at 0.1 m/s, where the output path keeps it within 0.7 deg.
+//! Neither is the integrator fed the PLL's error less the offset's reading, nor the
+//! trust taken from other detectors: the measured alternatives are in
+//! docs/notch-tuning.md, "Tried and not kept".
 //!
 //! ## Cold starts: the circle fit ([`crate::algorithms::arc_fit`])
 //! From reset and on [`Estimator::reacquire`] the integrated back-EMF's arc is fitted
@@ -212,22 +192,18 @@
 //! while the observer takes on the DC state the seed left out (sensor offsets, the
 //! inverter): the hand-over to the PLL then takes the FLL's mean frequency rather than
 //! its reading. An explicit [`Estimator::seed`] stops the fit. `dcfo acquire` (576 cold
-//! starts): 204 over budget (294 without the fit; 294 with the mean hand-over alone,
-//! 238 with the fit alone), 11 never locked within their window (7), all at 0.1-0.2
-//! m/s, no false lock; Q8.24 within 0.83 deg of f32 at every speed (2.1 at 0.1 m/s
-//! before). Over the paper's scenarios at eight event phases each (medians, before ->
-//! after): steady 1.66 -> 1.80 deg, speed step 4.98 -> 4.94, +2 V 17.2 -> 17.3, +0.2 A
-//! 10.4 -> 10.7, R = 2 Rs 6.39 -> 6.39, 40 N load step 7.47 -> 8.00: the start only
-//! changes the realisation of the run (with the fit and the reading at the hand-over
-//! the load step's median was 6.65).
+//! starts): none over budget, no false lock (the figures under "The DC offset's
+//! angle"). Over the paper's scenarios at eight event phases each the start only
+//! changes the realisation of the run: the medians move by about half a degree or less
+//! with it.
 //!
-//! Since 2026-11-26 the fit also gives the DC error in the observer's inputs, from the
-//! circle the back-EMF itself draws (its centre; [`crate::algorithms::arc_fit`], "DC errors"), and
-//! the seed starts the DCFO with its disturbance estimate holding it. Before, +2 V at
-//! 0.1 m/s (60 % of the back-EMF) bent the chord's arc by tens of degrees and the DCFO
-//! then took the error on through its slowest pole: 51 of 576 cold starts over budget,
-//! all at 0.1-0.3 m/s; now none, the longest 0.49 s of 0.6 s. [`Estimator::fitting`]
-//! tells when the fit is over.
+//! The fit also gives the DC error in the observer's inputs, from the circle the
+//! back-EMF itself draws (its centre; [`crate::algorithms::arc_fit`], "DC errors"), and
+//! the seed starts the DCFO with its disturbance estimate holding it. Without that, +2 V
+//! at 0.1 m/s (60 % of the back-EMF) bends the chord's arc by tens of degrees and the
+//! DCFO then takes the error on through its slowest pole: 51 of 576 cold starts over
+//! budget, all at 0.1-0.3 m/s. With it none is, the longest 0.49 s of 0.6 s.
+//! [`Estimator::fitting`] tells when the fit is over.
 //!
 //! ## Two flags
 //! - [`Estimate::tracking`]: the PLL is locked and, with an FLL, both frequencies
@@ -281,9 +257,10 @@ pub const MAX_DISTURBANCE_DRIFT: f32 = 0.05;
 /// a settled FLL reads the frequency: the notch is kept within `zeta` times this of the
 /// FLL's frequency (a notch off by `dw` turns the phase by `dw / (zeta w)`; module docs).
 /// 0.07 rad (4 deg) measured best over the paper's scenarios at eight event phases
-/// each (with the correction applied at once; module docs): a wider band lets the PLL lag a load step longer (0.1: 11.6 deg median, 0.15:
-/// 15.5), a narrower one lets the FLL's ripple under a DC current offset into the notch
-/// (0.05: +0.2 A step 11.8 deg, steady 1.75 deg).
+/// each (with the band's correction applied in one step): a wider band lets the PLL lag
+/// a load step longer (0.1: 11.6 deg median, 0.15: 15.5), a narrower one lets the FLL's
+/// ripple under a DC current offset into the notch (0.05: +0.2 A step 11.8 deg, steady
+/// 1.75 deg).
 pub const NOTCH_PHASE_BUDGET_RAD: f32 = 0.07;
 
 /// Frequency, in notch floors (dimensionless), below which the FLL tunes the notch and
@@ -332,25 +309,25 @@ pub const COMPENSATION_FLL_SHARE: f32 = 0.25;
 pub const COMPENSATION_FADE_RAD: f32 = 2.0 * core::f32::consts::PI;
 
 /// Electrical angle (rad) of travel with [`Estimate::locked`] set over which the
-/// compensation is armed, in proportion: one period. Armed at once by the first locked
-/// sample (before 2026-11-27), a flag set for one sample in Q8.24 and not in f32 on the
-/// same inputs (the paper's doubled-resistance scenario, 0.2 s before f32 locked) let
-/// the compensation fade in for one of them only: 2.1 deg apart. Armed once the flag
-/// had held a quarter period (set in all, or without a break), the two still parted
-/// where the flag flickers (1.2 and 2.6 deg at 3.3 Hz on the salient example motor).
-/// In proportion, a sample's flag moves the compensation by `w dt / 2 pi` of itself.
+/// compensation is armed, in proportion: one period. It is not armed at once by the
+/// first locked sample: a flag set for one sample in Q8.24 and not in f32 on the same
+/// inputs (the paper's doubled-resistance scenario, 0.2 s before f32 locks) lets the
+/// compensation fade in for one of them only, 2.1 deg apart. Nor once the flag has held
+/// a quarter period (set in all, or without a break): the two still part where the flag
+/// flickers (1.2 and 2.6 deg at 3.3 Hz on the salient example motor). In proportion, a
+/// sample's flag moves the compensation by `w dt / 2 pi` of itself.
 pub const COMPENSATION_ARM_RAD: f32 = 2.0 * core::f32::consts::PI;
 
 /// Electrical angle over which the compensation fades out once the estimate stops
-/// tracking (rad): a quarter period. At once (before 2026-11-26), a tracking flag that
-/// flipped for one sample in Q8.24 and not in f32 on the same inputs (the paper's +2 V
-/// step) put the two 14 deg apart for that sample.
+/// tracking (rad): a quarter period. It does not drop out at once: a tracking flag that
+/// flips for one sample in Q8.24 and not in f32 on the same inputs (the paper's +2 V
+/// step) would put the two 14 deg apart for that sample.
 pub const COMPENSATION_FADE_OUT_RAD: f32 = 0.5 * core::f32::consts::PI;
 
 /// Damping of the notch at the fundamental in the phase compensation (dimensionless):
 /// narrow (0.3), so that the compensation of a speed change (its spectrum below `w`)
 /// passes while the PLL error's ripple at `w` that a DC offset in the flux estimate causes
-/// is taken out. Measured in replay of the paper scenarios (before the FLL check): 0.7 and
+/// is taken out. Measured in replay of the paper scenarios (without the FLL check): 0.7 and
 /// 1.5 delayed the compensation of the load step (7.6 and 8.5 deg median against 6.5).
 pub const COMPENSATION_NOTCH_DAMPING: f32 = 0.3;
 
@@ -358,8 +335,8 @@ pub const COMPENSATION_NOTCH_DAMPING: f32 = 0.3;
 /// angle output is turned back by (dimensionless; module docs, "The DC offset's angle").
 /// In the linear model (`docs/dc_step_analysis.py`, section 5) 0.7 and 1.0 give 6.2 and
 /// 6.9 deg on the +2 V step; in the closed-loop drive (the paper scenarios at eight event
-/// phases each, measured before the band-pass and the arming, dead band 0.02) 1.0 let
-/// it reach 23.9 deg at one phase (12.3 median), 0.7 kept it at 14.5 (10.9).
+/// phases each, measured without the band-pass and the arming, dead band 0.02) 1.0 lets
+/// it reach 23.9 deg at one phase (12.3 median), 0.7 keeps it at 14.5 (10.9).
 pub const OFFSET_PHASE_SHARE: f32 = 0.7;
 
 /// Part of the DC offset's angle reading left uncorrected (rad): the rate of the flux
@@ -395,8 +372,8 @@ pub const FLL_TRUST_OFFSET_RAD: f32 = 0.5 * OFFSET_PHASE_DEADBAND_RAD;
 /// step raises the reading above where it was, a drive whose speed keeps swinging
 /// reads that swing all the time. On the paper motor without payload
 /// (`scenarios/bare-mover.toml`: its speed loop rings through the 0.4 -> 0.8 m/s step,
-/// and the flux magnitude with it) the drive kept 5.6 deg with the trust from the level
-/// (2 and 3 alike, 5.6 before the trust), 15.5 without it.
+/// and the flux magnitude with it) the drive keeps 5.6 deg with the trust from the level
+/// (2 and 3 alike, as without any trust), 15.5 with the fixed limit alone.
 pub const FLL_TRUST_LEVEL_MULTIPLE: f32 = 2.0;
 
 /// Rate of the offset reading's mean magnitude per radian of electrical travel

@@ -40,15 +40,15 @@
 //!
 //! ## What the chord cannot see, and the guards
 //! - A DC error in `u` or `i` (an offset, a wrong `Rs` under load) makes `p` drift and
-//!   bends the fit. Fitting the drift as well (five unknowns) was tried: over a third of
-//!   a period it is too poorly conditioned (more cold starts missed their budget than
+//!   bends the fit. The drift is not fitted as well (five unknowns): over a third of
+//!   a period that is too poorly conditioned (more cold starts miss their budget than
 //!   with no fit at all; `docs/acquisition.md`). The back-EMF's circle sees it (below).
 //! - The fitted radius `|c|` must lie within [`RADIUS_RANGE`] of the magnet flux, the
 //!   chord within [`MAX_CHORD_SHARE`] of it (a drift of more than the flux is not an
 //!   arc), and the fit must come within [`MAX_FIT_TURNS`] periods of the notch floor;
 //!   otherwise the fit gives up and the estimator acquires as it would without it.
 //! - The radius is fitted rather than taken from the motor file: a seed at the file's
-//!   `psi_f` gave the same results and depends on the
+//!   `psi_f` gives the same results and depends on the
 //!   file being right.
 //!
 //! ## DC errors: the back-EMF's circle
@@ -74,7 +74,7 @@
 //!   for a DC error (a drive's current loop ringing after it lost the angle, the
 //!   inverter's dead time near zero current) leaves a chord the fit does not explain:
 //!   in the drive's flying restart at 0.3 m/s (`dcfo faults`, lock-loss) the back-EMF
-//!   fit saw 2.2 V that was not there, and without this check the drive lost the mover.
+//!   fit sees 2.2 V that is not there, and without this check the drive loses the mover.
 //!
 //! What is taken is not the first circle to pass but the mean of those that pass over
 //! the next [`EMF_CONFIRM_SHARE`] of the fit's time (each angle measured against the
@@ -410,7 +410,7 @@ impl<T: Scalar> ArcFit<T> {
     /// [`EMF_CHORD_TOLERANCE`] of the magnet flux, and the frequency within a quarter
     /// of the back-EMF fit's. The chord is integrated, so the harmonics that make the
     /// back-EMF's circle wobble (a flux harmonic of order `n` is `n` times larger in the
-    /// back-EMF) barely move it: its `w` is the better one (the back-EMF fit's own was
+    /// back-EMF) barely move it: its `w` is the better one (the back-EMF fit's own is
     /// 20 % off at 0.1 m/s, where the chord's is within a few percent). And a transient
     /// at the start that the back-EMF fit took for a DC error (the drive's reaction to a
     /// lost angle: current spikes through `Ls di/dt`, the inverter's dead time near zero
@@ -1085,7 +1085,7 @@ mod tests {
     #[test]
     fn the_back_emf_circle_gives_the_dc_error_with_the_angle_and_frequency() {
         // Within the back-EMF fit's range, with and without a DC error of 60 % of the
-        // back-EMF at 3 Hz (+2 V, -1 V; the chord's arc alone gave up or was bent by tens
+        // back-EMF at 3 Hz (+2 V, -1 V; the chord's arc alone gives up or is bent by tens
         // of degrees there). The filtered back-EMF is exact but for the filter's start,
         // which has decayed to exp(-5) of the first value when the fit begins: that
         // residue in the first points sets the errors.
@@ -1095,8 +1095,8 @@ mod tests {
         // angle 0.23 / 0.30 deg, frequency (the chord's, which the angle error enters
         // twice) 0.39 / 0.51 %, DC 0.045 / 0.054 V, 0.45 periods (without / with the DC
         // error). The circle first passes its checks at 0.41 periods; the mean over the
-        // next eighth of the fit's time (`EMF_CONFIRM_SHARE`) took the errors down from
-        // 0.25 / 0.33 deg, 0.51 / 0.66 %, 0.052 / 0.064 V. Before the rounding, Q8.24 was
+        // next eighth of the fit's time (`EMF_CONFIRM_SHARE`) takes the errors down from
+        // 0.25 / 0.33 deg, 0.51 / 0.66 %, 0.052 / 0.064 V. Rounded down instead, Q8.24 is
         // 1.0 deg and 1.8 % off on the same data: half an LSB of bias per update of each
         // running mean.
         let limit = [0.4, 0.008, 0.08, 0.5];

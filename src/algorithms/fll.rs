@@ -53,37 +53,36 @@
 //! notch (`m = 1`; `c` = [`DIRECTION_SHARE_GAIN`] = 4, below), and `|dtheta|` while it
 //! is not (from reset, through a reversal), so that
 //! the notch sweeps and follows whatever the direction; `m` moves the one into the other
-//! continuously (no threshold for f32 and fixed point to part at). Until 2026-11-26 the
-//! reading was `|dtheta|` always. At low speed the per-sample rotation is comparable to
-//! the noise on the increment (the current sensors' noise through `Ls di`), and the mean
-//! of `|x + n|` exceeds `|x|` (by 17 % for noise of the rotation's size): the notch sat
-//! above the mover, the DCFO's angle lagged by `dw / (zeta w)` and the two frequencies
-//! never agreed. On the salient example motor at 3.3 Hz the notch sat at 25 rad/s on a
-//! 21 rad/s mover, 10 deg of steady error, and 3 of 48 cold starts locked within their
-//! window (none within budget); now 47 do (27 within budget) (`dcfo acquire --motor
-//! motors/salient.toml`: 85 of 576 over budget and 45 never locked before, 62 and 1
-//! after; the paper motor 52 / 0 -> 51 / 1, the low-R motor 21 -> 13; Q8.24 within
-//! 0.92 deg of f32 on the paper motor, 2.36 before; `tests/fll.rs` checks the bias).
+//! continuously (no threshold for f32 and fixed point to part at). The reading is not
+//! `|dtheta|` always, because that is biased: at low speed the per-sample rotation is
+//! comparable to the noise on the increment (the current sensors' noise through
+//! `Ls di`), and the mean of `|x + n|` exceeds `|x|` (by 17 % for noise of the
+//! rotation's size), so the notch sits above the mover, the DCFO's angle lags by
+//! `dw / (zeta w)` and the two frequencies never agree. On the salient example motor at
+//! 3.3 Hz a rectified reading holds the notch at 25 rad/s on a 21 rad/s mover, 10 deg of
+//! steady error, and 3 of 48 cold starts lock within their window (none within budget;
+//! `dcfo acquire --motor motors/salient.toml`); `tests/fll.rs` checks the bias.
 //!
 //! ## Noise: where the notch can stay above the mover
 //! Let the noise make the mean of `|dtheta|` `rho` times the rotation (`rho >= 1`; 1.17
 //! for noise of the rotation's size, as above). Besides `omega_n = |w|` the notch's
 //! update has an equilibrium with `m < 1` where `omega_n = (1 - m) rho |w| + m |w|`, `m
 //! = c |w| / omega_n`, i.e. `omega_n^2 - rho |w| omega_n + c (rho - 1) w^2 = 0`, which
-//! has roots when `rho^2 >= 4 c (rho - 1)`. With `c = 1` (until 2026-11-27) that is
+//! has roots when `rho^2 >= 4 c (rho - 1)`. With `c = 1` that is
 //! `(rho - 2)^2 >= 0`: for any `rho > 2` the notch can stay at `(rho - 1) |w|`, and the
 //! sweep from above meets that root first. Its band-pass then attenuates the flux the
 //! FLL reads, which makes the noise larger still. On a motor with `Lq I / psi_f` 1.2
-//! (30 mH, 0.1 Wb) at 3.3 Hz with a current offset the notch sat at 80-140 rad/s on a
-//! 21 rad/s mover, the angle 110-130 deg off for all of the 1.8 s window. With `c = 4`
-//! the high root exists only for `rho >= 8 + 4 sqrt(3) = 14.9`. `dcfo acquire` on that
-//! motor: 73 of 576 cold starts never locked, 31 with `c = 4` (23 to 38 with `c` from
-//! 2 to 8, the sensors' realisation; 30 with the steering switch below); the paper motor, both example motors and a 230 V
-//! motor unchanged, `dcfo faults` all met (`tests/fll.rs` checks the notch at noise five
-//! and ten times the rotation). `c = 4` applies while the FLL steers the DCFO's notch
-//! ([`Fll::set_steering`]): once the PLL does, the FLL's notch only scales its trackers'
-//! rate and its settle check, and there `c = 1` kept the paper's doubled-resistance
-//! scenario at 7.9 deg (median over eight event phases) where `c = 4` took it to 11.1.
+//! (30 mH, 0.1 Wb) at 3.3 Hz with a current offset `c = 1` holds the notch at
+//! 80-140 rad/s on a 21 rad/s mover, the angle 110-130 deg off for all of the 1.8 s
+//! window. With `c = 4` the high root exists only for `rho >= 8 + 4 sqrt(3) = 14.9`.
+//! `dcfo acquire` on that motor: 30 of 576 cold starts never lock (73 with `c = 1`, 23
+//! to 38 with `c` from 2 to 8, the sensors' realisation); the paper motor, both example
+//! motors and a 230 V motor are the same with `c = 1` and `c = 4`, `dcfo faults` all met
+//! (`tests/fll.rs` checks the notch at noise five and ten times the rotation). `c = 4`
+//! applies while the FLL steers the DCFO's notch ([`Fll::set_steering`]): once the PLL
+//! does, the FLL's notch only scales its trackers' rate and its settle check, and there
+//! `c = 1` keeps the paper's doubled-resistance scenario at 7.9 deg (median over eight
+//! event phases) where `c = 4` takes it to 11.1.
 //!
 //! Below `psi_ref` a measurement is weighted down by `|x1|^2 / psi_ref^2` (the `max` in
 //! the denominator): a weak or absent flux reads as "no rotation", so the notch sweeps
@@ -129,7 +128,7 @@
 //! - and it has been so for [`FllConfig::settle_guard_rad`] of electrical angle (default
 //!   15 rad, 2.4 periods): four time constants of the DCFO's slowest pole (`0.263 w` for
 //!   `zeta = 1`, `h = -0.2 Ls w`), the time it needs to remove what acquisition left in
-//!   its integrator. Without the guard the acquisition sweep claimed lock on
+//!   its integrator. Without the guard the acquisition sweep claims lock on
 //!   decaying 17 deg transients in 213 of 576 cold starts; with it, in none.
 //!
 //! ## Undisturbed
@@ -148,11 +147,11 @@
 //!   [`MAX_FLUX_SQ_PEAK`] = 0.2 of the mean, is an offset of about `0.1 |psi|` (6 deg).
 //!
 //! The slower steadiness check of [`FllOutput::settled`] (a mean absolute deviation over
-//! two thirds of a period) saw the paper's +2 V step too late: the angle error passes
-//! 15 deg within 25 ms of the step, and the flag stayed set for 66 ms of it. Measured
-//! with both detectors and the estimator's drift check: no sample
+//! two thirds of a period) sees the paper's +2 V step too late: the angle error passes
+//! 15 deg within 25 ms of the step, and on that check alone the flag stays set for 66 ms
+//! of it. Measured with both detectors and the estimator's drift check: no sample
 //! locked above 15 deg in the paper's scenarios (eight event phases each) and in the
-//! 576 cold starts of `dcfo acquire`, with the flag's availability there unchanged.
+//! 576 cold starts of `dcfo acquire`, and the flag as available there as without them.
 
 use crate::algorithms::transforms::AlphaBeta;
 use crate::num::units::Base;
@@ -169,9 +168,9 @@ pub const MAX_FLUX_SQ_PEAK: f32 = 0.2;
 /// How far the signed frequency must have reached towards the notch frequency for the
 /// notch to follow the reading along its direction alone, while the FLL steers the
 /// DCFO's notch ([`Fll::set_steering`]; dimensionless): the share of that reading is
-/// `min(DIRECTION_SHARE_GAIN |omega| / w_n, 1)` (module docs, "The loop"). At 1 (until
-/// 2026-11-27) a noisy flux held the notch at a multiple of the mover's frequency for
-/// good: the high equilibrium exists for any noise (module docs, "Noise"); at 4 only
+/// `min(DIRECTION_SHARE_GAIN |omega| / w_n, 1)` (module docs, "The loop"). At 1 a noisy
+/// flux holds the notch at a multiple of the mover's frequency for good: the high
+/// equilibrium exists for any noise (module docs, "Noise"); at 4 only
 /// once the noise rectifies to 15 times the rotation. While the PLL steers, 1.
 pub const DIRECTION_SHARE_GAIN: f32 = 4.0;
 
@@ -486,9 +485,9 @@ impl<T: Scalar> Fll<T> {
     /// reference for another loop's (`false`: the PLL steers). While steering, the notch
     /// follows the signed frequency's direction from a quarter of the notch on
     /// ([`DIRECTION_SHARE_GAIN`]), so that noise cannot hold it (and the DCFO's
-    /// band-pass) at a multiple of the mover's frequency; otherwise from the notch itself,
-    /// as before 2026-11-27: over the paper's scenarios at eight event phases the
-    /// doubled-resistance one took 7.9 deg (median) so against 11.1 with the quarter.
+    /// band-pass) at a multiple of the mover's frequency; otherwise from the notch itself:
+    /// over the paper's scenarios at eight event phases the doubled-resistance one takes
+    /// 7.9 deg (median) so against 11.1 with the quarter.
     pub fn set_steering(&mut self, steering: bool) {
         self.direction_share_gain = if steering { self.steering_share_gain } else { T::ONE };
     }

@@ -90,7 +90,7 @@
 //! periods then `-U_p` for `N` (the flux returns to where it started, and so does the
 //! current), the rest, then `-U_p, +U_p`. `N` is chosen so that the pulse's flux
 //! `U_p N T` drives about 1.5 times the rated peak current through `L_d` (at the rated
-//! peak current the margins were 0.011 to 0.08 on the simulated salient axis).
+//! peak current the margins are 0.011 to 0.08 on the simulated salient axis).
 //! Magnetising the d axis along the magnet saturates the iron further: the incremental
 //! `L_d` drops and the current rises higher. So the peak of `i_d^` above its start in the
 //! positive pulse, `P+`, exceeds the peak below it in the negative one, `P-`, when

@@ -37,9 +37,9 @@
 //!   Estimating the lag from the loop's own error instead (`integral + kp eps_f`,
 //!   `eps_f` low-passed) closes the notch loop through the observer's phase response
 //!   (a step of notch error reaches its static phase shift after about `2.4 / w` and
-//!   overshoots by 18 %), and with `c kp = 8` it was stable on an ideal flux only for a
-//!   filter slower than `w / 2` and made the closed-loop drive oscillate at 4 Hz even
-//!   at `w / 4`; the FLL's derivative as the acceleration was worse. This is what the
+//!   overshoots by 18 %), and with `c kp = 8` it is stable on an ideal flux only for a
+//!   filter slower than `w / 2` and makes the closed-loop drive oscillate at 4 Hz even
+//!   at `w / 4`; the FLL's derivative as the acceleration is worse. This is what the
 //!   drive uses in steady state; while
 //!   acquiring and in speed transients the FLL of [`crate::algorithms::fll`] tunes the notch and
 //!   feeds this loop forward ([`Pll::update_with_feedforward`], see the
@@ -184,10 +184,10 @@ pub struct Pll<T> {
 /// How finely the frequency integrator's updates are kept below its working unit's
 /// resolution (dimensionless, a power of two): the integrator carries a residue in
 /// 64ths of its least step. In Q8.24 at 0.1 m/s on the paper motor's base an update
-/// `w_p^2 dt eps` is about 650 LSB times the phase error, so errors below 0.00076 rad
-/// left the integrator where it was and the loop held the frequency with `kp eps`
-/// instead: the integrator, which tunes the DCFO's notch, stayed anywhere within
-/// 0.13 rad/s (0.6 %) of the mover's frequency, and rounded down it drifted to the
+/// `w_p^2 dt eps` is about 650 LSB times the phase error, so without the residue errors
+/// below 0.00076 rad leave the integrator where it is and the loop holds the frequency
+/// with `kp eps` instead: the integrator, which tunes the DCFO's notch, stays anywhere
+/// within 0.13 rad/s (0.6 %) of the mover's frequency, and rounded down it drifts to the
 /// edge (`dcfo acquire` at 0.1 m/s: a notch 0.6 % off, 0.35 deg of flux angle from
 /// f32's). A 64th takes that down to 0.002 rad/s. In `f32` the residue is always zero
 /// (the scaling by a power of two is exact), so the update is the plain one bit for

@@ -234,7 +234,7 @@ impl MotionConfig {
     /// - low-speed current: the current limit. The mover trails the vector by
     ///   `asin(F / (K_f I))` and rests within `F_static / (K_f I)` of it, so both the
     ///   thrust margin and the accuracy at rest scale with `I` (paper axis, 5.9 A: 9 deg
-    ///   for 47 N, 2.5 deg for 13 N of break-away friction; rated current gave 5 deg at
+    ///   for 47 N, 2.5 deg for 13 N of break-away friction; rated current gives 5 deg at
     ///   rest, above the 3 deg end-position floor). Thermally a transient: a long dwell
     ///   at the limit is the user's choice to lower it. Measured cost: a wrong `Rs` reads
     ///   as an angle error `dR I_d / (w psi_f)` while the vector is on d (26 deg at the

@@ -321,11 +321,11 @@ pub struct Drive<T> {
 /// bandwidth (its position noise is filtered above that), and the PD hold's bandwidth as
 /// a share of the observer's (a closed loop slower than the estimates it closes on). On
 /// the salient test axis (HFI at 314 rad/s): observer 79 rad/s, hold 39 rad/s; a 60 N
-/// load step (50 % rated) deflects the mover 2.8 mm and it is back within 0.05 mm. The
-/// speed PI it replaced at rest, at twice the drive's speed bandwidth, took HFI's
-/// tracking-loop integrator as the speed: its noise became ±5 A of thrust current, the
-/// mover hunted by ±5 mm in stick-slip and the step deflected it 12.9 mm; a stiffer PI
-/// (4x, 6x) deflected it more. With the observer at 0.15 of HFI's: 7.3 mm.
+/// load step (50 % rated) deflects the mover 2.8 mm and it is back within 0.05 mm. A
+/// speed PI does not hold at rest: at twice the drive's speed bandwidth it takes HFI's
+/// tracking-loop integrator as the speed, whose noise becomes ±5 A of thrust current, the
+/// mover hunts by ±5 mm in stick-slip and the step deflects it 12.9 mm; a stiffer PI
+/// (4x, 6x) deflects it more. With the observer at 0.15 of HFI's: 7.3 mm.
 const HOLD_OBSERVER_SHARE: f32 = 0.25;
 /// See [`HOLD_OBSERVER_SHARE`].
 const HOLD_BANDWIDTH_SHARE: f32 = 0.5;
@@ -383,7 +383,7 @@ impl<T: Scalar> Drive<T> {
         // Current PIs: limits set per step from the bus. The stored range only bounds a
         // preset integrator (a hand-over's, `Pi::preset`): the highest bus the drive
         // accepts, so a back-EMF or a resistive drop is carried over whole in any
-        // working units (it was +-1, i.e. 1 V in SI and 180 V per unit on the paper
+        // working units (a fixed +-1 would be 1 V in SI and 180 V per unit on the paper
         // motor).
         let v_preset: T = representable(config.faults.bus_max_v / base.voltage_v, "faults.bus_max_v")?;
         let pi_d = Pi::new(kp_i, ki_dt_i, -v_preset, v_preset)

@@ -6,10 +6,10 @@
 //! The current-control supervision (`FaultConfig::current_error_a`) trips once the
 //! loops' voltage sits on the bridge's limit with the current off its reference. At
 //! light load an open phase does not saturate the voltage: the two remaining phases
-//! carry a current vector on a line, the flux estimate is corrupted by it, and the drive
-//! pushed on a wrong angle until the over-current trip (`dcfo faults`: an open phase at
-//! 0.3 m/s took a quarter of a second to trip, and a stuck sensor had several times the
-//! rated current behind it by then).
+//! carry a current vector on a line, the flux estimate is corrupted by it, and without a
+//! check of its own the drive pushes on a wrong angle until the over-current trip (`dcfo
+//! faults`: an open phase at 0.3 m/s takes a quarter of a second to trip, and a stuck
+//! sensor has several times the rated current behind it by then).
 //!
 //! ## The check
 //! Per phase `k`, the magnitudes of the measured current `|i_k|` and of the reference
@@ -26,11 +26,12 @@
 //! - A drive that cannot push its currents at all (the voltage on its limit at high
 //!   speed, a bus sag) falls short on every phase alike: no phase carries while another
 //!   starves, and the saturation check is the one that speaks.
-//! - A phase with no reference "carries" (`0 >= 0`). Requiring a reference of its own
-//!   too (a quarter of the starved phase's) let the current behind a stuck sensor grow
-//!   to twice as much before the trip (`dcfo faults`), and the case it would exclude,
-//!   a current vector across two phases that the loops deliver short at standstill, has
-//!   the loops' voltage on its limit: the saturation check names it the same.
+//! - A phase with no reference "carries" (`0 >= 0`). A reference of its own is not
+//!   required too (a quarter of the starved phase's): that lets the current behind a
+//!   stuck sensor grow to twice as much before the trip (`dcfo faults`), and the case it
+//!   would exclude, a current vector across two phases that the loops deliver short at
+//!   standstill, has the loops' voltage on its limit: the saturation check names it the
+//!   same.
 //! - After a phase opens, `m_k` decays from about `r_k` as `(1 - Ts/tau)^n`: it is below
 //!   a quarter after `tau ln 4` (13.9 ms for `tau` = 10 ms), and the trip follows
 //!   `current_error_s` later, provided the reference averages above the threshold (an

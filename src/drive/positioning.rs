@@ -58,11 +58,11 @@
 //!   ([`crate::algorithms::load_observer`], at a quarter of HFI's bandwidth): thrust `M (k_v (v_ref -
 //!   v_hat) + k_x (x_ref - x_hat))` plus the estimated load, a critically damped PD at
 //!   half the observer's bandwidth. The observer's speed integrates the commanded thrust
-//!   instead of differentiating HFI's noisy angle, and its load estimate replaces an
-//!   integrator that wound up against static friction (stick-slip hunting of ±5 mm with
-//!   the speed PI it replaced; a 50 % load step deflected 12.9 mm, now 2.8 mm). Moving,
-//!   the running drive's loops (stiff ones disturbed the hand-overs: lock lost after
-//!   reversals); the speed loop takes over from the hold's output. Moving or holding,
+//!   instead of differentiating HFI's noisy angle, and its load estimate takes the place
+//!   of an integrator, which would wind up against static friction (a speed PI hunts by
+//!   ±5 mm in stick-slip, and a 50 % load step deflects the mover 12.9 mm; the hold 2.8 mm).
+//!   Moving, the running drive's loops (stiff ones disturb the hand-overs: lock is lost
+//!   after reversals); the speed loop takes over from the hold's output. Moving or holding,
 //!   the overload supervision of `Running` applies (thrust on the current limit, the
 //!   speed off its command). Leaving the band, the
 //!   estimator is seeded from the HFI angle; entering
@@ -692,9 +692,9 @@ impl<T: Scalar> Drive<T> {
             p.profile.set_speed_target(v);
         }
         let sp = p.profile.step(dt_s);
-        // The position estimate: the HFI angle. (Low-passing it at rest, against its
-        // noise, lagged a mover that was still moving with the reference at rest: 6.4 mm
-        // under the 60 N load step of host/tests/hfi_drive.rs.)
+        // The position estimate: the HFI angle. (It is not low-passed at rest against its
+        // noise: that lags a mover still moving with the reference at rest, 6.4 mm under
+        // the 60 N load step of host/tests/hfi_drive.rs.)
         p.hfi_position_angle = theta;
         self.low_speed_mover_angle = Some(p.hfi_position_angle);
         let omega_ref = T::from_f32(sp.speed_m_per_s * p.rad_per_m * self.k.inv_omega_base);

@@ -57,8 +57,8 @@
 //! So the step's transient is set by `zeta` first: a narrower band-pass rejects a DC step
 //! faster (and harmonics better), but delays angle changes by `1 / (zeta w)` and turns a
 //! notch error `dw` into `dw / (zeta w)` of phase. Measured in the closed-loop drive
-//! (2026-11-24, `+2 V` at eight event phases, replaying the drive's own inputs through the
-//! estimator with the notch forced to the true frequency and without the angle's phase
+//! (`+2 V` at eight event phases, replaying the drive's own inputs through the estimator
+//! with the notch forced to the true frequency and without the angle's phase
 //! compensation, in the estimator), the cost of the loops around the observer:
 //!
 //! | +2 V, max over the window | zeta 1.0 / -0.2 | zeta 0.5 / -0.3 |
@@ -66,14 +66,14 @@
 //! | observer, notch at the true `w` | 14.5-16.4 deg | 6.8-9.6 deg |
 //! | observer, its own notch (PLL-tuned) | 13.7-21.5 | 9.4-18.8 |
 //! | angle out, notch at the true `w`, no phase compensation | - | 7.9-10.7 |
-//! | angle out, as built | 14.3-22.4 | 10.9-27.4 |
+//! | angle out, PLL-tuned notch and phase compensation, no offset angle | 14.3-22.4 | 10.9-27.4 |
 //!
 //! At `zeta = 0.5` the observer alone meets a 10 deg target, but the PLL-tuned notch
 //! (its integrator moves while the step's transient turns the flux angle) and the phase
 //! compensation (which reads that movement as a notch error, `1 / zeta` times larger)
-//! give back more than the narrower band-pass gains; as built, `zeta = 0.5` also lost the
-//! 40 N load step (9.2 deg median against 7.5). A lower `zeta` therefore needs a notch
-//! tuning that a DC step does not move; until then the default stays at 1.0.
+//! give back more than the narrower band-pass gains; with them, `zeta = 0.5` also loses
+//! the 40 N load step (9.2 deg median against 7.5). A lower `zeta` therefore needs a
+//! notch tuning that a DC step does not move; without one the default is 1.0.
 //!
 //! How much is at stake (docs/notch-tuning.md): with the closed-loop
 //! sim handing the notch the plant's true speed and the phase compensation off, `zeta =
