@@ -997,10 +997,11 @@ impl<T: Scalar> Estimator<T> {
 
     /// Whether a resistance error within [`EstimatorConfig::resistance_uncertainty_ohm`]
     /// leaves the angle within [`LOCK_ANGLE_RAD`] at current `i`, flux `psi` and
-    /// frequency `omega_e` ([`LOCK_ANGLE_RAD`]). Multiplied through by `|psi|` (no
+    /// frequency `omega_e`, updating the held error. Multiplied through by `|psi|` (no
     /// division): the current along the flux is `i . psi / |psi|`; `|i|` and `|psi|` come
     /// from [`approx_norm`] (at most 12 % high: `|i|` on the safe side, `|psi|` on both
     /// sides of the inequality).
+    ///
     /// Not inlined: one copy for its two callers.
     #[inline(never)]
     fn resistance_allows_lock(&mut self, i: AlphaBeta<T>, psi: AlphaBeta<T>, omega_e: T, dt: T) -> bool {
