@@ -3,11 +3,11 @@
 //! and without +0.2 A / +2 V offsets present from the first sample, f32 and Q8.24.
 //!
 //! Measured on this subset (144 starts) with the back-EMF circle fit that gives the
-//! DC error with the seed (`src/algorithms/arc_fit.rs`, 2026-11-26): every start within its budget
-//! (at 0.1 m/s, 0.5 s at most of 0.6 s; before the fit 25 of the 48 starts there were
+//! DC error with the seed (`src/algorithms/arc_fit.rs`): every start within its budget
+//! (at 0.1 m/s, 0.5 s at most of 0.6 s; without the fit 25 of the 48 starts there are
 //! over, the +2 V ones by 2.1 budgets in the median); no false lock. Q8.24 within
 //! 0.20 deg of f32 once both are locked and seeded (the floor is 1 deg): 1.37
-//! before 2026-11-27, when the PLL integrator's update rounded down (0.12 rad/s of
+//! when the PLL integrator's update rounded down (0.12 rad/s of
 //! bias at 0.1 m/s, a notch 0.6 % off: 0.35 deg) and the seed was the first circle to
 //! pass its checks (the two types passed a sample apart, 1.2 deg apart; now the mean of
 //! the circles over the next eighth of the fit).
@@ -44,8 +44,8 @@ fn estimator_finds_a_moving_mover_from_its_zero_state() {
 }
 
 /// The estimator's own acquisition, without what the inputs cost: traces recorded
-/// through an ideal inverter and ideal sensors (`dcfo acquire --plant ideal`). Measured
-/// (2026-11-23): every start without an offset at 0.42 and 1.0 m/s locks within a sixth
+/// through an ideal inverter and ideal sensors (`dcfo acquire --plant ideal`). Measured:
+/// every start without an offset at 0.42 and 1.0 m/s locks within a sixth
 /// of its budget (0.16 at most), so what `dcfo acquire` counts over budget there on the
 /// realistic plant is the inputs' error, not the estimator's pull-in.
 #[test]
@@ -79,8 +79,8 @@ fn on_ideal_inputs_the_estimator_locks_well_within_budget() {
 /// `tests/observer_analysis.rs`), so an error `dU_d` the estimator is not told turns the
 /// flux estimate by `dU_d / (w psi_f)`: [`dcfo_host::commands::acquire::Start::inverter_bias_deg`],
 /// computed from the plant's period-average voltages, predicts the mean error the
-/// estimator shows. Ideal sensors, so that the inverter is the only error. Measured
-/// (2026-11-26): within 0.1 deg at every start. With the measured current's signs at
+/// estimator shows. Ideal sensors, so that the inverter is the only error. Measured:
+/// within 0.1 deg at every start. With the measured current's signs at
 /// 0.6 m/s (a duty spread of 5.6 dead times, below the ripple's fade-in) the
 /// compensation leaves 2.2 deg, so the agreement is not one of two zeros; with the
 /// default (the reference's signs, the ripple) 0.02 deg at most at every speed (the
@@ -151,7 +151,7 @@ fn another_motor_is_swept_at_the_benchmarks_electrical_frequencies_and_load_shar
 /// low speed (`motors/salient_high_l.toml`: through `Ls di/dt`, 1.5 times the back-EMF
 /// at 3.3 Hz), the circle fit takes the noise's variance out of its points
 /// (`dcfo::algorithms::arc_fit`, "Noise") and every start at 5 and 6.7 Hz, with and without the
-/// offsets, locks within its budget. Measured (2026-11-26, f32): all 96 (the plain
+/// offsets, locks within its budget. Measured (f32): all 96 (the plain
 /// algebraic fit, biased towards small circles by the noise: 22 over budget, up to 0.95 s
 /// of 0.4).
 #[test]

@@ -142,9 +142,9 @@ fn the_hand_over_is_bumpless_in_both_number_types() {
     // The current loops' integrators hold the winding's voltage in the open-loop frame;
     // the hand-over rotates them into the estimated frame less the decoupling
     // feed-forward that starts there (`Drive::hand_over`), the same law in both number
-    // types. Until 2026-11-26 the preset was clamped to the PI's stored range of +-1: 1 V
-    // in the f32 drive's SI units, 180 V in the Q8.24 drive's per unit, so only the f32
-    // drive lost part of the integrators at the hand-over. Measured, the loop's largest
+    // types. The preset is not clamped to the PI's stored range of +-1: that is 1 V in
+    // the f32 drive's SI units, 180 V in the Q8.24 drive's per unit, so only the f32 drive
+    // would lose part of the integrators at the hand-over. Measured, the loop's largest
     // error over the 20 ms after it (before: 0.055 A over the 20 ms before, noise and the
     // start-up vector's ripple): f32 0.135 A with the clamp, 0.079 A without; Q8.24
     // 0.077 A. So: the two agree within 20 % (the clamp failed that by 75 %), and

@@ -97,7 +97,7 @@ fn lost_periods_are_integrated_as_the_time_that_passed() {
     println!(
         "max angle error over 0.5 s: no loss {reference:.2} deg, 5 % lost and integrated {with_bridge:.2}, lost and stepped as one period {without:.2}"
     );
-    // Measured (2026-11-24): 0.04, 0.93 and 4.66 deg: integrating the lost periods takes
+    // Measured: 0.04, 0.93 and 4.66 deg: integrating the lost periods takes
     // out 81 % of what losing them costs (the rest: the current loop's response to the
     // held period, which the estimator sees only at its ends).
     assert!(without > reference + 2.0, "{without} vs {reference}");

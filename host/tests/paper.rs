@@ -149,7 +149,7 @@ fn dcfo_lock_flag_is_honest_in_every_scenario() {
 /// (`dcfo::drive::CompensationSigns`): the inverter compensation reading its signs from
 /// the measured current puts the current sensors' noise on the winding (about 600 V/A
 /// within its band). With the signs from the noise-free reference where the current is
-/// clear of the noise (the default since 2026-11-26), the run meets issue 8's steady
+/// clear of the noise (the default), the run meets issue 8's steady
 /// floor (1.1 / 0.5 deg): measured 0.70 / 0.25 against the measured signs' 1.23 / 0.54.
 #[test]
 fn steady_with_the_compensation_signs_from_the_reference() {

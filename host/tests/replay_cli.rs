@@ -166,7 +166,7 @@ fn ideal_synthetic_trace_dcfo_converges_and_cfo_shows_its_phase_lead() {
     assert_eq!(d["samples"], 10_001);
     // From a cold start (the estimator's zero state) the circle fit seeds the estimator
     // within about a third of a period (`dcfo::algorithms::arc_fit`), so by 0.5 s it has converged:
-    // measured rms 3.2e-4 deg (2026-11-27). Before the fit the DCFO + PLL pair was still
+    // measured rms 3.2e-4 deg. Without the fit the DCFO + PLL pair was still
     // acquiring at 0.5 s (docs/method.md §8; the PLL's slow pole at -0.13 w),
     // rms 5.0 deg, and this check was that it converged tenfold by 1.3 s; two figures
     // at the numbers' floor no longer tell that.
