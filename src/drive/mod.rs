@@ -5,7 +5,8 @@
 //! ```text
 //! samples -> offsets -> Clarke -> estimator (observer + PLL) -> Park -> current PIs
 //!         -> inverse Park (angle advanced `delay_compensation_periods`, 1.5) -> dead-time compensation
-//!         -> SVPWM -> duties;   speed PI every `speed_loop_divider` periods
+//!         -> SVPWM -> duties;   speed PI (and position loop) every `speed_loop_divider`
+//!         periods, the motion profile in the period before
 //! ```
 //!
 //! The same code runs in the host simulation, in trace replay (through the
@@ -526,7 +527,6 @@ impl<T: Scalar> Drive<T> {
                 thrust_n_per_a: motor.thrust_constant_n_per_a(),
                 load_force_n: 0.0,
                 friction_ff_a: 0.0,
-                friction_ff_of_n: 0.0,
                 // 50 ms
                 load_filter_rate: (ts / 0.05).min(1.0),
                 mover_offset_rad: 0.0,
@@ -536,6 +536,8 @@ impl<T: Scalar> Drive<T> {
                 dither_decay_per_s: 0.8 * wn / (3.0 * 2.0 * core::f32::consts::PI),
                 speed_loop_out: T::ZERO,
                 accel_ff_applied: T::ZERO,
+                accel_ff_target: T::ZERO,
+                reference_omega: T::ZERO,
                 mover_filter_rate: (wn * ts).min(1.0),
                 hfi: match m.hfi {
                     Some(h) => {
@@ -566,7 +568,6 @@ impl<T: Scalar> Drive<T> {
                 hold_bandwidth_rad_s: m
                     .hfi
                     .map_or(0.0, |h| HOLD_BANDWIDTH_SHARE * HOLD_OBSERVER_SHARE * h.bandwidth_rad_s),
-                hfi_position_angle: Angle::ZERO,
                 anchor_angle: Angle::ZERO,
                 anchor_x_m: 0.0,
                 seeded: false,
@@ -1008,12 +1009,16 @@ impl<T: Scalar> Drive<T> {
             }
         };
         out.estimate = Some(estimate);
-        self.omega_filtered =
-            self.omega_filtered + k.speed_filter_rate * (estimate.omega_e - self.omega_filtered);
-
-        // A salient motor's low-speed mode runs on HFI (`positioning` docs).
-        let hfi =
-            if self.state == DriveState::LowSpeed { self.hfi_low_speed(&estimate, out.i_ab) } else { None };
+        // A salient motor's low-speed mode runs on HFI (`positioning` docs), its speed loop
+        // on HFI's speed alone (filtered there): the back-EMF estimate, below its floor
+        // and not yet seeded, is no speed to mix in.
+        let hfi_steers =
+            self.state == DriveState::LowSpeed && self.positioning.as_ref().is_some_and(|p| p.hfi.is_some());
+        if !hfi_steers {
+            self.omega_filtered =
+                self.omega_filtered + k.speed_filter_rate * (estimate.omega_e - self.omega_filtered);
+        }
+        let hfi = if hfi_steers { self.hfi_low_speed(&estimate, out.i_ab) } else { None };
         let (theta, omega) = match (hfi, self.state) {
             (Some((theta, omega, _)), _) => (theta, omega),
             (None, DriveState::Starting) => self.startup_references(&estimate),

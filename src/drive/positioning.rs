@@ -162,10 +162,9 @@ pub(super) struct Positioning<T> {
     /// and load, along the motion), filtered: the low-speed mode's load-angle estimate.
     pub(super) load_force_n: f32,
     /// With HFI moving in the low-speed mode, the learned load's thrust current as fed
-    /// forward (working current as `f32`, along the motion) and the load it was formed
-    /// from (N): formed again only when the load changed.
+    /// forward (working current as `f32`, along the motion), formed where the load is
+    /// learned.
     pub(super) friction_ff_a: f32,
-    pub(super) friction_ff_of_n: f32,
     /// Rate of that filter per period (dimensionless).
     pub(super) load_filter_rate: f32,
     /// Settling dither: time at rest (s), angular frequency (rad/s), decay rate (1/s).
@@ -176,6 +175,12 @@ pub(super) struct Positioning<T> {
     /// (slewed), thrust current (working units).
     pub(super) speed_loop_out: T,
     pub(super) accel_ff_applied: T,
+    /// Running sensorless: the acceleration feed-forward of the last reference (thrust
+    /// current, working units), which `accel_ff_applied` slews to.
+    pub(super) accel_ff_target: T,
+    /// With HFI in the low-speed mode: the last reference's speed (electrical, working
+    /// units).
+    pub(super) reference_omega: T,
     /// The low-speed mode's slip supervision: the speed reading beyond which a mover at
     /// rest is off the vector's spring (rad/s, SI: `w_n + w_ls`), and the time an
     /// alignment on enable is given to settle before the supervision binds (s: two of
@@ -196,8 +201,6 @@ pub(super) struct Positioning<T> {
     /// With HFI, the hold at rest is the thrust law running (the speed loop takes over
     /// from its output when the reference moves again).
     pub(super) holding: bool,
-    /// With HFI: the position estimate's angle (the HFI angle).
-    pub(super) hfi_position_angle: Angle,
     /// With HFI: position, speed and load observer on the HFI position and the commanded
     /// thrust ([`crate::algorithms::load_observer`]); at rest the drive holds the reference with a
     /// PD law on its estimates and its load estimate fed forward.
@@ -508,6 +511,7 @@ impl<T: Scalar> Drive<T> {
         if let Some(p) = &mut self.positioning {
             p.speed_loop_out = iq - iq_ff;
             p.accel_ff_applied = iq_ff;
+            p.accel_ff_target = iq_ff;
         }
         self.state = DriveState::Running;
     }
@@ -534,9 +538,12 @@ impl<T: Scalar> Drive<T> {
     /// jump (the current reference keeps its value and slews from there), the decoupling
     /// feed-forward moves into the integrators, the position estimate continues.
     pub(super) fn enter_low_speed(&mut self, theta: Angle, omega: T, speed_m_per_s: f32) -> (Angle, T) {
+        let inv_omega_base = self.k.inv_omega_base;
         if let Some(p) = &mut self.positioning {
+            let sp = p.profile.setpoint();
             p.anchor_angle = theta;
-            p.anchor_x_m = p.profile.setpoint().position_m;
+            p.anchor_x_m = sp.position_m;
+            p.reference_omega = T::from_f32(sp.speed_m_per_s * p.rad_per_m * inv_omega_base);
             p.seeded = false;
             p.aligned = true;
             p.speed_error_rad_s = 0.0;
@@ -561,7 +568,6 @@ impl<T: Scalar> Drive<T> {
         if let Some(p) = &mut self.positioning
             && p.hfi.is_some()
         {
-            p.hfi_position_angle = theta;
             p.holding = false;
             // The hold's observer starts on the sensorless estimates and the load learned
             // along the motion.
@@ -576,34 +582,48 @@ impl<T: Scalar> Drive<T> {
     /// Sensorless positioning: position loop on `x_hat` with the profile's speed and
     /// acceleration fed forward; enters the low-speed mode when the reference slows.
     ///
-    /// The position loop runs with the speed loop, once per `speed_loop_divider` periods:
-    /// its speed command feeds the speed loop alone (and the overload supervision, which
-    /// sees the command of the last update).
+    /// The outer loops run at the speed loop's divided rate, spread over two periods so
+    /// that no one period carries both (`docs/cost-budget.md`, "Divided rates"): the
+    /// profile advances by `speed_loop_divider` periods in the period *before* the speed
+    /// loop's, so the position loop, in the speed loop's period, reads the reference of
+    /// its own instant as it would stepped every period; the load is learned there. Between, the acceleration
+    /// feed-forward slews towards the last reference's, as every change of the current
+    /// reference does.
     pub(super) fn positioning_references(&mut self, estimate: &Estimate<T>) -> Option<(Angle, T)> {
-        let dt_s = self.k.dt_s;
+        let n = self.k.speed_loop_divider;
         let p = self.positioning.as_mut()?;
-        let sp = p.profile.step(dt_s);
-        if sp.speed_m_per_s.abs() < p.enter_m_per_s {
-            return Some(self.enter_low_speed(
-                estimate.theta_e,
-                estimate.omega_e,
-                estimate.speed_m_per_s.to_f32(),
-            ));
-        }
-        let alpha =
-            T::from_f32(sp.accel_m_per_s2 * p.rad_per_m * self.k.inv_omega_base * self.k.inv_omega_base);
-        self.estimator.set_commanded_acceleration(alpha);
-        let iq_ff = Self::accel_feed_forward(p, &sp);
-        // Learn the thrust beyond acceleration (friction, load) along the motion.
-        if sp.speed_m_per_s != 0.0 {
-            let thrust = p.thrust_n_per_a * self.i_dq_measured.q.to_f32() * self.k.base.current_a;
-            let along = (thrust - p.mass_kg * sp.accel_m_per_s2) * sp.speed_m_per_s.signum();
-            if along.is_finite() {
-                p.load_force_n += p.load_filter_rate * (along - p.load_force_n);
+        // The periods since the speed loop last ran, before this one: the profile is due
+        // in the last period before it (every period with no divider).
+        let profile_due = self.speed_divider_count.saturating_add(2) == n || n == 1;
+        if profile_due {
+            let sp = p.profile.step(self.k.dt_s * f32::from(n));
+            if sp.speed_m_per_s.abs() < p.enter_m_per_s {
+                return Some(self.enter_low_speed(
+                    estimate.theta_e,
+                    estimate.omega_e,
+                    estimate.speed_m_per_s.to_f32(),
+                ));
+            }
+            let alpha =
+                T::from_f32(sp.accel_m_per_s2 * p.rad_per_m * self.k.inv_omega_base * self.k.inv_omega_base);
+            self.estimator.set_commanded_acceleration(alpha);
+            p.accel_ff_target = Self::accel_feed_forward(p, &sp);
+            // Learn the thrust beyond acceleration (friction, load) along the motion, from
+            // the thrust current the loops command (the measured one follows it within the
+            // current loop's bandwidth, without its noise), once per speed-loop period.
+            if sp.speed_m_per_s != 0.0 {
+                let thrust = p.thrust_n_per_a * self.i_dq_ref.q.to_f32() * self.k.base.current_a;
+                let along = (thrust - p.mass_kg * sp.accel_m_per_s2) * sp.speed_m_per_s.signum();
+                if along.is_finite() {
+                    let rate = (p.load_filter_rate * f32::from(n)).min(1.0);
+                    p.load_force_n += rate * (along - p.load_force_n);
+                    // Its thrust current as HFI's low-speed mode feeds it forward.
+                    p.friction_ff_a = p.load_force_n / p.thrust_n_per_a / self.k.base.current_a;
+                }
             }
         }
         self.speed_divider_count += 1;
-        if self.speed_divider_count >= self.k.speed_loop_divider {
+        if self.speed_divider_count >= n {
             self.speed_divider_count = 0;
             self.omega_ref = self.position_command();
             let out = self.pi_speed.update(self.omega_ref - self.omega_filtered);
@@ -615,7 +635,8 @@ impl<T: Scalar> Drive<T> {
             // The trapezoid's acceleration steps; its feed-forward is slewed like every
             // other change of the current reference (bounded jerk of the thrust).
             let step = p.slew_step;
-            p.accel_ff_applied = p.accel_ff_applied + (iq_ff - p.accel_ff_applied).clamp_to(-step, step);
+            p.accel_ff_applied =
+                p.accel_ff_applied + (p.accel_ff_target - p.accel_ff_applied).clamp_to(-step, step);
             self.i_dq_ref.q = p.speed_loop_out + p.accel_ff_applied;
         }
         None
@@ -635,7 +656,6 @@ impl<T: Scalar> Drive<T> {
         estimate: &Estimate<T>,
         i_ab: AlphaBeta<T>,
     ) -> Option<(Angle, T, HfiStep<T>)> {
-        let dt_s = self.k.dt_s;
         let speed_target = self.follows_speed().then(|| self.speed_target_m_per_s());
         let p = self.positioning.as_mut()?;
         let h = p.hfi.as_mut()?;
@@ -664,6 +684,8 @@ impl<T: Scalar> Drive<T> {
             p.seeded = false;
             p.speed_loop_out = T::ZERO;
             p.accel_ff_applied = T::ZERO;
+            p.accel_ff_target = T::ZERO;
+            p.reference_omega = T::ZERO;
             p.speed_error_rad_s = 0.0;
             p.holding = false;
             self.pi_speed.reset();
@@ -671,9 +693,6 @@ impl<T: Scalar> Drive<T> {
             self.position_counts =
                 self.position_counts.saturating_add(i64::from((theta - self.theta_previous).bits()));
             self.theta_previous = theta;
-            if let Some(p) = &mut self.positioning {
-                p.hfi_position_angle = theta;
-            }
             let x = self.position_m();
             if let Some(p) = &mut self.positioning {
                 p.profile.hold_at(x);
@@ -686,33 +705,46 @@ impl<T: Scalar> Drive<T> {
         let Some(p) = &mut self.positioning else {
             return Some((theta, T::ZERO, step));
         };
+        // The speed loop's measure: HFI's integrator, free of the proportional path's share
+        // of the noise, filtered.
         self.omega_filtered =
             self.omega_filtered + p.hfi_speed_filter_rate * (o.omega_integral_e - self.omega_filtered);
         if let Some(v) = speed_target {
             p.profile.set_speed_target(v);
         }
-        let sp = p.profile.step(dt_s);
+        // The profile advances at the speed loop's rate, in the period before its (as
+        // running sensorless, `positioning_references`); between, its reference holds.
+        let n = self.k.speed_loop_divider;
+        let profile_due = self.speed_divider_count.saturating_add(2) == n || n == 1;
+        let sp = if profile_due {
+            let sp = p.profile.step(self.k.dt_s * f32::from(n));
+            p.reference_omega = T::from_f32(sp.speed_m_per_s * p.rad_per_m * self.k.inv_omega_base);
+            p.accel_ff_target = Self::accel_feed_forward(p, &sp);
+            let alpha =
+                T::from_f32(sp.accel_m_per_s2 * p.rad_per_m * self.k.inv_omega_base * self.k.inv_omega_base);
+            self.estimator.set_commanded_acceleration(alpha);
+            sp
+        } else {
+            p.profile.setpoint()
+        };
         // The position estimate: the HFI angle. (It is not low-passed at rest against its
         // noise: that lags a mover still moving with the reference at rest, 6.4 mm under
         // the 60 N load step of host/tests/hfi_drive.rs.)
-        p.hfi_position_angle = theta;
-        self.low_speed_mover_angle = Some(p.hfi_position_angle);
-        let omega_ref = T::from_f32(sp.speed_m_per_s * p.rad_per_m * self.k.inv_omega_base);
-        let alpha =
-            T::from_f32(sp.accel_m_per_s2 * p.rad_per_m * self.k.inv_omega_base * self.k.inv_omega_base);
-        self.estimator.set_commanded_acceleration(alpha);
+        self.low_speed_mover_angle = Some(theta);
+        let omega_ref = p.reference_omega;
         // Moving: the position and speed loops on the HFI estimate, as in `Running`. At rest:
         // the hold on the load observer (below). (A speed PI stiff enough to hold a load
         // step, used while moving too, disturbed the hand-overs: lock lost after reversals.)
         let at_rest = sp.speed_m_per_s == 0.0;
-        let v_cmd = sp.speed_m_per_s + p.position_gain * (sp.position_m - x_hat);
-        let omega_cmd = T::from_f32(v_cmd * p.rad_per_m * self.k.inv_omega_base);
-        let iq_ff = T::from_f32(sp.accel_m_per_s2 * p.accel_current_per_m_s2);
-        self.omega_ref = omega_cmd;
+        let iq_ff = p.accel_ff_target;
         self.speed_divider_count += 1;
-        let speed_loop_due = self.speed_divider_count >= self.k.speed_loop_divider;
+        let speed_loop_due = self.speed_divider_count >= n;
         if speed_loop_due {
             self.speed_divider_count = 0;
+            // The position loop's speed command, for the speed loop (and the overload
+            // supervision, which sees the command of the last update).
+            let v_cmd = sp.speed_m_per_s + p.position_gain * (sp.position_m - x_hat);
+            self.omega_ref = T::from_f32(v_cmd * p.rad_per_m * self.k.inv_omega_base);
         }
         let error = self.omega_ref - self.omega_filtered;
         let limit = self.k.current_limit;
@@ -754,15 +786,9 @@ impl<T: Scalar> Drive<T> {
         // Feed forward the profile's acceleration and, along the motion, the friction
         // learned while running sensorless (the speed loop's integrator then only takes
         // what is unexpected); at rest the hold's load estimate carries the friction.
-        // The learned load changes only while running: its thrust current (two divisions)
-        // is formed again only when it has changed.
         let iq_ff = if at_rest {
             iq_ff
         } else {
-            if p.friction_ff_of_n.to_bits() != p.load_force_n.to_bits() {
-                p.friction_ff_of_n = p.load_force_n;
-                p.friction_ff_a = p.load_force_n / p.thrust_n_per_a / self.k.base.current_a;
-            }
             let friction_a = if sp.speed_m_per_s < 0.0 { -p.friction_ff_a } else { p.friction_ff_a };
             iq_ff + T::from_f32(friction_a)
         };
