@@ -57,6 +57,28 @@ fn salient_motor_stroke_meets_the_floors() {
     check_with_final("salient", &m.params, tau / 18.0);
 }
 
+/// A salient motor whose back-EMF floor is above the stroke's top speed stays in the
+/// low-speed mode, on HFI, throughout: its speed loop runs on HFI's speed alone, and
+/// cruises without the overshoot issue 35 bounds (10 % of the profile's speed; 82 %
+/// while the back-EMF estimate, unseeded below its floor, was mixed into that speed).
+#[test]
+fn a_salient_motor_on_hfi_throughout_cruises_without_overshoot() {
+    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../motors/salient_high_l.toml");
+    let m = load_motor(path).expect("motor file").params;
+    let (s, _) = run("salient_high_l", &m, 100).expect("stroke runs");
+    println!("{s:#?}");
+    let tau = f64::from(m.pole_pitch_m);
+    assert_eq!(s.faults, 0, "{}", s.fault_names);
+    assert_eq!(s.moves_done, MOVES);
+    assert_eq!(s.relocks, 0, "the stroke's speed is below this motor's back-EMF floor");
+    assert!(s.x_err_max_m <= tau / 4.0, "max {}", s.x_err_max_m);
+    assert!(
+        s.speed_overshoot_max_pct <= dcfo_host::commands::stroke::SPEED_OVERSHOOT_FLOOR_PCT,
+        "{} %",
+        s.speed_overshoot_max_pct
+    );
+}
+
 #[test]
 fn low_resistance_motor_stroke_meets_the_floors() {
     let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../motors/low_r.toml");

@@ -497,14 +497,14 @@ fn track(inputs: &[Input]) -> Result<String> {
 
 fn stroke(inputs: &[Input]) -> Result<String> {
     let mut s = String::from(
-        "| motor | moves / reversals / faults | max \\|x̂ − x\\| (≤ τ/4) | final \\|x̂ − x\\| (≤ τ/60) | re-lock, longest (≤ 100 ms) | current step at a transition (limit) |\n\
-         |---|--:|--:|--:|--:|--:|\n",
+        "| motor | moves / reversals / faults | max \\|x̂ − x\\| (≤ τ/4) | final \\|x̂ − x\\| (≤ τ/60) | re-lock, longest (≤ 100 ms) | current step at a transition (limit) | speed overshoot, cruising (≤ 10 %) |\n\
+         |---|--:|--:|--:|--:|--:|--:|\n",
     );
     for i in inputs {
         let tau_mm = i.num("pole_pitch_m")? * 1e3;
         writeln!(
             s,
-            "| {} | {} / {} / {} | {:.2} mm ({:.2}) | {:.2} mm ({:.2}) | {} ms | {:.3} A ({:.3}) |",
+            "| {} | {} / {} / {} | {:.2} mm ({:.2}) | {:.2} mm ({:.2}) | {} | {} ({:.3}) | {:.1} % |",
             motor_name(i.text("motor")?),
             i.num("moves_done")?,
             i.num("reversals")?,
@@ -513,9 +513,11 @@ fn stroke(inputs: &[Input]) -> Result<String> {
             tau_mm / 4.0,
             i.num("x_err_final_m")? * 1e3,
             tau_mm / 60.0,
-            ms(i.num("relock_time_max_s")?),
-            i.num("current_ref_step_transition_max_a")?,
+            // A stroke below the motor's back-EMF floor never leaves the low-speed mode.
+            i.opt_num("relock_time_max_s")?.map_or("on HFI throughout".into(), |t| format!("{} ms", ms(t))),
+            i.opt_num("current_ref_step_transition_max_a")?.map_or("none".into(), |a| format!("{a:.3} A")),
             i.num("current_step_limit_a")?,
+            i.num("speed_overshoot_max_pct")?,
         )?;
     }
     Ok(s)

@@ -69,6 +69,10 @@ pub struct Row {
     pub i_q_a: f64,
 }
 
+/// The speed overshoot a move may have at the end of its acceleration, % of the
+/// profile's top speed (issue 35).
+pub const SPEED_OVERSHOOT_FLOOR_PCT: f64 = 10.0;
+
 /// The figures of one stroke run.
 #[derive(Clone, Debug, Serialize)]
 pub struct StrokeSummary {
@@ -111,6 +115,10 @@ pub struct StrokeSummary {
     /// Largest |true - control angle| while running sensorless, electrical degrees;
     /// `None` over a link, which does not carry the control angle.
     pub angle_err_running_max_deg: Option<f64>,
+    /// Largest speed overshoot while the reference cruises at the profile's top speed
+    /// (after each acceleration), as a share of that speed: `max(|v| - |v_ref|) / v_top`
+    /// with `v` along the reference, %.
+    pub speed_overshoot_max_pct: f64,
     /// Moves completed.
     pub moves_done: usize,
     /// Moves sent to the drive (all of the run's, unless it ended early).
@@ -273,6 +281,8 @@ pub fn run_with(
     let mut last_dir = 0.0f64;
     let exit_speed = f64::from(motion.low_speed_m_per_s * motion.low_speed_exit_ratio);
     let mut moves_done = 0usize;
+    let top_speed = f64::from(motion.limits.max_speed_m_per_s);
+    let mut overshoot_max = 0.0f64;
     // Room in the drive's queue as the last answer reported it (before the first
     // answer: the queue is empty).
     let mut queue_room = dcfo::drive::MOVE_QUEUE;
@@ -328,6 +338,10 @@ pub fn run_with(
             moves_done += 1;
         }
         prev_v_ref = v_ref;
+        // Cruising: the reference within 0.5 % of the top speed.
+        if v_ref.abs() >= 0.995 * top_speed {
+            overshoot_max = overshoot_max.max(truth.v_m_per_s * v_ref.signum() - v_ref.abs());
+        }
         let x_hat = f64::from(pos.x_hat_m);
         let x = truth.x_m;
         let angle_err = step
@@ -428,6 +442,7 @@ pub fn run_with(
         low_speed_m_per_s: f64::from(motion.low_speed_m_per_s),
         low_speed_current_a: f64::from(motion.low_speed_current_a),
         angle_err_running_max_deg: angle_err_running,
+        speed_overshoot_max_pct: 100.0 * overshoot_max / top_speed,
         moves_done,
         moves_sent: moves_count - moves.len(),
     };
@@ -461,6 +476,12 @@ pub fn table(s: &StrokeSummary) -> String {
     );
     row("max |x_hat - x|", mm(s.x_err_max_m), mm(tau / 4.0), s.x_err_max_m <= tau / 4.0);
     row("final |x_hat - x|", mm(s.x_err_final_m), mm(tau / 60.0), s.x_err_final_m <= tau / 60.0);
+    row(
+        "speed overshoot, cruising",
+        format!("{:.1} %", s.speed_overshoot_max_pct),
+        format!("{SPEED_OVERSHOOT_FLOOR_PCT} %"),
+        s.speed_overshoot_max_pct <= SPEED_OVERSHOOT_FLOOR_PCT,
+    );
     row(
         &format!("re-lock after low speed ({} exits)", s.relocks),
         ms(s.relock_time_max_s),
