@@ -389,7 +389,7 @@ impl<T: Scalar> Drive<T> {
             p.profile.set_speed_target(v);
         }
         let sp = if p.aligned { p.profile.step(dt_s) } else { p.profile.setpoint() };
-        let omega_ref = T::from_f32(sp.speed_m_per_s * p.rad_per_m * self.k.inv_omega_base);
+        let omega_ref = Self::electrical_speed(p, sp.speed_m_per_s, self.k.inv_omega_base);
         // The mover's speed from the q voltage of the last step: in the frame turning at
         // `w_frame`, u_q = Rs i_q + w_frame Ld i_d + w psi_f cos(delta); the inverter's
         // error lies along the current vector (d), so u_q is clean. The frame turns at the
@@ -456,8 +456,7 @@ impl<T: Scalar> Drive<T> {
         p.mover_offset_rad += p.mover_filter_rate * (offset - p.mover_offset_rad);
         let mover = theta + p.mover_offset_rad.radians_to_angle();
         self.low_speed_mover_angle = Some(mover);
-        let alpha =
-            T::from_f32(sp.accel_m_per_s2 * p.rad_per_m * self.k.inv_omega_base * self.k.inv_omega_base);
+        let alpha = Self::electrical_acceleration(p, sp.accel_m_per_s2, self.k.inv_omega_base);
         self.estimator.set_commanded_acceleration(alpha);
         if !p.past_exit(&sp) {
             p.seeded = false;
@@ -524,12 +523,44 @@ impl<T: Scalar> Drive<T> {
         };
         let sp = p.profile.setpoint();
         let v_cmd = sp.speed_m_per_s + p.position_gain * (sp.position_m - self.position_m());
-        T::from_f32(v_cmd * p.rad_per_m * self.k.inv_omega_base)
+        Self::electrical_speed(p, v_cmd, self.k.inv_omega_base)
     }
 
     /// The acceleration feed-forward (thrust current, working units) of the setpoint `sp`.
     fn accel_feed_forward(p: &Positioning<T>, sp: &Setpoint) -> T {
         T::from_f32(sp.accel_m_per_s2 * p.accel_current_per_m_s2)
+    }
+
+    /// The electrical speed (working units) of a mover speed `v_m_per_s` (m/s);
+    /// `inv_omega_base` is the drive's `1 / omega_base` (s/rad).
+    fn electrical_speed(p: &Positioning<T>, v_m_per_s: f32, inv_omega_base: f32) -> T {
+        T::from_f32(v_m_per_s * p.rad_per_m * inv_omega_base)
+    }
+
+    /// The electrical acceleration (working units of speed per working time) of a mover
+    /// acceleration `a_m_per_s2` (m/s^2).
+    fn electrical_acceleration(p: &Positioning<T>, a_m_per_s2: f32, inv_omega_base: f32) -> T {
+        T::from_f32(a_m_per_s2 * p.rad_per_m * inv_omega_base * inv_omega_base)
+    }
+
+    /// The motion profile at the speed loop's rate: in the period before the speed loop's
+    /// (every period with no divider) it advances by the speed loop's period, and its
+    /// speed, acceleration feed-forward and commanded acceleration are formed; `Some` with
+    /// the new setpoint then, `None` in the other periods (`docs/cost-budget.md`,
+    /// "Divided rates").
+    fn advance_profile_if_due(&mut self) -> Option<Setpoint> {
+        let n = self.k.speed_loop_divider;
+        if !(self.speed_divider_count.saturating_add(2) == n || n == 1) {
+            return None;
+        }
+        let (dt_s, inv_omega_base) = (self.k.dt_s * f32::from(n), self.k.inv_omega_base);
+        let p = self.positioning.as_mut()?;
+        let sp = p.profile.step(dt_s);
+        p.accel_ff_target = Self::accel_feed_forward(p, &sp);
+        p.reference_omega = Self::electrical_speed(p, sp.speed_m_per_s, inv_omega_base);
+        let alpha = Self::electrical_acceleration(p, sp.accel_m_per_s2, inv_omega_base);
+        self.estimator.set_commanded_acceleration(alpha);
+        Some(sp)
     }
 
     /// Into the low-speed mode on the control frame at `theta` turning at `omega`
@@ -543,7 +574,7 @@ impl<T: Scalar> Drive<T> {
             let sp = p.profile.setpoint();
             p.anchor_angle = theta;
             p.anchor_x_m = sp.position_m;
-            p.reference_omega = T::from_f32(sp.speed_m_per_s * p.rad_per_m * inv_omega_base);
+            p.reference_omega = Self::electrical_speed(p, sp.speed_m_per_s, inv_omega_base);
             p.seeded = false;
             p.aligned = true;
             p.speed_error_rad_s = 0.0;
@@ -591,12 +622,8 @@ impl<T: Scalar> Drive<T> {
     /// reference does.
     pub(super) fn positioning_references(&mut self, estimate: &Estimate<T>) -> Option<(Angle, T)> {
         let n = self.k.speed_loop_divider;
-        let p = self.positioning.as_mut()?;
-        // The periods since the speed loop last ran, before this one: the profile is due
-        // in the last period before it (every period with no divider).
-        let profile_due = self.speed_divider_count.saturating_add(2) == n || n == 1;
-        if profile_due {
-            let sp = p.profile.step(self.k.dt_s * f32::from(n));
+        if let Some(sp) = self.advance_profile_if_due() {
+            let p = self.positioning.as_mut()?;
             if sp.speed_m_per_s.abs() < p.enter_m_per_s {
                 return Some(self.enter_low_speed(
                     estimate.theta_e,
@@ -604,10 +631,6 @@ impl<T: Scalar> Drive<T> {
                     estimate.speed_m_per_s.to_f32(),
                 ));
             }
-            let alpha =
-                T::from_f32(sp.accel_m_per_s2 * p.rad_per_m * self.k.inv_omega_base * self.k.inv_omega_base);
-            self.estimator.set_commanded_acceleration(alpha);
-            p.accel_ff_target = Self::accel_feed_forward(p, &sp);
             // Learn the thrust beyond acceleration (friction, load) along the motion, from
             // the thrust current the loops command (the measured one follows it within the
             // current loop's bandwidth, without its noise), once per speed-loop period.
@@ -712,21 +735,14 @@ impl<T: Scalar> Drive<T> {
         if let Some(v) = speed_target {
             p.profile.set_speed_target(v);
         }
-        // The profile advances at the speed loop's rate, in the period before its (as
-        // running sensorless, `positioning_references`); between, its reference holds.
+        // The profile advances at the speed loop's rate, as running sensorless; between,
+        // its reference holds.
         let n = self.k.speed_loop_divider;
-        let profile_due = self.speed_divider_count.saturating_add(2) == n || n == 1;
-        let sp = if profile_due {
-            let sp = p.profile.step(self.k.dt_s * f32::from(n));
-            p.reference_omega = T::from_f32(sp.speed_m_per_s * p.rad_per_m * self.k.inv_omega_base);
-            p.accel_ff_target = Self::accel_feed_forward(p, &sp);
-            let alpha =
-                T::from_f32(sp.accel_m_per_s2 * p.rad_per_m * self.k.inv_omega_base * self.k.inv_omega_base);
-            self.estimator.set_commanded_acceleration(alpha);
-            sp
-        } else {
-            p.profile.setpoint()
+        let advanced = self.advance_profile_if_due();
+        let Some(p) = &mut self.positioning else {
+            return Some((theta, T::ZERO, step));
         };
+        let sp = advanced.unwrap_or_else(|| p.profile.setpoint());
         // The position estimate: the HFI angle. (It is not low-passed at rest against its
         // noise: that lags a mover still moving with the reference at rest, 6.4 mm under
         // the 60 N load step of host/tests/hfi_drive.rs.)
@@ -744,7 +760,7 @@ impl<T: Scalar> Drive<T> {
             // The position loop's speed command, for the speed loop (and the overload
             // supervision, which sees the command of the last update).
             let v_cmd = sp.speed_m_per_s + p.position_gain * (sp.position_m - x_hat);
-            self.omega_ref = T::from_f32(v_cmd * p.rad_per_m * self.k.inv_omega_base);
+            self.omega_ref = Self::electrical_speed(p, v_cmd, self.k.inv_omega_base);
         }
         let error = self.omega_ref - self.omega_filtered;
         let limit = self.k.current_limit;
