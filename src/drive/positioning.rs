@@ -617,9 +617,9 @@ impl<T: Scalar> Drive<T> {
     /// that no one period carries both (`docs/cost-budget.md`, "Divided rates"): the
     /// profile advances by `speed_loop_divider` periods in the period *before* the speed
     /// loop's, so the position loop, in the speed loop's period, reads the reference of
-    /// its own instant as it would stepped every period; the load is learned there. Between, the acceleration
-    /// feed-forward slews towards the last reference's, as every change of the current
-    /// reference does.
+    /// its own instant, as it would with the profile stepped every period; the load is
+    /// learned in the profile's period. Between, the acceleration feed-forward slews
+    /// towards the last reference's, as every change of the current reference does.
     pub(super) fn positioning_references(&mut self, estimate: &Estimate<T>) -> Option<(Angle, T)> {
         let n = self.k.speed_loop_divider;
         if let Some(sp) = self.advance_profile_if_due() {
