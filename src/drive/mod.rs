@@ -1252,6 +1252,18 @@ impl<T: Scalar> Drive<T> {
         self.overload_count = 0;
     }
 
+    /// Counts one control period towards the speed loop's: `true` in every
+    /// `speed_loop_divider`-th (the period the speed loop runs in), which starts the count
+    /// again. One count for every mode that runs the speed loop.
+    fn speed_loop_due(&mut self) -> bool {
+        self.speed_divider_count = self.speed_divider_count.saturating_add(1);
+        let due = self.speed_divider_count >= self.k.speed_loop_divider;
+        if due {
+            self.speed_divider_count = 0;
+        }
+        due
+    }
+
     /// Sensorless: rate-limited speed reference, speed loop at its divided rate, d-axis
     /// current ramped to zero, lock supervision.
     fn running_references(&mut self, estimate: &Estimate<T>) -> (Angle, T) {
@@ -1268,10 +1280,7 @@ impl<T: Scalar> Drive<T> {
             if let Some(low_speed) = self.speed_reference_low_speed(estimate) {
                 return low_speed;
             }
-            let k = &self.k;
-            self.speed_divider_count += 1;
-            if self.speed_divider_count >= k.speed_loop_divider {
-                self.speed_divider_count = 0;
+            if self.speed_loop_due() {
                 self.i_dq_ref.q = self.pi_speed.update(self.omega_ref - self.omega_filtered);
             }
         }

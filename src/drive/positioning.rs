@@ -645,9 +645,7 @@ impl<T: Scalar> Drive<T> {
                 }
             }
         }
-        self.speed_divider_count += 1;
-        if self.speed_divider_count >= n {
-            self.speed_divider_count = 0;
+        if self.speed_loop_due() {
             self.omega_ref = self.position_command();
             let out = self.pi_speed.update(self.omega_ref - self.omega_filtered);
             if let Some(p) = &mut self.positioning {
@@ -737,8 +735,8 @@ impl<T: Scalar> Drive<T> {
         }
         // The profile advances at the speed loop's rate, as running sensorless; between,
         // its reference holds.
-        let n = self.k.speed_loop_divider;
         let advanced = self.advance_profile_if_due();
+        let speed_loop_due = self.speed_loop_due();
         let Some(p) = &mut self.positioning else {
             return Some((theta, T::ZERO, step));
         };
@@ -753,10 +751,7 @@ impl<T: Scalar> Drive<T> {
         // step, used while moving too, disturbed the hand-overs: lock lost after reversals.)
         let at_rest = sp.speed_m_per_s == 0.0;
         let iq_ff = p.accel_ff_target;
-        self.speed_divider_count += 1;
-        let speed_loop_due = self.speed_divider_count >= n;
         if speed_loop_due {
-            self.speed_divider_count = 0;
             // The position loop's speed command, for the speed loop (and the overload
             // supervision, which sees the command of the last update).
             let v_cmd = sp.speed_m_per_s + p.position_gain * (sp.position_m - x_hat);
