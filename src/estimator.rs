@@ -674,11 +674,6 @@ pub struct Estimator<T> {
     /// The observer was seeded by the circle fit and the PLL has not taken the notch
     /// since: the hand-over takes the FLL's mean frequency.
     fitted: bool,
-    /// The circle fit's seed, found at the last sample and applied at the start of
-    /// this one (`Estimator::update`): the same state as applied at the end of the last,
-    /// in a sample that no longer carries the fit's solve (`docs/cost-budget.md`).
-    /// The observer's angle and the PLL's, the frequency, the current and the DC error.
-    pending_seed: Option<PendingSeed<T>>,
     /// The observer's flux estimate at the last sample (Wb): its increment gives the
     /// magnitude's rate.
     flux_prev: AlphaBeta<T>,
@@ -716,21 +711,6 @@ pub struct Estimator<T> {
     /// The held voltage error of the lock check over `tan(`[`LOCK_ANGLE_RAD`]`)`, times
     /// `|psi|` (V Wb).
     lock_error: T,
-}
-
-/// A circle fit's seed waiting for the next sample (`Estimator::update`).
-#[derive(Clone, Copy, Debug)]
-struct PendingSeed<T> {
-    /// The flux's angle at the sample the fit ended on.
-    theta_now: Angle,
-    /// The PLL's angle for the sample after it.
-    theta_next: Angle,
-    /// The fitted frequency (rad/s, working units).
-    omega_e: T,
-    /// The current at the fit's sample (A, working units).
-    i_ab: AlphaBeta<T>,
-    /// The fitted DC voltage error (V, working units).
-    dc_voltage: AlphaBeta<T>,
 }
 
 impl<T: Scalar> Estimator<T> {
@@ -799,7 +779,6 @@ impl<T: Scalar> Estimator<T> {
             max_drift: T::from_f32(MAX_DISTURBANCE_DRIFT),
             arc_fit,
             fitted: false,
-            pending_seed: None,
             flux_prev: AlphaBeta::default(),
             offset_share: T::from_f32(OFFSET_PHASE_SHARE),
             saliency: base.inductance(motor.ld_h - motor.lq_h),
@@ -829,10 +808,6 @@ impl<T: Scalar> Estimator<T> {
         i: AlphaBeta<T>,
         dt: T,
     ) -> Result<Estimate<T>, EstimatorFault> {
-        if let Some(p) = self.pending_seed.take() {
-            self.seed_at(p.theta_now, p.theta_next, p.omega_e, p.i_ab, p.dc_voltage);
-            self.fitted = true;
-        }
         let notch = self.notch_omega();
         // The DCFO's radial feedback, armed with the angle's compensations (module docs,
         // "The DC offset's angle"): off while acquiring.
@@ -853,11 +828,10 @@ impl<T: Scalar> Estimator<T> {
         let estimate = self.track(&flux, i, notch, dt)?;
         if let ArcFitOutcome::Found { theta_e, omega_e, dc_voltage } = fitted {
             // The observer restarts on the fitted flux now, holding the fitted DC error;
-            // the PLL on where it will be at the next sample. Applied before the next
-            // sample's update, so that no one sample carries both the fit and the seed.
-            let theta_next = theta_e + (omega_e * dt).radians_to_angle();
-            self.pending_seed =
-                Some(PendingSeed { theta_now: theta_e, theta_next, omega_e, i_ab: i, dc_voltage });
+            // the PLL on where it will be at the next sample.
+            let next = theta_e + (omega_e * dt).radians_to_angle();
+            self.seed_at(theta_e, next, omega_e, i, dc_voltage);
+            self.fitted = true;
         }
         Ok(estimate)
     }
@@ -1206,7 +1180,6 @@ impl<T: Scalar> Estimator<T> {
         if let Some(fit) = &mut self.arc_fit {
             fit.stop();
         }
-        self.pending_seed = None;
         self.seed_at(theta_e, theta_e, omega_e, i_ab, AlphaBeta::default());
     }
 
@@ -1246,7 +1219,6 @@ impl<T: Scalar> Estimator<T> {
     pub fn reacquire(&mut self) {
         self.through_zero = false;
         self.fitted = false;
-        self.pending_seed = None;
         if let Some(fit) = &mut self.arc_fit {
             fit.restart();
         }
@@ -1274,7 +1246,6 @@ impl<T: Scalar> Estimator<T> {
         }
         self.fll_steers = self.fll.is_some();
         self.fitted = false;
-        self.pending_seed = None;
         if let Some(fit) = &mut self.arc_fit {
             fit.restart();
         }
@@ -1286,7 +1257,7 @@ impl<T: Scalar> Estimator<T> {
     /// (from reset and [`Estimator::reacquire`] until it seeds the estimator or gives
     /// up): the angle until then is the unseeded acquisition's.
     pub fn fitting(&self) -> bool {
-        self.pending_seed.is_some() || self.arc_fit.as_ref().is_some_and(ArcFit::is_running)
+        self.arc_fit.as_ref().is_some_and(ArcFit::is_running)
     }
 
     /// The frequency the observer's notch will be tuned to at the next sample (rad/s,
