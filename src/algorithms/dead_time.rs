@@ -173,9 +173,15 @@ impl<T: Scalar> InverterErrorModel<T> {
         let sign = |x: T| (x * inv * inv).clamp_to(-T::ONE, T::ONE);
         let leg = |ik: T, dk: T| {
             let dead_time = dead * (sign(ik - dk) + sign(ik + dk)) * T::HALF;
-            // The drop's sign, linear over the wider of the band and the ripple.
+            // The drop's sign, linear over the wider of the band and the ripple: whole
+            // beyond the ripple (no division; in fixed point the quotient of a large
+            // current over a small ripple would not be representable), `ik / dk` within.
             let drop_sign = if dk * inv * inv > T::ONE {
-                ik.checked_div(dk).map_or(T::ZERO, |x| x.clamp_to(-T::ONE, T::ONE))
+                if ik.abs() >= dk {
+                    if ik < T::ZERO { -T::ONE } else { T::ONE }
+                } else {
+                    ik.checked_div(dk).map_or(T::ZERO, |x| x.clamp_to(-T::ONE, T::ONE))
+                }
             } else {
                 sign(ik)
             };
@@ -188,6 +194,7 @@ impl<T: Scalar> InverterErrorModel<T> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::num::Q24;
 
     /// The paper motor's drive: 10 kHz, L = 8.5 mH, 2 us, 0.95 V, 0.01 A; the ripple in
     /// full at every spread.
@@ -272,6 +279,40 @@ mod tests {
         let legs = inverse_clarke(c);
         // The drop only, linear over the ripple: 0.95 V x i / delta (f32 constants).
         assert!((legs.b - 0.95 * 0.1).abs() < 1e-6 && legs.a.abs() < 1e-9, "{legs:?}");
+    }
+
+    /// A current far beyond a leg's ripple takes the drop's whole sign in fixed point as
+    /// in floating point: the quotient of the current over the ripple, 200 here, is beyond
+    /// Q8.24's range, and a division that gave up there took the drop out altogether.
+    #[test]
+    fn a_large_current_takes_the_whole_drop_in_fixed_point_too() {
+        let motor = MotorParams::paper();
+        let c = DeadTimeCompensation { dead_time_s: 2e-6, device_drop_v: 0.95, current_band_a: 0.01 };
+        let base = Base::for_motor(&motor);
+        let si = model();
+        let q: InverterErrorModel<Q24> = InverterErrorModel {
+            fade_from: Q24::ZERO,
+            fade_rate: Q24::from_f32(1e3),
+            ..InverterErrorModel::for_drive(&c, 1e-4, &motor, &base)
+        };
+        let vdc = 311.0;
+        let u_ab = AlphaBeta::new(40.0, 0.0);
+        let delta_b = si.edge_ripple(u_ab, vdc).b;
+        assert!(delta_b > 4.0 * 0.01, "leg b's ripple {delta_b} A is above the band");
+        let i = Abc { a: -100.0 * delta_b, b: 200.0 * delta_b, c: -100.0 * delta_b };
+        let want = inverse_clarke(si.compensation(u_ab, vdc, i));
+        let to_q = |v: f64| base.voltage::<Q24>(v as f32);
+        let i_q = Abc {
+            a: base.current::<Q24>(i.a as f32),
+            b: base.current::<Q24>(i.b as f32),
+            c: base.current::<Q24>(i.c as f32),
+        };
+        let got =
+            inverse_clarke(q.compensation(AlphaBeta::new(to_q(u_ab.alpha), to_q(u_ab.beta)), to_q(vdc), i_q));
+        let volts = |x: Q24| f64::from(base.to_volts(x));
+        for (g, w) in [(got.a, want.a), (got.b, want.b), (got.c, want.c)] {
+            assert!((volts(g) - w).abs() < 0.01, "leg {} V against {w} V", volts(g));
+        }
     }
 
     /// The drive's model leaves the ripple out below RIPPLE_FROM_DEAD_TIMES dead times of
