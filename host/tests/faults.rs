@@ -8,14 +8,7 @@ use dcfo_host::commands::faults::{Bench, Campaign, DriveKind, Expected, Plan, ru
 /// Cases of the standard campaign that do not meet the expectation stated before
 /// measuring, by name, and why: their floors (no silent failure, a named fault and the
 /// bridge off within a period on any trip, no trip on a ride-through) are still asserted.
-const SHORTFALLS: [(&str, &str); 1] = [(
-    "paper-stroke-lock-loss-at-reversal",
-    "re-locks and completes without a fault or a silent failure, but ends 6.8 mm off the \
-     target (bound a quarter pole pitch, 3.75 mm): the hand-over after the re-lock \
-     overshoots (0.64 m/s on a 0.5 m/s profile), the position loop (proportional, 5 rad/s) \
-     has not closed the 15 mm it ran ahead when the reference slows into the low-speed \
-     band, and the low-speed mode anchors its vector on the reference with that error",
-)];
+const SHORTFALLS: [(&str, &str); 0] = [];
 
 /// Floors the campaign misses on a motor file, by motor and case, and why (found by
 /// `dcfo faults --motor`): the test fails on any other.

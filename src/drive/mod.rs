@@ -517,7 +517,6 @@ impl<T: Scalar> Drive<T> {
                 accel_current_per_m_s2: config.moving_mass_kg
                     / motor.thrust_constant_n_per_a()
                     / base.current_a,
-                rad_per_m: omega_per_speed,
                 speed_filter_rate: (5.0 * wn * ts).min(1.0),
                 speed_error_rad_s: 0.0,
                 retard_rad: 0.0,
@@ -570,6 +569,7 @@ impl<T: Scalar> Drive<T> {
                     .map_or(0.0, |h| HOLD_BANDWIDTH_SHARE * HOLD_OBSERVER_SHARE * h.bandwidth_rad_s),
                 anchor_angle: Angle::ZERO,
                 anchor_x_m: 0.0,
+                anchor_pending_m: 0.0,
                 seeded: false,
                 aligned: false,
             })

@@ -4,7 +4,11 @@
 //! - **Low-speed mode** ([`DriveState::LowSpeed`]) while the reference speed is below
 //!   [`MotionConfig::low_speed_m_per_s`]: no back-EMF estimate is trusted there, so the
 //!   drive imposes a current vector along the d axis of the *reference* position:
-//!   angle `theta_ls = theta_anchor + pi (x_ref - x_anchor) / tau`. The mover is held on
+//!   angle `theta_ls = theta_anchor + pi (x_ref - x_anchor - x_pending) / tau`, anchored
+//!   on the mover's angle and estimated position as the mode is entered; `x_pending`, the
+//!   reference's lead on the mover at that instant (what the running loops trailed by),
+//!   is taken up at the position loop's gain `k_x`, so the frame does not jump and the
+//!   move still ends on its target. The mover is held on
 //!   that vector like a stepper's rotor: a spring of stiffness `K_f I pi / tau` (N/m);
 //!   at a force `F` it trails by `asin(F / (K_f I))`, restoring both ways (it
 //!   accelerates and brakes alike) and never slipping a pole while `|F| < K_f I`.
@@ -104,7 +108,7 @@
 
 #[cfg(doc)]
 use super::MotionConfig;
-use super::{Drive, DriveState};
+use super::{Constants, Drive, DriveState};
 use crate::algorithms::hfi::Hfi;
 use crate::algorithms::load_observer::LoadObserver;
 use crate::algorithms::motion::{MotionError, Move, Profile, Setpoint};
@@ -136,11 +140,16 @@ pub(super) struct Positioning<T> {
     pub(super) position_gain: f32,
     /// Thrust current per m/s^2 of reference acceleration (A s^2/m, working current).
     pub(super) accel_current_per_m_s2: f32,
-    /// Electrical radians per metre, `pi / tau`.
-    pub(super) rad_per_m: f32,
-    /// Low-speed frame: `theta_ls = anchor_angle + rad_per_m (x_ref - anchor_x)`.
+    /// Low-speed frame: `theta_ls = anchor_angle + rad_per_m (x_ref - anchor_x -
+    /// anchor_pending)`, `anchor_angle` (electrical) the mover's angle where its estimated
+    /// position was `anchor_x_m` (m).
     pub(super) anchor_angle: Angle,
     pub(super) anchor_x_m: f32,
+    /// What the frame has still to take up of the reference's lead on the estimated
+    /// position when the mode was entered (m): the running loops' tracking error then,
+    /// worked off at the position loop's gain, so that the frame does not jump and the
+    /// mover still ends on the reference.
+    pub(super) anchor_pending_m: f32,
     /// The estimator has been seeded for the exit from the low-speed mode.
     pub(super) seeded: bool,
     /// Rate of the speed-error filter per period (dimensionless, <= 1).
@@ -346,6 +355,7 @@ impl<T: Scalar> Drive<T> {
             p.slip_guard_s = p.slip_settle_s;
             p.anchor_angle = self.theta_previous;
             p.anchor_x_m = x;
+            p.anchor_pending_m = 0.0;
             p.seeded = false;
             p.aligned = false;
             if let Some(h) = &mut p.hfi {
@@ -389,7 +399,7 @@ impl<T: Scalar> Drive<T> {
             p.profile.set_speed_target(v);
         }
         let sp = if p.aligned { p.profile.step(dt_s) } else { p.profile.setpoint() };
-        let omega_ref = Self::electrical_speed(p, sp.speed_m_per_s, self.k.inv_omega_base);
+        let omega_ref = Self::electrical_speed(&self.k, sp.speed_m_per_s);
         // The mover's speed from the q voltage of the last step: in the frame turning at
         // `w_frame`, u_q = Rs i_q + w_frame Ld i_d + w psi_f cos(delta); the inverter's
         // error lies along the current vector (d), so u_q is clean. The frame turns at the
@@ -419,9 +429,9 @@ impl<T: Scalar> Drive<T> {
         if p.aligned {
             p.slip_guard_s = if p.slip_guard_s > dt_s { p.slip_guard_s - dt_s } else { 0.0 };
         }
-        let omega_ref_rad_s = sp.speed_m_per_s * p.rad_per_m;
+        let omega_ref_rad_s = sp.speed_m_per_s * self.k.omega_per_speed;
         let reading = p.speed_error_rad_s + omega_ref_rad_s;
-        let readable = p.enter_m_per_s * p.rad_per_m;
+        let readable = p.enter_m_per_s * self.k.omega_per_speed;
         let slipping = if omega_ref_rad_s == 0.0 {
             libm::fabsf(reading) > p.slip_margin_rad_s
         } else {
@@ -437,8 +447,12 @@ impl<T: Scalar> Drive<T> {
         let retard = (damping_s * p.speed_error_rad_s).clamp(-0.5, 0.5);
         p.retard_rate_rad_s += p.current_loop_rate * ((retard - p.retard_rad) / dt_s - p.retard_rate_rad_s);
         p.retard_rad = retard;
-        let theta =
-            p.anchor_angle + (p.rad_per_m * (sp.position_m - p.anchor_x_m) - retard).radians_to_angle();
+        if p.anchor_pending_m != 0.0 {
+            let rate = (p.position_gain * dt_s).min(1.0);
+            p.anchor_pending_m -= rate * p.anchor_pending_m;
+        }
+        let lead_m = sp.position_m - p.anchor_x_m - p.anchor_pending_m;
+        let theta = p.anchor_angle + (self.k.omega_per_speed * lead_m - retard).radians_to_angle();
         // Where the mover is expected: the current vector's angle less the load angle
         // asin(F / (K_f |I|)), F the profile's M a_ref plus the load learned while
         // running, along the motion (friction pushes back whichever way it moves).
@@ -456,7 +470,7 @@ impl<T: Scalar> Drive<T> {
         p.mover_offset_rad += p.mover_filter_rate * (offset - p.mover_offset_rad);
         let mover = theta + p.mover_offset_rad.radians_to_angle();
         self.low_speed_mover_angle = Some(mover);
-        let alpha = Self::electrical_acceleration(p, sp.accel_m_per_s2, self.k.inv_omega_base);
+        let alpha = Self::electrical_acceleration(&self.k, sp.accel_m_per_s2);
         self.estimator.set_commanded_acceleration(alpha);
         if !p.past_exit(&sp) {
             p.seeded = false;
@@ -523,7 +537,7 @@ impl<T: Scalar> Drive<T> {
         };
         let sp = p.profile.setpoint();
         let v_cmd = sp.speed_m_per_s + p.position_gain * (sp.position_m - self.position_m());
-        Self::electrical_speed(p, v_cmd, self.k.inv_omega_base)
+        Self::electrical_speed(&self.k, v_cmd)
     }
 
     /// The acceleration feed-forward (thrust current, working units) of the setpoint `sp`.
@@ -531,16 +545,16 @@ impl<T: Scalar> Drive<T> {
         T::from_f32(sp.accel_m_per_s2 * p.accel_current_per_m_s2)
     }
 
-    /// The electrical speed (working units) of a mover speed `v_m_per_s` (m/s);
-    /// `inv_omega_base` is the drive's `1 / omega_base` (s/rad).
-    fn electrical_speed(p: &Positioning<T>, v_m_per_s: f32, inv_omega_base: f32) -> T {
-        T::from_f32(v_m_per_s * p.rad_per_m * inv_omega_base)
+    /// The electrical speed (working units) of a mover speed `v_m_per_s` (m/s) on the
+    /// drive of constants `k`.
+    fn electrical_speed(k: &Constants<T>, v_m_per_s: f32) -> T {
+        T::from_f32(v_m_per_s * k.omega_per_speed * k.inv_omega_base)
     }
 
     /// The electrical acceleration (working units of speed per working time) of a mover
-    /// acceleration `a_m_per_s2` (m/s^2).
-    fn electrical_acceleration(p: &Positioning<T>, a_m_per_s2: f32, inv_omega_base: f32) -> T {
-        T::from_f32(a_m_per_s2 * p.rad_per_m * inv_omega_base * inv_omega_base)
+    /// acceleration `a_m_per_s2` (m/s^2) on the drive of constants `k`.
+    fn electrical_acceleration(k: &Constants<T>, a_m_per_s2: f32) -> T {
+        T::from_f32(a_m_per_s2 * k.omega_per_speed * k.inv_omega_base * k.inv_omega_base)
     }
 
     /// The motion profile at the speed loop's rate: in the period before the speed loop's
@@ -553,12 +567,12 @@ impl<T: Scalar> Drive<T> {
         if !(self.speed_divider_count.saturating_add(2) == n || n == 1) {
             return None;
         }
-        let (dt_s, inv_omega_base) = (self.k.dt_s * f32::from(n), self.k.inv_omega_base);
+        let dt_s = self.k.dt_s * f32::from(n);
         let p = self.positioning.as_mut()?;
         let sp = p.profile.step(dt_s);
         p.accel_ff_target = Self::accel_feed_forward(p, &sp);
-        p.reference_omega = Self::electrical_speed(p, sp.speed_m_per_s, inv_omega_base);
-        let alpha = Self::electrical_acceleration(p, sp.accel_m_per_s2, inv_omega_base);
+        p.reference_omega = Self::electrical_speed(&self.k, sp.speed_m_per_s);
+        let alpha = Self::electrical_acceleration(&self.k, sp.accel_m_per_s2);
         self.estimator.set_commanded_acceleration(alpha);
         Some(sp)
     }
@@ -569,12 +583,17 @@ impl<T: Scalar> Drive<T> {
     /// jump (the current reference keeps its value and slews from there), the decoupling
     /// feed-forward moves into the integrators, the position estimate continues.
     pub(super) fn enter_low_speed(&mut self, theta: Angle, omega: T, speed_m_per_s: f32) -> (Angle, T) {
-        let inv_omega_base = self.k.inv_omega_base;
+        let x_m = self.position_m();
         if let Some(p) = &mut self.positioning {
             let sp = p.profile.setpoint();
+            // The frame starts on the mover (no jump) and, on a move, takes up the
+            // reference's lead over the following periods: anchored on the reference
+            // instead, the tracking error of this instant would stay in every position to
+            // come. Following a speed reference, the position is no one's target.
             p.anchor_angle = theta;
-            p.anchor_x_m = sp.position_m;
-            p.reference_omega = Self::electrical_speed(p, sp.speed_m_per_s, inv_omega_base);
+            p.anchor_x_m = if p.follows_speed { sp.position_m } else { x_m };
+            p.anchor_pending_m = sp.position_m - p.anchor_x_m;
+            p.reference_omega = Self::electrical_speed(&self.k, sp.speed_m_per_s);
             p.seeded = false;
             p.aligned = true;
             p.speed_error_rad_s = 0.0;
@@ -595,7 +614,7 @@ impl<T: Scalar> Drive<T> {
             // HFI takes over from the estimated angle and speed; the polarity is known.
             h.preset(theta, omega, true);
         }
-        let (x_m, v_m_per_s) = (self.position_m(), speed_m_per_s);
+        let v_m_per_s = speed_m_per_s;
         if let Some(p) = &mut self.positioning
             && p.hfi.is_some()
         {
@@ -755,7 +774,7 @@ impl<T: Scalar> Drive<T> {
             // The position loop's speed command, for the speed loop (and the overload
             // supervision, which sees the command of the last update).
             let v_cmd = sp.speed_m_per_s + p.position_gain * (sp.position_m - x_hat);
-            self.omega_ref = Self::electrical_speed(p, v_cmd, self.k.inv_omega_base);
+            self.omega_ref = Self::electrical_speed(&self.k, v_cmd);
         }
         let error = self.omega_ref - self.omega_filtered;
         let limit = self.k.current_limit;
