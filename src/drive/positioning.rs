@@ -140,7 +140,7 @@ pub(super) struct Positioning<T> {
     pub(super) position_gain: f32,
     /// Thrust current per m/s^2 of reference acceleration (A s^2/m, working current).
     pub(super) accel_current_per_m_s2: f32,
-    /// Low-speed frame: `theta_ls = anchor_angle + rad_per_m (x_ref - anchor_x -
+    /// Low-speed frame: `theta_ls = anchor_angle + (pi / tau) (x_ref - anchor_x -
     /// anchor_pending)`, `anchor_angle` (electrical) the mover's angle where its estimated
     /// position was `anchor_x_m` (m).
     pub(super) anchor_angle: Angle,
