@@ -504,7 +504,7 @@ fn stroke(inputs: &[Input]) -> Result<String> {
         let tau_mm = i.num("pole_pitch_m")? * 1e3;
         writeln!(
             s,
-            "| {} | {} / {} / {} | {:.2} mm ({:.2}) | {:.2} mm ({:.2}) | {} | {} ({:.3}) | {:.1} % |",
+            "| {} | {} / {} / {} | {:.2} mm ({:.2}) | {:.2} mm ({:.2}) | {} | {} ({:.3}) | {} |",
             motor_name(i.text("motor")?),
             i.num("moves_done")?,
             i.num("reversals")?,
@@ -517,7 +517,11 @@ fn stroke(inputs: &[Input]) -> Result<String> {
             i.opt_num("relock_time_max_s")?.map_or("on HFI throughout".into(), |t| format!("{} ms", ms(t))),
             i.opt_num("current_ref_step_transition_max_a")?.map_or("none".into(), |a| format!("{a:.3} A")),
             i.num("current_step_limit_a")?,
-            i.num("speed_overshoot_max_pct")?,
+            // Over its floor: in bold, as the fault table marks an unmet expectation.
+            match i.num("speed_overshoot_max_pct")? {
+                pct if pct > crate::commands::stroke::SPEED_OVERSHOOT_FLOOR_PCT => format!("**{pct:.1} %**"),
+                pct => format!("{pct:.1} %"),
+            },
         )?;
     }
     Ok(s)
