@@ -119,6 +119,9 @@ use crate::num::{Angle, Scalar, asin, sin_cos};
 /// Capacity of the drive's move queue.
 pub const MOVE_QUEUE: usize = 8;
 
+/// Steps of the binary [`Angle`] in one electrical turn (`2^32`).
+const ANGLE_STEPS_PER_TURN: f32 = 4_294_967_296.0;
+
 /// Positioning state and constants (working units unless named in SI).
 #[derive(Clone, Debug)]
 pub(super) struct Positioning<T> {
@@ -322,7 +325,7 @@ impl<T: Scalar> Drive<T> {
         // Through 32-bit integers (the same values): an i64 to f32 conversion is a library
         // call on Cortex-M.
         let turns = ((counts >> 32) as i32) as f32;
-        let frac = (counts as u32) as f32 * (1.0 / 4_294_967_296.0);
+        let frac = (counts as u32) as f32 * (1.0 / ANGLE_STEPS_PER_TURN);
         (turns + frac) * self.k.metres_per_turn
     }
 
@@ -450,6 +453,11 @@ impl<T: Scalar> Drive<T> {
         if p.anchor_pending_m != 0.0 {
             let rate = (p.position_gain * dt_s).min(1.0);
             p.anchor_pending_m -= rate * p.anchor_pending_m;
+            // Taken up once below one step of the binary angle (it no longer turns the
+            // frame): an exponential decay in f32 would otherwise never reach zero.
+            if libm::fabsf(p.anchor_pending_m) * ANGLE_STEPS_PER_TURN < self.k.metres_per_turn {
+                p.anchor_pending_m = 0.0;
+            }
         }
         let lead_m = sp.position_m - p.anchor_x_m - p.anchor_pending_m;
         let theta = p.anchor_angle + (self.k.omega_per_speed * lead_m - retard).radians_to_angle();
@@ -614,16 +622,15 @@ impl<T: Scalar> Drive<T> {
             // HFI takes over from the estimated angle and speed; the polarity is known.
             h.preset(theta, omega, true);
         }
-        let v_m_per_s = speed_m_per_s;
         if let Some(p) = &mut self.positioning
             && p.hfi.is_some()
         {
             p.holding = false;
             // The hold's observer starts on the sensorless estimates and the load learned
             // along the motion.
-            let load_n = p.load_force_n * v_m_per_s.signum();
+            let load_n = p.load_force_n * speed_m_per_s.signum();
             if let Some(o) = &mut p.hold_observer {
-                o.preset(x_m, v_m_per_s, load_n);
+                o.preset(x_m, speed_m_per_s, load_n);
             }
         }
         (theta, omega)
