@@ -516,24 +516,41 @@ impl<T: Scalar> Drive<T> {
 
     /// Leaves the low-speed mode for `Running` from the control frame at `theta`: the
     /// current loops move to the estimated frame ([`Drive::hand_over`]) and the speed
-    /// loop, which runs on the position loop's speed command from now on, continues
-    /// from the q current the hand-over left (less the acceleration feed-forward).
+    /// loop, which runs on the position loop's speed command from now on, starts from
+    /// the thrust the mover needs (below) without a step of the q current.
     fn hand_over_to_position_loop(&mut self, theta: Angle, estimate: &Estimate<T>) {
         self.hand_over(theta, estimate);
         if !self.is_positioning() {
             // A speed drive: its speed loop on the speed reference, from the q current.
             return;
         }
-        let omega_cmd = self.position_command();
-        let iq_ff =
-            self.positioning.as_ref().map_or(T::ZERO, |p| Self::accel_feed_forward(p, &p.profile.setpoint()));
+        let error = self.position_command() - self.omega_filtered;
         let iq = self.i_dq_ref.q;
-        self.pi_speed.preset(iq - iq_ff, omega_cmd - self.omega_filtered);
-        if let Some(p) = &mut self.positioning {
-            p.speed_loop_out = iq - iq_ff;
-            p.accel_ff_applied = iq_ff;
-            p.accel_ff_target = iq_ff;
-        }
+        let Some(p) = &mut self.positioning else {
+            return;
+        };
+        let sp = p.profile.setpoint();
+        let iq_ff = Self::accel_feed_forward(p, &sp);
+        // What the speed loop starts from. Leaving HFI, the q current is the thrust HFI's
+        // own speed loop found, in a frame that was the mover's: it continues from there.
+        // Leaving the current vector, the q current in the estimated frame is `|I| sin e`,
+        // `e` the vector's lead on the *estimate*, which may be 10-25 deg off the mover
+        // at this instant (docs/low-speed-operation.md, "The hand-over"): for a vector of
+        // several amperes that is amperes of thrust nobody asked for once the estimate
+        // settles. It starts instead from the thrust the mover is known to need beyond
+        // acceleration (the load learned along the motion).
+        let start = if p.hfi.is_some() {
+            iq - iq_ff
+        } else {
+            let load_a = if sp.speed_m_per_s < 0.0 { -p.friction_ff_a } else { p.friction_ff_a };
+            T::from_f32(load_a)
+        };
+        // The difference from the present q current is slewed out with the acceleration
+        // feed-forward, so the current does not step.
+        self.pi_speed.preset(start, error);
+        p.speed_loop_out = start;
+        p.accel_ff_applied = iq - start;
+        p.accel_ff_target = iq_ff;
         self.state = DriveState::Running;
     }
 
