@@ -1301,7 +1301,11 @@ impl<T: Scalar> Drive<T> {
             // An estimator that has lost the frequency too (acquiring) has no angle to
             // ride through on: stop pushing at once. Otherwise allow `lock_loss_s`.
             let lost = self.counter > k.lock_loss_samples || estimate.acquiring;
-            if lost && self.is_positioning() {
+            // A speed drive that came out of the low-speed mode (its estimate seeded
+            // there) goes back to it likewise: a flying restart there lets go of a mover
+            // that friction then stops before the estimator finds it (`LOCK_LOST`; see
+            // docs/low-speed-operation.md, "A speed drive through zero speed").
+            if lost && self.positioning.as_ref().is_some_and(|p| !p.follows_speed || p.seeded) {
                 // A positioning drive has a reference to follow: back to the low-speed
                 // mode (the vector on the reference position) until the estimate,
                 // seeded again from the trajectory, tracks. The lost estimate's angle is
@@ -1309,8 +1313,11 @@ impl<T: Scalar> Drive<T> {
                 // starts on the last control angle, at the commanded speed, so neither
                 // the current vector nor the position estimate jumps.
                 self.counter = 0;
-                let speed_m_per_s =
-                    self.omega_ref.to_f32() * self.k.base.omega_rad_s / self.k.omega_per_speed;
+                let speed_m_per_s = if self.follows_speed() {
+                    self.follow_speed_reference()
+                } else {
+                    self.omega_ref.to_f32() * self.k.base.omega_rad_s / self.k.omega_per_speed
+                };
                 return self.enter_low_speed(self.theta_previous, self.omega_ref, speed_m_per_s);
             }
             if lost {

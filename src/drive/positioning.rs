@@ -285,7 +285,7 @@ impl<T: Scalar> Drive<T> {
 
     /// `true` for a speed drive (its profile follows the speed reference in the
     /// low-speed mode).
-    fn follows_speed(&self) -> bool {
+    pub(super) fn follows_speed(&self) -> bool {
         self.positioning.as_ref().is_some_and(|p| p.follows_speed)
     }
 
@@ -309,13 +309,36 @@ impl<T: Scalar> Drive<T> {
         if !(stays && reference.abs() < p.enter_omega) {
             return None;
         }
-        let to_m_per_s = self.k.base.omega_rad_s / self.k.omega_per_speed;
-        let (x, v, target) =
-            (self.position_m(), self.omega_ref.to_f32() * to_m_per_s, self.speed_target_m_per_s());
+        let v = self.follow_speed_reference();
+        let thrust = self.pi_speed.integral().to_f32();
+        if let Some(p) = &mut self.positioning {
+            // The load along the motion, for the low-speed mode's load angle and the
+            // hand-over back: the speed integrator's thrust (a speed drive feeds nothing
+            // forward) less the ramp's, which decelerates the mover towards the target.
+            // Not with HFI, whose own speed loop carries the load through the band (fed
+            // forward there, an integrator fresh from a start put HFI's speed 60 % over
+            // its reference).
+            let ramp = p.profile.limits().max_accel_m_per_s2 * p.accel_current_per_m_s2;
+            let along = if v < 0.0 { -thrust } else { thrust } + ramp;
+            if along.is_finite() && p.hfi.is_none() {
+                p.friction_ff_a = along;
+                p.load_force_n = along * p.thrust_n_per_a * self.k.base.current_a;
+            }
+        }
+        Some(self.enter_low_speed(estimate.theta_e, estimate.omega_e, estimate.speed_m_per_s.to_f32()))
+    }
+
+    /// A speed drive's profile follows its speed reference from the estimated position
+    /// at the reference's present speed, which it returns (m/s). Not inlined: one copy
+    /// for its two callers (the ESC1 image's flash).
+    #[inline(never)]
+    pub(super) fn follow_speed_reference(&mut self) -> f32 {
+        let v = self.omega_ref.to_f32() * self.k.base.omega_rad_s / self.k.omega_per_speed;
+        let (x, target) = (self.position_m(), self.speed_target_m_per_s());
         if let Some(p) = &mut self.positioning {
             p.profile.follow_speed(x, v, target);
         }
-        Some(self.enter_low_speed(estimate.theta_e, estimate.omega_e, estimate.speed_m_per_s.to_f32()))
+        v
     }
 
     /// Estimated mover position, m: the unwrapped control angle times `tau / pi`, from
@@ -516,15 +539,15 @@ impl<T: Scalar> Drive<T> {
 
     /// Leaves the low-speed mode for `Running` from the control frame at `theta`: the
     /// current loops move to the estimated frame ([`Drive::hand_over`]) and the speed
-    /// loop, which runs on the position loop's speed command from now on, starts from
-    /// the thrust the mover needs (below) without a step of the q current.
+    /// loop, on the position loop's speed command (a positioning drive) or the speed
+    /// reference (a speed drive) from now on, starts from the thrust the mover needs
+    /// (below). A positioning drive takes the difference from the present q current up
+    /// through its feed-forward's slew; a speed drive, which slews nothing, steps it at
+    /// its speed loop's first update.
     fn hand_over_to_position_loop(&mut self, theta: Angle, estimate: &Estimate<T>) {
         self.hand_over(theta, estimate);
-        if !self.is_positioning() {
-            // A speed drive: its speed loop on the speed reference, from the q current.
-            return;
-        }
-        let error = self.position_command() - self.omega_filtered;
+        let positioning = self.is_positioning();
+        let error = if positioning { self.position_command() } else { self.omega_ref } - self.omega_filtered;
         let iq = self.i_dq_ref.q;
         let Some(p) = &mut self.positioning else {
             return;
@@ -545,6 +568,11 @@ impl<T: Scalar> Drive<T> {
             let load_a = if sp.speed_m_per_s < 0.0 { -p.friction_ff_a } else { p.friction_ff_a };
             T::from_f32(load_a)
         };
+        if !positioning {
+            // A speed drive: its speed loop on the speed reference, nothing fed forward.
+            self.pi_speed.preset(start + iq_ff, error);
+            return;
+        }
         // The difference from the present q current is slewed out with the acceleration
         // feed-forward, so the current does not step.
         self.pi_speed.preset(start, error);
