@@ -309,17 +309,23 @@ impl<T: Scalar> Drive<T> {
         if !(stays && reference.abs() < p.enter_omega) {
             return None;
         }
-        let v = self.follow_speed_reference();
+        let (v, target) = (self.follow_speed_reference(), self.speed_target_m_per_s());
         let thrust = self.pi_speed.integral().to_f32();
         if let Some(p) = &mut self.positioning {
             // The load along the motion, for the low-speed mode's load angle and the
             // hand-over back: the speed integrator's thrust (a speed drive feeds nothing
-            // forward) less the ramp's, which decelerates the mover towards the target.
-            // Not with HFI, whose own speed loop carries the load through the band (fed
-            // forward there, an integrator fresh from a start put HFI's speed 60 % over
-            // its reference).
+            // forward) less the thrust of the ramp towards the target. Not with HFI,
+            // whose own speed loop carries the load through the band (fed forward there,
+            // an integrator fresh from a start put HFI's speed 60 % over its reference).
             let ramp = p.profile.limits().max_accel_m_per_s2 * p.accel_current_per_m_s2;
-            let along = if v < 0.0 { -thrust } else { thrust } + ramp;
+            let ramp = if target > v {
+                ramp
+            } else if target < v {
+                -ramp
+            } else {
+                0.0
+            };
+            let along = if v < 0.0 { ramp - thrust } else { thrust - ramp };
             if along.is_finite() && p.hfi.is_none() {
                 p.friction_ff_a = along;
                 p.load_force_n = along * p.thrust_n_per_a * self.k.base.current_a;
@@ -558,10 +564,10 @@ impl<T: Scalar> Drive<T> {
         // own speed loop found, in a frame that was the mover's: it continues from there.
         // Leaving the current vector, the q current in the estimated frame is `|I| sin e`,
         // `e` the vector's lead on the *estimate*, which may be 10-25 deg off the mover
-        // at this instant (docs/low-speed-operation.md, "The hand-over"): for a vector of
-        // several amperes that is amperes of thrust nobody asked for once the estimate
-        // settles. It starts instead from the thrust the mover is known to need beyond
-        // acceleration (the load learned along the motion).
+        // at this instant: for a vector of several amperes that is amperes of thrust
+        // nobody asked for once the estimate settles (docs/low-speed-operation.md,
+        // "Positioning through zero speed"). It starts instead from the thrust the mover
+        // is known to need beyond acceleration (the load learned along the motion).
         let start = if p.hfi.is_some() {
             iq - iq_ff
         } else {
