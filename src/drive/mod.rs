@@ -730,6 +730,12 @@ impl<T: Scalar> Drive<T> {
         self.k.base.omega(speed_m_per_s * self.k.omega_per_speed)
     }
 
+    /// An electrical speed in working units as the mover's linear speed, m/s: the
+    /// inverse of [`Drive::omega_from_speed`].
+    fn speed_from_omega(&self, omega_e: T) -> f32 {
+        omega_e.to_f32() * self.k.base.omega_rad_s / self.k.omega_per_speed
+    }
+
     /// The drive's estimator, for inspection (its notch and FLL frequencies, e.g. in
     /// diagnostics and tests).
     pub fn estimator(&self) -> &Estimator<T> {
@@ -1316,7 +1322,7 @@ impl<T: Scalar> Drive<T> {
                 let speed_m_per_s = if self.follows_speed() {
                     self.follow_speed_reference()
                 } else {
-                    self.omega_ref.to_f32() * self.k.base.omega_rad_s / self.k.omega_per_speed
+                    self.speed_from_omega(self.omega_ref)
                 };
                 return self.enter_low_speed(self.theta_previous, self.omega_ref, speed_m_per_s);
             }

@@ -291,7 +291,7 @@ impl<T: Scalar> Drive<T> {
 
     /// A speed drive's speed target (m/s) for its profile in the low-speed mode.
     fn speed_target_m_per_s(&self) -> f32 {
-        self.omega_target.to_f32() * self.k.base.omega_rad_s / self.k.omega_per_speed
+        self.speed_from_omega(self.omega_target)
     }
 
     /// A speed drive whose rate-limited reference is slower than the low-speed threshold
@@ -339,7 +339,7 @@ impl<T: Scalar> Drive<T> {
     /// for its two callers (the ESC1 image's flash).
     #[inline(never)]
     pub(super) fn follow_speed_reference(&mut self) -> f32 {
-        let v = self.omega_ref.to_f32() * self.k.base.omega_rad_s / self.k.omega_per_speed;
+        let v = self.speed_from_omega(self.omega_ref);
         let (x, target) = (self.position_m(), self.speed_target_m_per_s());
         if let Some(p) = &mut self.positioning {
             p.profile.follow_speed(x, v, target);
