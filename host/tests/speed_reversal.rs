@@ -4,6 +4,7 @@
 
 use dcfo::algorithms::observer::ObserverKind;
 use dcfo::drive::DriveState;
+use dcfo::motor::MotorParams;
 use dcfo_host::commands::sim::load_scenario;
 use dcfo_host::motor_file::load_motor;
 use dcfo_host::simulation::{Run, Setup, run};
@@ -84,4 +85,27 @@ fn every_motor_file_reverses_twice_through_the_low_speed_mode() {
         let motor = load_motor(f.to_str().unwrap()).unwrap();
         check(&f.display().to_string(), &Setup::for_axis(&motor.params, &scenario, ObserverKind::Dcfo));
     }
+}
+
+/// A motor the repository has no file for: ironless, high resistance, on a 48 V bus (4
+/// ohm, 0.8 mH, 0.03 Wb, 30 mm pitch, 4 A rms). Twice its rated peak would take 45 V
+/// through the winding at standstill, more than the bus drives: the drive's current
+/// limit comes from the bus instead (`DriveConfig::bus_current_limit_a`), else the
+/// current loops saturate at the first reversal and trip `CURRENT_CONTROL`. Its back-EMF
+/// floor lies above the scenario's 0.4 m/s, so it runs in the low-speed mode.
+#[test]
+fn an_ironless_motor_on_a_48_v_bus_reverses_twice() {
+    let motor = MotorParams {
+        rs_ohm: 4.0,
+        ld_h: 8e-4,
+        lq_h: 8e-4,
+        psi_f_wb: 0.03,
+        pole_pitch_m: 0.03,
+        mass_kg: 0.5,
+        viscous_n_s_per_m: 0.5,
+        rated_current_a: 4.0,
+        rated_voltage_v: 48.0,
+    };
+    let scenario = load_scenario(&format!("{ROOT}/scenarios/reversal.toml")).unwrap();
+    check("ironless 48 V", &Setup::for_axis(&motor, &scenario, ObserverKind::Dcfo));
 }

@@ -277,8 +277,11 @@ impl DriveConfig {
     /// the sampling rate, leaving phase margin for the 1.5-period delay); speed loop at
     /// 20 rad/s: below the estimator's speed bandwidth (its group delay is `1/(zeta w)`,
     /// 20 ms at 8 Hz) yet fast enough to ride through a 40 N load step on the simulated
-    /// 10.7 kg axis (10 rad/s stalled it); twice rated current;
-    /// start-up at rated current to 0.25 m/s (8.3 Hz on the paper motor, where the
+    /// 10.7 kg axis (10 rad/s stalled it); twice rated peak current, or less where the
+    /// bus cannot drive that through the winding ([`DriveConfig::bus_current_limit_a`]:
+    /// a high-resistance motor on a low bus, such as an ironless one on 48 V, whose
+    /// current loops would otherwise saturate at standstill and trip `CURRENT_CONTROL`);
+    /// start-up at rated peak current (at most the limit) to 0.25 m/s (8.3 Hz on the paper motor, where the
     /// DCFO + PLL converge in well under a second), lowered to 30 % during a 1 s dwell;
     /// a 50 ms catch probe on enable (the FLL's acquisition sweep from its start
     /// frequency down to the notch floor takes about `1 / (4 w_floor)` = 20 ms);
@@ -288,7 +291,7 @@ impl DriveConfig {
     /// phase or a stuck sensor: `dcfo faults`).
     pub fn for_motor(motor: &MotorParams, bus_v: f32, observer: ObserverKind) -> Self {
         let rated_peak = motor.rated_current_a * core::f32::consts::SQRT_2;
-        DriveConfig {
+        let mut config = DriveConfig {
             control_period_s: 1e-4,
             speed_loop_divider: 10,
             current_bandwidth_rad_s: 1500.0,
@@ -329,7 +332,15 @@ impl DriveConfig {
             },
             estimator: EstimatorConfig::for_motor(motor, observer),
             motion: None,
-        }
+        };
+        // Where the bus bounds the limit below rated peak, the start-up current (and its
+        // hand-over share) scales down with it (a factor of exactly 1 otherwise).
+        let limit_a = config.current_limit_a.min(config.bus_current_limit_a(motor));
+        let start_scale = limit_a.min(rated_peak) / rated_peak;
+        config.current_limit_a = limit_a;
+        config.startup.current_a *= start_scale;
+        config.startup.handover_current_a *= start_scale;
+        config
     }
 }
 
@@ -411,8 +422,21 @@ impl DriveConfig {
     /// allowed bus drives in the linear range (`bus_min_v * modulation_limit / sqrt 3`),
     /// m/s: no profile may reach it.
     pub fn bus_speed_limit_m_per_s(&self, motor: &MotorParams) -> f32 {
-        let max_phase_v = self.faults.bus_min_v * self.modulation_limit * 0.577_350_26;
-        max_phase_v / (motor.rad_per_m() * motor.psi_f_wb)
+        self.max_phase_voltage_v() / (motor.rad_per_m() * motor.psi_f_wb)
+    }
+
+    /// The current the lowest allowed bus drives through `motor`'s winding at standstill
+    /// in the linear range (`bus_min_v * modulation_limit / sqrt 3 / Rs`), A: a larger
+    /// current limit is one the current loops cannot reach, their voltage on its limit
+    /// before the mover moves ([`DriveConfig::for_motor`] stays below it).
+    pub fn bus_current_limit_a(&self, motor: &MotorParams) -> f32 {
+        self.max_phase_voltage_v() / motor.rs_ohm
+    }
+
+    /// The phase voltage amplitude the lowest allowed bus drives in the linear range
+    /// (`bus_min_v * modulation_limit / sqrt 3`), V.
+    fn max_phase_voltage_v(&self) -> f32 {
+        self.faults.bus_min_v * self.modulation_limit * <f32 as crate::num::Scalar>::INV_SQRT3
     }
 
     /// The drive a board runs for a motor image, the one function every drive image
@@ -588,6 +612,43 @@ impl DriveConfig {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// An ironless motor on a 48 V bus (4 ohm, 0.8 mH, 0.03 Wb, 30 mm, 4 A rms): twice
+    /// its rated peak (11.3 A) would take 45 V at standstill, more than the bus drives.
+    fn ironless_48v() -> MotorParams {
+        MotorParams {
+            rs_ohm: 4.0,
+            ld_h: 8e-4,
+            lq_h: 8e-4,
+            psi_f_wb: 0.03,
+            pole_pitch_m: 0.03,
+            mass_kg: 0.5,
+            viscous_n_s_per_m: 0.5,
+            rated_current_a: 4.0,
+            rated_voltage_v: 48.0,
+        }
+    }
+
+    #[test]
+    fn the_current_limit_is_what_the_lowest_bus_drives_through_the_winding() {
+        // Paper motor on 311 V: the bus drives 20 A through 5 ohm; twice rated peak holds.
+        let paper = MotorParams::paper();
+        let c = DriveConfig::for_motor(&paper, PAPER_AXIS_BUS_V, ObserverKind::Dcfo);
+        let rated_peak = paper.rated_current_a * core::f32::consts::SQRT_2;
+        assert_eq!(c.current_limit_a, 2.0 * rated_peak);
+        assert_eq!((c.startup.current_a, c.startup.handover_current_a), (rated_peak, 0.3 * rated_peak));
+        // Ironless on 48 V: the lowest allowed bus (60 %, 28.8 V) drives 28.8 * 0.95 /
+        // sqrt 3 = 15.8 V of phase amplitude, 3.95 A through 4 ohm.
+        let motor = ironless_48v();
+        let c = DriveConfig::for_motor(&motor, 48.0, ObserverKind::Dcfo);
+        let expected_a = 0.6 * 48.0 * 0.95 / 3f32.sqrt() / motor.rs_ohm;
+        assert!((c.current_limit_a - expected_a).abs() < 1e-5, "{}", c.current_limit_a);
+        assert!((c.current_limit_a - 3.95).abs() < 0.005, "{}", c.current_limit_a);
+        // The start-up stays within the limit, its hand-over share with it.
+        assert_eq!(c.startup.current_a, c.current_limit_a);
+        assert!((c.startup.handover_current_a - 0.3 * c.current_limit_a).abs() < 1e-6);
+        assert_eq!(c.validate(), Ok(()));
+    }
 
     #[test]
     fn tuning_fields_default_to_the_former_constants_and_are_validated() {
