@@ -281,8 +281,9 @@ impl DriveConfig {
     /// bus cannot drive that through the winding ([`DriveConfig::bus_current_limit_a`]:
     /// a high-resistance motor on a low bus, such as an ironless one on 48 V, whose
     /// current loops would otherwise saturate at standstill and trip `CURRENT_CONTROL`);
-    /// start-up at rated peak current (at most the limit) to 0.25 m/s (8.3 Hz on the paper motor, where the
-    /// DCFO + PLL converge in well under a second), lowered to 30 % during a 1 s dwell;
+    /// start-up at rated peak current (at most the limit) to 0.25 m/s (8.3 Hz on the
+    /// paper motor, where the DCFO + PLL converge in well under a second), lowered to
+    /// 30 % during a 1 s dwell;
     /// a 50 ms catch probe on enable (the FLL's acquisition sweep from its start
     /// frequency down to the notch floor takes about `1 / (4 w_floor)` = 20 ms);
     /// acceleration limited to 0.5 m/s^2; protection at 3x rated current and
