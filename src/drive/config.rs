@@ -614,22 +614,6 @@ impl DriveConfig {
 mod tests {
     use super::*;
 
-    /// An ironless motor on a 48 V bus (4 ohm, 0.8 mH, 0.03 Wb, 30 mm, 4 A rms): twice
-    /// its rated peak (11.3 A) would take 45 V at standstill, more than the bus drives.
-    fn ironless_48v() -> MotorParams {
-        MotorParams {
-            rs_ohm: 4.0,
-            ld_h: 8e-4,
-            lq_h: 8e-4,
-            psi_f_wb: 0.03,
-            pole_pitch_m: 0.03,
-            mass_kg: 0.5,
-            viscous_n_s_per_m: 0.5,
-            rated_current_a: 4.0,
-            rated_voltage_v: 48.0,
-        }
-    }
-
     #[test]
     fn the_current_limit_is_what_the_lowest_bus_drives_through_the_winding() {
         // Paper motor on 311 V: the bus drives 20 A through 5 ohm; twice rated peak holds.
@@ -638,9 +622,11 @@ mod tests {
         let rated_peak = paper.rated_current_a * core::f32::consts::SQRT_2;
         assert_eq!(c.current_limit_a, 2.0 * rated_peak);
         assert_eq!((c.startup.current_a, c.startup.handover_current_a), (rated_peak, 0.3 * rated_peak));
-        // Ironless on 48 V: the lowest allowed bus (60 %, 28.8 V) drives 28.8 * 0.95 /
-        // sqrt 3 = 15.8 V of phase amplitude, 3.95 A through 4 ohm.
-        let motor = ironless_48v();
+        // A high-resistance motor on 48 V (an ironless one's 4 ohm and 4 A rms; twice its
+        // rated peak, 11.3 A, would take 45 V at standstill): the lowest allowed bus (60 %,
+        // 28.8 V) drives 28.8 * 0.95 / sqrt 3 = 15.8 V of phase amplitude, 3.95 A
+        // through 4 ohm.
+        let motor = MotorParams { rs_ohm: 4.0, rated_current_a: 4.0, rated_voltage_v: 48.0, ..paper };
         let c = DriveConfig::for_motor(&motor, 48.0, ObserverKind::Dcfo);
         let expected_a = 0.6 * 48.0 * 0.95 / 3f32.sqrt() / motor.rs_ohm;
         assert!((c.current_limit_a - expected_a).abs() < 1e-5, "{}", c.current_limit_a);
