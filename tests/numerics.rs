@@ -406,3 +406,24 @@ fn q24_division_is_fixed_checked_div_bit_for_bit() {
     assert!(n > 2_000_000, "{n} divisions");
     assert!(none > 50_000, "{none} refused divisions");
 }
+
+#[test]
+fn decay_within_5e_6_relative_to_16_and_1e_5_to_87() {
+    for (top, bound) in [(16.0f32, 5e-6), (87.0, 1e-5)] {
+        let mut worst = 0.0f64;
+        for i in 0..=1_000_000 {
+            let x = top * i as f32 * 1e-6;
+            let exact = (-f64::from(x)).exp();
+            let got = f64::from(dcfo::num::decay(x));
+            worst = worst.max((got / exact - 1.0).abs());
+        }
+        eprintln!("decay: worst relative error {worst:.2e} over [0, {top}]");
+        assert!(worst < bound, "worst relative error {worst:e} over [0, {top}]");
+    }
+    // Outside the domain: 1 at and below zero and for NaN, 0 far out, never negative.
+    assert_eq!(dcfo::num::decay(0.0), 1.0);
+    assert_eq!(dcfo::num::decay(-3.0), 1.0);
+    assert_eq!(dcfo::num::decay(f32::NAN), 1.0);
+    assert_eq!(dcfo::num::decay(90.0), 0.0);
+    assert_eq!(dcfo::num::decay(f32::INFINITY), 0.0);
+}

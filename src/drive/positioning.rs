@@ -114,7 +114,7 @@ use crate::algorithms::load_observer::LoadObserver;
 use crate::algorithms::motion::{MotionError, Move, Profile, Setpoint};
 use crate::algorithms::transforms::{AlphaBeta, Dq};
 use crate::estimator::Estimate;
-use crate::num::{Angle, Scalar, asin, sin_cos};
+use crate::num::{Angle, Scalar, asin, decay, sin_cos};
 
 /// Capacity of the drive's move queue.
 pub const MOVE_QUEUE: usize = 8;
@@ -523,7 +523,7 @@ impl<T: Scalar> Drive<T> {
             let t = p.rest_time_s;
             let dither = if at_rest && t * p.dither_decay_per_s < 7.0 {
                 let ratio = p.load_force_n.abs() / (p.thrust_n_per_a * amplitude_a.max(1e-3));
-                let amp = (2.0 * asin(ratio.min(1.0))).min(0.2) * libm::expf(-t * p.dither_decay_per_s);
+                let amp = (2.0 * asin(ratio.min(1.0))).min(0.2) * decay(t * p.dither_decay_per_s);
                 amp * sin_cos(p.dither_rad_s * t).0
             } else {
                 0.0
