@@ -20,8 +20,12 @@ use core::sync::atomic::{AtomicU8, AtomicU32, Ordering};
 
 use critical_section::Mutex;
 
-/// Bytes of the up channel's ring (one stays free to tell full from empty).
-pub const BUFFER_SIZE: usize = 1024;
+/// Bytes of the up channel's ring (one stays free to tell full from empty). The images
+/// log a burst at start-up (eight frames, each a format index and its arguments, the
+/// motor image's records the largest: about 300 bytes in all) and then a frame per state
+/// change: half a KiB holds the burst until a probe attaches, within the 8 KiB of static
+/// RAM the ESC1 image is allowed.
+pub const BUFFER_SIZE: usize = 512;
 
 /// RTT channel mode "no block, trim": what does not fit is dropped.
 const MODE_NO_BLOCK_TRIM: u32 = 1;

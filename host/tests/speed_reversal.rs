@@ -7,7 +7,7 @@ use dcfo::drive::DriveState;
 use dcfo::motor::MotorParams;
 use dcfo_host::commands::sim::load_scenario;
 use dcfo_host::motor_file::load_motor;
-use dcfo_host::simulation::{Run, Setup, run};
+use dcfo_host::simulation::{Event, Run, Setup, run};
 
 const ROOT: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/..");
 
@@ -88,14 +88,9 @@ fn every_motor_file_reverses_twice_through_the_low_speed_mode() {
 }
 
 /// A motor the repository has no file for: ironless, high resistance, on a 48 V bus (4
-/// ohm, 0.8 mH, 0.03 Wb, 30 mm pitch, 4 A rms). Twice its rated peak would take 45 V
-/// through the winding at standstill, more than the bus drives: the drive's current
-/// limit comes from the bus instead (`DriveConfig::bus_current_limit_a`), else the
-/// current loops saturate at the first reversal and trip `CURRENT_CONTROL`. Its back-EMF
-/// floor lies above the scenario's 0.4 m/s, so it runs in the low-speed mode.
-#[test]
-fn an_ironless_motor_on_a_48_v_bus_reverses_twice() {
-    let motor = MotorParams {
+/// ohm, 0.8 mH, 0.03 Wb, 30 mm pitch, 4 A rms).
+fn ironless_48_v() -> MotorParams {
+    MotorParams {
         rs_ohm: 4.0,
         ld_h: 8e-4,
         lq_h: 8e-4,
@@ -105,7 +100,52 @@ fn an_ironless_motor_on_a_48_v_bus_reverses_twice() {
         viscous_n_s_per_m: 0.5,
         rated_current_a: 4.0,
         rated_voltage_v: 48.0,
-    };
+    }
+}
+
+/// The ironless motor: twice its rated peak would take 45 V through the winding at
+/// standstill, more than the bus drives: the drive's current limit comes from the bus
+/// instead (`DriveConfig::bus_current_limit_a`), else the current loops saturate at the
+/// first reversal and trip `CURRENT_CONTROL`. Its back-EMF floor lies above the
+/// scenario's 0.4 m/s, so it runs in the low-speed mode.
+#[test]
+fn an_ironless_motor_on_a_48_v_bus_reverses_twice() {
     let scenario = load_scenario(&format!("{ROOT}/scenarios/reversal.toml")).unwrap();
-    check("ironless 48 V", &Setup::for_axis(&motor, &scenario, ObserverKind::Dcfo));
+    check("ironless 48 V", &Setup::for_axis(&ironless_48_v(), &scenario, ObserverKind::Dcfo));
+}
+
+/// The ironless motor in its low-speed mode at 0.4 m/s, then a load step
+/// (`scenarios/load-step.toml`, 20 N, and the same at 10 N). At 0.4 m/s the vector's
+/// current has fallen towards the band's edge and its spring holds about 19 N: under 20 N
+/// the mover slips, pushed back pole after pole. The drive must say so (`OVERLOAD`, the
+/// bridge off) within a second of the step, where the signed speed reading alone (`w
+/// cos delta`, averaging out as delta turns) let it run back at 3 m/s without a trip.
+/// Under 10 N it holds: no fault, and the mover keeps its speed.
+#[test]
+fn an_ironless_motor_slipping_under_a_load_beyond_its_thrust_trips_overload() {
+    let motor = ironless_48_v();
+    let mut scenario = load_scenario(&format!("{ROOT}/scenarios/load-step.toml")).unwrap();
+    let setup = Setup::for_axis(&motor, &scenario, ObserverKind::Dcfo);
+    let r = run(&setup, &scenario, |_| {}).unwrap();
+    let t = transitions(&r);
+    eprintln!("ironless 48 V under 20 N: faults {:?}; states {t:?}", r.faults);
+    assert_eq!(r.faults, dcfo::drive::Faults::OVERLOAD, "states {t:?}");
+    let trip = t.iter().find(|(_, s)| *s == DriveState::Fault).map(|(at, _)| *at);
+    assert!(trip.is_some_and(|at| at > 3.5 && at < 4.5), "tripped at {trip:?} s, the load stepped at 3.5 s");
+    // The mover did slip: pushed backwards before the trip.
+    let slowest = r.samples.iter().filter(|s| s.row.t > 3.5).filter_map(|s| s.row.v).fold(f64::MAX, f64::min);
+    eprintln!("slowest true speed after the step {slowest:+.3} m/s");
+    assert!(slowest < 0.0, "the mover never ran backwards (slowest {slowest:+.3} m/s)");
+
+    for (_, e) in &mut scenario.events {
+        if let Event::Load(n) = e {
+            *n = 10.0;
+        }
+    }
+    let r = run(&setup, &scenario, |_| {}).unwrap();
+    assert!(r.faults.is_empty(), "under 10 N: tripped {:?}; states {:?}", r.faults, transitions(&r));
+    let tail: Vec<f64> = r.samples.iter().filter(|s| s.row.t > 4.5).filter_map(|s| s.row.v).collect();
+    let mean = tail.iter().sum::<f64>() / tail.len() as f64;
+    eprintln!("under 10 N: mean speed {mean:+.3} m/s over the last 0.5 s");
+    assert!((mean - 0.4).abs() < 0.08, "under 10 N: mean speed {mean:.3} m/s, target 0.4");
 }

@@ -519,6 +519,7 @@ impl<T: Scalar> Drive<T> {
                     / base.current_a,
                 speed_filter_rate: (5.0 * wn * ts).min(1.0),
                 speed_error_rad_s: 0.0,
+                speed_reading_abs_rad_s: 0.0,
                 retard_rad: 0.0,
                 retard_rate_rad_s: 0.0,
                 current_loop_rate: (config.current_bandwidth_rad_s * ts).min(1.0),

@@ -37,7 +37,11 @@
 //!     speed reading `w cos(delta)` shows it once the mover outruns the inverter's error
 //!     (`w_ls`): moving, a reading against the reference's direction (the mover past
 //!     the spring's peak, 90 deg from the vector); at rest, a reading beyond a held
-//!     swing (`w_n + w_ls`). `OVERLOAD` then, not an unannounced runaway. (Not before
+//!     swing (`w_n + w_ls`); either way, a filtered magnitude of the reading beyond
+//!     the reference speed plus that swing (a mover slipping pole after pole, whose
+//!     signed reading averages out; not while the current loops have lost control,
+//!     which the current-control supervision names). `OVERLOAD` then, not an
+//!     unannounced runaway. (Not before
 //!     the mover moves: at rest a non-salient motor shows no sign of where it sits on
 //!     the spring.)
 //! - **Sensorless** ([`DriveState::Running`]) above `low_speed_exit_ratio` times the
@@ -159,6 +163,10 @@ pub(super) struct Positioning<T> {
     pub(super) speed_filter_rate: f32,
     /// Filtered electrical speed error of the mover against the reference (rad/s, SI).
     pub(super) speed_error_rad_s: f32,
+    /// Magnitude of the mover's electrical speed read from the q voltage, filtered as
+    /// the speed error (rad/s, SI): the slip supervision's reading of a mover slipping
+    /// pole after pole, whose signed reading averages out.
+    pub(super) speed_reading_abs_rad_s: f32,
     /// The vector's retard behind the reference position in the last step (rad), and
     /// its rate (rad/s) filtered at the current loop's bandwidth: the speed at which the
     /// current loop turns the current with the frame, beyond the reference speed.
@@ -381,6 +389,7 @@ impl<T: Scalar> Drive<T> {
         if let Some(p) = &mut self.positioning {
             p.profile.hold_at(x);
             p.speed_error_rad_s = 0.0;
+            p.speed_reading_abs_rad_s = 0.0;
             p.retard_rad = 0.0;
             p.retard_rate_rad_s = 0.0;
             p.mover_offset_rad = 0.0;
@@ -446,8 +455,11 @@ impl<T: Scalar> Drive<T> {
         let omega_frame = omega_ref - T::from_f32(p.retard_rate_rad_s * k.inv_omega_base);
         let omega_mover = (self.u_dq_last.q - k.rs * i.q - omega_frame * k.ld * i.d) * k.inv_psi_f;
         let error_rad_s = (omega_mover - omega_ref).to_f32() * k.base.omega_rad_s;
+        let mover_rad_s = omega_mover.to_f32() * k.base.omega_rad_s;
         if error_rad_s.is_finite() {
             p.speed_error_rad_s += p.speed_filter_rate * (error_rad_s - p.speed_error_rad_s);
+            p.speed_reading_abs_rad_s +=
+                p.speed_filter_rate * (libm::fabsf(mover_rad_s) - p.speed_reading_abs_rad_s);
         }
         // Slip: a mover off the vector's spring, pushed pole after pole by a load the
         // vector cannot hold while the position estimate, the vector's, follows the
@@ -469,7 +481,16 @@ impl<T: Scalar> Drive<T> {
         } else {
             reading * omega_ref_rad_s < 0.0 && libm::fabsf(reading) > readable
         };
-        if p.slip_guard_s == 0.0 && slipping {
+        // A mover slipping pole after pole reads `w cos(delta)` with delta turning: the
+        // signed reading averages out, its magnitude (2/pi of `w` on average) does not.
+        // A held mover reads at most the reference's speed plus its swing on the spring
+        // and the inverter's error (`w_n + w_ls`). Not while the current loops have lost
+        // control (the voltage on its limit with the current off its reference): the
+        // reading then rests on a current the loops do not hold (a stuck sensor reads
+        // as a runaway), and the current-control supervision names the fault.
+        let running_away = self.current_error_count == 0
+            && libm::fabsf(omega_ref_rad_s) + p.slip_margin_rad_s < p.speed_reading_abs_rad_s;
+        if p.slip_guard_s == 0.0 && (slipping || running_away) {
             self.trip(crate::drive::Faults::OVERLOAD);
             return (self.theta_previous, T::ZERO);
         }
@@ -656,6 +677,7 @@ impl<T: Scalar> Drive<T> {
             p.seeded = false;
             p.aligned = true;
             p.speed_error_rad_s = 0.0;
+            p.speed_reading_abs_rad_s = 0.0;
             p.retard_rad = 0.0;
             p.retard_rate_rad_s = 0.0;
             p.mover_offset_rad = 0.0;
@@ -785,6 +807,7 @@ impl<T: Scalar> Drive<T> {
             p.accel_ff_target = T::ZERO;
             p.reference_omega = T::ZERO;
             p.speed_error_rad_s = 0.0;
+            p.speed_reading_abs_rad_s = 0.0;
             p.holding = false;
             self.pi_speed.reset();
             self.omega_filtered = T::ZERO;
