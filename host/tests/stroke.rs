@@ -23,6 +23,7 @@ fn check_with_final(name: &str, m: &MotorParams, final_floor_m: f64) {
     // Re-lock within 0.1 s of every low-speed segment (measured 36 ms).
     assert!(s.relocks >= MOVES, "{name}: {}", s.relocks);
     assert!(s.relock_time_max_s.is_some_and(|t| t <= 0.1), "{name}: {:?}", s.relock_time_max_s);
+    assert_eq!(s.exits_missed, 0, "{name}: the drive stayed in the low-speed mode above its exit speed");
     // |x_hat - x| <= tau / 4 at all times and <= tau / 60 (3 deg electrical) at the end
     // (paper motor: 2.8 and 0.12 mm of 3.75 and 0.25).
     assert!(s.x_err_max_m <= tau / 4.0, "{name}: max {}", s.x_err_max_m);
@@ -79,6 +80,7 @@ fn a_salient_motor_on_hfi_throughout_cruises_without_overshoot() {
     assert_eq!(s.faults, 0, "{}", s.fault_names);
     assert_eq!(s.moves_done, MOVES);
     assert_eq!(s.relocks, 0, "the stroke's speed is below this motor's back-EMF floor");
+    assert_eq!(s.exits_missed, 0, "no move asks for an exit from the low-speed mode");
     assert!(s.x_err_max_m <= tau / 4.0, "max {}", s.x_err_max_m);
     assert!(
         s.speed_overshoot_max_pct <= dcfo_host::commands::stroke::SPEED_OVERSHOOT_FLOOR_PCT,

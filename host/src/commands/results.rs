@@ -513,8 +513,13 @@ fn stroke(inputs: &[Input]) -> Result<String> {
             tau_mm / 4.0,
             i.num("x_err_final_m")? * 1e3,
             tau_mm / 60.0,
-            // A stroke below the motor's back-EMF floor never leaves the low-speed mode.
-            i.opt_num("relock_time_max_s")?.map_or("on HFI throughout".into(), |t| format!("{} ms", ms(t))),
+            // A stroke below the motor's back-EMF floor never leaves the low-speed mode; an
+            // exit the drive missed is marked as an unmet floor.
+            match (i.num("exits_missed")?, i.opt_num("relock_time_max_s")?) {
+                (missed, _) if missed > 0.0 => format!("**{missed} missed**"),
+                (_, None) => "low-speed mode throughout".into(),
+                (_, Some(t)) => format!("{} ms", ms(t)),
+            },
             i.opt_num("current_ref_step_transition_max_a")?.map_or("none".into(), |a| format!("{a:.3} A")),
             i.num("current_step_limit_a")?,
             // Over its floor: in bold, as the fault table marks an unmet expectation.
