@@ -41,9 +41,8 @@
 //!     the reference speed plus that swing (a mover slipping pole after pole, whose
 //!     signed reading averages out; not while the current loops have lost control,
 //!     which the current-control supervision names). `OVERLOAD` then, not an
-//!     unannounced runaway. (Not before
-//!     the mover moves: at rest a non-salient motor shows no sign of where it sits on
-//!     the spring.)
+//!     unannounced runaway. (Not before the mover moves: at rest a non-salient motor
+//!     shows no sign of where it sits on the spring.)
 //! - **Sensorless** ([`DriveState::Running`]) above `low_speed_exit_ratio` times the
 //!   threshold: the position loop `v_cmd = v_ref + k_x (x_ref - x_hat)` feeds the speed
 //!   loop; the profile's acceleration is fed forward as thrust current (`M a_ref / K_f`,

@@ -219,10 +219,11 @@ pub fn asin(x: f32) -> f32 {
 /// `e^-x` in `f32` for `x >= 0`: the envelope of a first-order decay after `x` time
 /// constants. `2^-y` with `y = x log2(e)` split as `n + f` (`n` whole, `f` in `[0, 1)`):
 /// `2^-n` is the exponent field and `2^-f` a degree-4 polynomial (least-squares fit in
-/// relative error, `1` at `f = 0` and `1/2` at `f = 1`, so it is continuous): within 5e-6 relative
-/// for `x` up to 16 and 1e-5 up to 87, the excess being the `f32` rounding of `y`. libm's `expf` is correctly rounded and about 460 bytes of flash; this is
-/// five multiplications. `x <= 0` and NaN give 1; beyond 87 (under `f32`'s smallest
-/// normal number) it gives 0.
+/// relative error, `1` at `f = 0` and `1/2` at `f = 1`, so it is continuous). Within 5e-6
+/// relative for `x` up to 16 and 1e-5 up to 87, the excess being the `f32` rounding of
+/// `y`. libm's `expf` is correctly rounded and about 460 bytes of flash; this is five
+/// multiplications. `x <= 0` and NaN give 1; beyond 87 (under `f32`'s smallest normal
+/// number) it gives 0.
 pub fn decay(x: f32) -> f32 {
     // Coefficients of 2^-f = 1 + f (c1 + f (c2 + f (c3 + f c4))).
     const C: [f32; 4] = [-0.693_060_1, 0.239_438_74, -0.053_195_57, 0.006_818_329];
