@@ -66,7 +66,7 @@ mod firmware {
     use dcfo::algorithms::observer::{Dcfo, FluxObserver, ObserverInput, ObserverKind, ObserverMotor};
     use dcfo::algorithms::pi::Pi;
     use dcfo::algorithms::pll::Pll;
-    use dcfo::algorithms::svpwm::svpwm;
+    use dcfo::algorithms::svpwm::{DcBus, svpwm};
     use dcfo::algorithms::transforms::{Abc, AlphaBeta, CosSin, Dq, clarke, inverse_park, park};
     use dcfo::drive::{
         DeadTimeCompensation, Drive, DriveConfig, DriveState, Measurements, MotionConfig,
@@ -242,10 +242,10 @@ mod firmware {
     fn stage_dead_time<T: Scalar>(
         model: &InverterErrorModel<T>,
         u: AlphaBeta<T>,
-        vdc: T,
+        bus: &DcBus<T>,
         i: Abc<T>,
     ) -> AlphaBeta<T> {
-        model.compensation(u, vdc, i)
+        model.compensation(u, bus, i)
     }
     #[inline(never)]
     fn stage_observer<T: Scalar>(obs: &mut Dcfo<T>, input: &ObserverInput<T>) -> Option<AlphaBeta<T>> {
@@ -636,6 +636,7 @@ mod firmware {
         let psi = observer.clone().update(&input).map(|f| f.psi_ab).unwrap_or_default();
         let i_abc = m.i_abc;
         let stage = |name: &str, ticks: u32| println!("STAGE {ty} {name} {ticks}");
+        let Ok(bus) = DcBus::new(m.vdc) else { return };
         stage("clarke", timed(|| stage_clarke(black_box(i_abc))).1);
         stage("cos_sin", timed(|| stage_cos_sin::<T>(black_box(theta))).1);
         stage("park", timed(|| stage_park(black_box(out.i_ab), black_box(&cs))).1);
@@ -647,7 +648,7 @@ mod firmware {
         stage("svpwm", timed(|| stage_svpwm(black_box(u_ab), black_box(m.vdc))).1);
         stage(
             "dead_time",
-            timed(|| stage_dead_time(black_box(&model), black_box(u_ab), black_box(m.vdc), black_box(i_abc)))
+            timed(|| stage_dead_time(black_box(&model), black_box(u_ab), black_box(&bus), black_box(i_abc)))
                 .1,
         );
         stage("observer", timed(|| stage_observer(black_box(&mut observer), black_box(&input))).1);

@@ -13,7 +13,7 @@
 //! alone.
 
 use dcfo::algorithms::pi::Pi;
-use dcfo::algorithms::svpwm::svpwm;
+use dcfo::algorithms::svpwm::{DcBus, svpwm_on};
 use dcfo::algorithms::transforms::{AlphaBeta, CosSin, Dq, inverse_clarke, inverse_park, park};
 use dcfo::drive::{COMPENSATION_REFERENCE_FROM_BANDS, CompensationSigns};
 use dcfo::estimator::Estimator;
@@ -170,6 +170,7 @@ pub fn record(
         // The drive's inverter compensation (`dcfo::algorithms::dead_time`), from the current carried
         // to the window: the measured current blended into the reference as the drive
         // does (`Drive::compensation_current`).
+        let bus = DcBus::new(reading.vdc_v).map_err(|e| err(&e))?;
         let c = match comp {
             Some((c, model)) => {
                 let band = f64::from(c.current_band_a);
@@ -181,12 +182,12 @@ pub fn record(
                     }
                 };
                 let i_sign = Dq::new(i_dq.d * (1.0 - w), i_dq.q + w * (iq_ref - i_dq.q));
-                model.compensation(u_ab, reading.vdc_v, inverse_clarke(inverse_park(i_sign, &cs_apply)))
+                model.compensation(u_ab, &bus, inverse_clarke(inverse_park(i_sign, &cs_apply)))
             }
             None => AlphaBeta::new(0.0, 0.0),
         };
-        let m = svpwm(AlphaBeta::new(u_ab.alpha + c.alpha, u_ab.beta + c.beta), reading.vdc_v)
-            .map_err(|e| err(&e))?;
+        let m =
+            svpwm_on(AlphaBeta::new(u_ab.alpha + c.alpha, u_ab.beta + c.beta), &bus).map_err(|e| err(&e))?;
         let applied =
             closed_loop.actuate(sensed, Bridge::On([m.duties.a, m.duties.b, m.duties.c]), 0.0).applied;
         if k >= skip {

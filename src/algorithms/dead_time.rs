@@ -65,6 +65,7 @@
 //! are in `docs/inverter-compensation.md`.
 #![forbid(unsafe_code)]
 
+use crate::algorithms::svpwm::DcBus;
 use crate::algorithms::transforms::{Abc, AlphaBeta, clarke, inverse_clarke};
 use crate::motor::MotorParams;
 use crate::num::Scalar;
@@ -141,12 +142,9 @@ impl<T: Scalar> InverterErrorModel<T> {
     }
 
     /// The per-leg edge ripple `delta_k` (A, working units, >= 0) of the phase
-    /// references `u_ab` (V) on a bus of `vdc` (V, > 0), module docs; zero when `vdc`
-    /// is not positive.
-    pub fn edge_ripple(&self, u_ab: AlphaBeta<T>, vdc: T) -> Abc<T> {
-        let Some(inv_vdc) = vdc.recip().filter(|_| vdc > T::ZERO) else {
-            return Abc { a: T::ZERO, b: T::ZERO, c: T::ZERO };
-        };
+    /// references `u_ab` (V) on `bus`, module docs.
+    pub fn edge_ripple(&self, u_ab: AlphaBeta<T>, bus: &DcBus<T>) -> Abc<T> {
+        let inv_vdc = bus.inv_voltage();
         let u = inverse_clarke(u_ab);
         let hi = u.a.max(u.b).max(u.c);
         let lo = u.a.min(u.b).min(u.c);
@@ -164,11 +162,11 @@ impl<T: Scalar> InverterErrorModel<T> {
     }
 
     /// The compensation voltage (V, alpha-beta, working units) to add to the command
-    /// `u_ab` (V) on a bus of `vdc` (V) for the phase currents `i` (A) at the middle of
-    /// the period it is applied in (module docs).
-    pub fn compensation(&self, u_ab: AlphaBeta<T>, vdc: T, i: Abc<T>) -> AlphaBeta<T> {
-        let delta = self.edge_ripple(u_ab, vdc);
-        let dead = vdc * self.dead_time_ratio;
+    /// `u_ab` (V) on `bus` for the phase currents `i` (A) at the middle of the period it
+    /// is applied in (module docs).
+    pub fn compensation(&self, u_ab: AlphaBeta<T>, bus: &DcBus<T>, i: Abc<T>) -> AlphaBeta<T> {
+        let delta = self.edge_ripple(u_ab, bus);
+        let dead = bus.voltage() * self.dead_time_ratio;
         let inv = self.inv_band_sqrt;
         let sign = |x: T| (x * inv * inv).clamp_to(-T::ONE, T::ONE);
         let leg = |ik: T, dk: T| {
@@ -214,6 +212,7 @@ mod tests {
     fn edge_ripple_matches_the_switching_pattern() {
         let m = model();
         let vdc = 311.0;
+        let bus = DcBus::new(vdc).expect("a valid bus");
         let ts = 1e-4;
         let l = 8.5e-3;
         for &(mag, ang) in &[(40.0, 0.3), (40.0, 1.9), (120.0, 4.0), (10.0, 5.5), (170.0, 2.6)] {
@@ -224,7 +223,7 @@ mod tests {
             let u0 = -(hi + lo) / 2.0;
             let d = [0.5 + (u.a + u0) / vdc, 0.5 + (u.b + u0) / vdc, 0.5 + (u.c + u0) / vdc];
             let mean = [u.a, u.b, u.c];
-            let delta = m.edge_ripple(u_ab, vdc);
+            let delta = m.edge_ripple(u_ab, &bus);
             for (k, want) in [delta.a, delta.b, delta.c].into_iter().enumerate() {
                 // Integrate (v_kn - u_k) / L from the rising edge to the carrier peak.
                 let n = 200_000;
@@ -254,12 +253,13 @@ mod tests {
     fn classic_far_from_zero_and_nothing_inside_the_ripple() {
         let m = model();
         let vdc = 311.0;
+        let bus = DcBus::new(vdc).expect("a valid bus");
         let u_ab = AlphaBeta::new(0.0, 0.0);
         // Zero voltage: each leg at d = 1/2 with the others, delta = -(Ts/2L) d u = 0.
-        let delta = m.edge_ripple(u_ab, vdc);
+        let delta = m.edge_ripple(u_ab, &bus);
         assert!(delta.a.abs() < 1e-12 && delta.b.abs() < 1e-12);
         let i = Abc { a: 1.0, b: -0.5, c: -0.5 };
-        let c = m.compensation(u_ab, vdc, i);
+        let c = m.compensation(u_ab, &bus, i);
         let amp = 0.02 * vdc + 0.95;
         let want = clarke(Abc { a: amp, b: -amp, c: -amp });
         // (The model's constants are built in f32: 2 us / 100 us to within 1e-7.)
@@ -270,12 +270,12 @@ mod tests {
         // 40 V along alpha: leg a the top leg, b and c below; a current well inside
         // each leg's ripple gets only the drop's linear part.
         let u_ab = AlphaBeta::new(40.0, 0.0);
-        let delta = m.edge_ripple(u_ab, vdc);
+        let delta = m.edge_ripple(u_ab, &bus);
         // Leg b is the bottom leg: delta = -(Ts/2L) d_b u_b, d_b = 1/2 + (-20 - 10)/311.
         let want_b = 1e-4 / (2.0 * 8.5e-3) * (0.5 - 30.0 / vdc) * 20.0;
         assert!((delta.b - want_b).abs() < 1e-6 * want_b && delta.b > 4.0 * 0.01, "{delta:?}");
         let small = Abc { a: 0.0, b: 0.1 * delta.b, c: -0.1 * delta.b };
-        let c = m.compensation(u_ab, vdc, small);
+        let c = m.compensation(u_ab, &bus, small);
         let legs = inverse_clarke(c);
         // The drop only, linear over the ripple: 0.95 V x i / delta (f32 constants).
         assert!((legs.b - 0.95 * 0.1).abs() < 1e-6 && legs.a.abs() < 1e-9, "{legs:?}");
@@ -296,19 +296,21 @@ mod tests {
             ..InverterErrorModel::for_drive(&c, 1e-4, &motor, &base)
         };
         let vdc = 311.0;
+        let bus = DcBus::new(vdc).expect("a valid bus");
         let u_ab = AlphaBeta::new(40.0, 0.0);
-        let delta_b = si.edge_ripple(u_ab, vdc).b;
+        let delta_b = si.edge_ripple(u_ab, &bus).b;
         assert!(delta_b > 4.0 * 0.01, "leg b's ripple {delta_b} A is above the band");
         let i = Abc { a: -100.0 * delta_b, b: 200.0 * delta_b, c: -100.0 * delta_b };
-        let want = inverse_clarke(si.compensation(u_ab, vdc, i));
+        let want = inverse_clarke(si.compensation(u_ab, &bus, i));
         let to_q = |v: f64| base.voltage::<Q24>(v as f32);
         let i_q = Abc {
             a: base.current::<Q24>(i.a as f32),
             b: base.current::<Q24>(i.b as f32),
             c: base.current::<Q24>(i.c as f32),
         };
+        let q_bus = DcBus::new(to_q(vdc)).expect("a valid bus");
         let got =
-            inverse_clarke(q.compensation(AlphaBeta::new(to_q(u_ab.alpha), to_q(u_ab.beta)), to_q(vdc), i_q));
+            inverse_clarke(q.compensation(AlphaBeta::new(to_q(u_ab.alpha), to_q(u_ab.beta)), &q_bus, i_q));
         let volts = |x: Q24| f64::from(base.to_volts(x));
         for (g, w) in [(got.a, want.a), (got.b, want.b), (got.c, want.c)] {
             assert!((volts(g) - w).abs() < 0.01, "leg {} V against {w} V", volts(g));
@@ -322,6 +324,7 @@ mod tests {
     fn ripple_fades_in_with_the_duty_spread() {
         let (full, drive) = (model(), paper());
         let vdc = 311.0;
+        let bus = DcBus::new(vdc).expect("a valid bus");
         let (from, span) = (f64::from(RIPPLE_FROM_DEAD_TIMES), f64::from(RIPPLE_FADE_DEAD_TIMES));
         // Spread = sqrt(3) |u| / Vdc for a vector at 30 deg off a phase axis (max - min
         // = sqrt(3) |u|), in dead times (Td/Ts = 0.02).
@@ -329,7 +332,7 @@ mod tests {
             let mag = dead_times * 0.02 * vdc / 3f64.sqrt();
             let ang = core::f64::consts::FRAC_PI_6;
             let u_ab = AlphaBeta::new(mag * ang.cos(), mag * ang.sin());
-            let (f, d) = (full.edge_ripple(u_ab, vdc), drive.edge_ripple(u_ab, vdc));
+            let (f, d) = (full.edge_ripple(u_ab, &bus), drive.edge_ripple(u_ab, &bus));
             for (f, d) in [(f.a, d.a), (f.b, d.b), (f.c, d.c)] {
                 assert!((d - share * f).abs() < 1e-5 * f, "{dead_times}: {d} vs {share} x {f}");
             }

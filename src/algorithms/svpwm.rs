@@ -53,21 +53,59 @@ impl<T: Scalar> Duties<T> {
     }
 }
 
-/// Modulates `u` (V or per-unit) on a DC bus of `vdc` (same unit, > 0).
-pub fn svpwm<T: Scalar>(u: AlphaBeta<T>, vdc: T) -> Result<Modulation<T>, SvpwmError> {
-    if !vdc.is_valid() || vdc <= T::ZERO {
-        return Err(SvpwmError::BadDcBus);
+/// The DC-bus voltage of one control period with its reciprocal: formed once per period
+/// and shared by the modulator and the inverter compensation
+/// ([`crate::algorithms::dead_time`]), so that the reciprocal, a software routine in
+/// fixed point, is computed once.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DcBus<T> {
+    /// The bus voltage, V or per-unit (> 0).
+    voltage: T,
+    /// `1 / voltage`, per V or per unit.
+    inv_voltage: T,
+}
+
+impl<T: Scalar> DcBus<T> {
+    /// The bus at `vdc` (V or per-unit); [`SvpwmError::BadDcBus`] unless `vdc` is a valid
+    /// positive number whose reciprocal is representable.
+    pub fn new(vdc: T) -> Result<Self, SvpwmError> {
+        if !vdc.is_valid() || vdc <= T::ZERO {
+            return Err(SvpwmError::BadDcBus);
+        }
+        // A reciprocal instead of divisions per duty: division is a software routine in
+        // fixed point on an FPU-less core.
+        let inv_voltage = vdc.recip().ok_or(SvpwmError::BadDcBus)?;
+        Ok(DcBus { voltage: vdc, inv_voltage })
     }
+
+    /// The bus voltage, V or per-unit (> 0).
+    pub fn voltage(&self) -> T {
+        self.voltage
+    }
+
+    /// `1 / voltage`, per V or per unit.
+    pub fn inv_voltage(&self) -> T {
+        self.inv_voltage
+    }
+}
+
+/// Modulates `u` (V or per-unit) on a DC bus of `vdc` (same unit, > 0): [`svpwm_on`] on
+/// [`DcBus::new`]`(vdc)`.
+pub fn svpwm<T: Scalar>(u: AlphaBeta<T>, vdc: T) -> Result<Modulation<T>, SvpwmError> {
+    svpwm_on(u, &DcBus::new(vdc)?)
+}
+
+/// Modulates `u` (V or per-unit, the bus's unit) on `bus`.
+pub fn svpwm_on<T: Scalar>(u: AlphaBeta<T>, bus: &DcBus<T>) -> Result<Modulation<T>, SvpwmError> {
     if !u.is_valid() {
         return Err(SvpwmError::BadCommand);
     }
-    // Reciprocals and the inverse square root avoid division and a square root, which
-    // are software routines in fixed point on an FPU-less core.
-    let inv_vdc = vdc.recip().ok_or(SvpwmError::BadDcBus)?;
-    let v_max = vdc * T::INV_SQRT3;
+    let inv_vdc = bus.inv_voltage;
+    let v_max = bus.voltage * T::INV_SQRT3;
     let m2 = u.norm_squared();
     let (u, limited) = if m2 > v_max * v_max {
-        // |u| > v_max > 0, so the inverse square root exists; checked anyway.
+        // |u| > v_max > 0, so the inverse square root exists; checked anyway. (The inverse
+        // square root avoids a square root and a division.)
         let k = v_max * m2.inv_sqrt().ok_or(SvpwmError::BadCommand)?;
         (u.scale(k), true)
     } else {

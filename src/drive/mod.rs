@@ -86,7 +86,7 @@ use crate::algorithms::load_observer::{LoadObserver, LoadObserverConfig};
 use crate::algorithms::motion::{Profile, ProfileLimits};
 use crate::algorithms::observer::ObserverKind;
 use crate::algorithms::pi::Pi;
-use crate::algorithms::svpwm::{Duties, svpwm};
+use crate::algorithms::svpwm::{DcBus, Duties, svpwm, svpwm_on};
 use crate::algorithms::transforms::{Abc, AlphaBeta, CosSin, Dq, clarke, inverse_clarke, inverse_park, park};
 use crate::estimator::{Estimate, Estimator};
 use crate::motor::MotorParams;
@@ -1104,10 +1104,18 @@ impl<T: Scalar> Drive<T> {
         let theta_apply = theta + (omega * k.dt * k.delay_periods).radians_to_angle();
         let cs_apply = CosSin::new(theta_apply);
         let u_ab = inverse_park(Dq::new(u_d, u_q), &cs_apply);
+        // The bus and its reciprocal once, for the compensation and the modulator.
+        let bus = match DcBus::new(m.vdc) {
+            Ok(bus) => bus,
+            Err(_) => {
+                self.trip(Faults::MODULATION);
+                return;
+            }
+        };
         let comp = match &k.inverter {
             Some(model) if loops_run => {
                 let i = inverse_clarke(inverse_park(self.compensation_current(model, i_dq), &cs_apply));
-                model.compensation(u_ab, m.vdc, i)
+                model.compensation(u_ab, &bus, i)
             }
             _ => AlphaBeta::default(),
         };
@@ -1121,7 +1129,7 @@ impl<T: Scalar> Drive<T> {
             }
             None => command,
         };
-        match svpwm(command, m.vdc) {
+        match svpwm_on(command, &bus) {
             Ok(modulation) => {
                 out.duties = modulation.duties;
                 out.bridge_enabled = true;
