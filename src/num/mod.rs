@@ -105,14 +105,14 @@ pub trait Scalar:
     /// on Cortex-M3 two hardware divisions and a few corrections.
     fn checked_div(self, rhs: Self) -> Option<Self>;
     /// `1 / self`, or `None` when `self` is zero or the result is not representable.
-    /// Accuracy: floats correctly rounded (one division); [`Q24`] within 4 LSB
-    /// absolute plus 2^-22 relative, by normalisation and three Newton steps — no
-    /// 64-bit division, which an FPU-less Cortex-M3 does in software.
+    /// Accuracy: floats correctly rounded (one division); [`Q24`] within 1 LSB
+    /// (the quotient rounded towards zero: [`Scalar::checked_div`] of one by `self`).
     fn recip(self) -> Option<Self>;
     /// `1 / sqrt(self)` for `self > 0`; `None` for `self <= 0`, NaN, or a result out of
     /// range. Accuracy: `f64` correctly rounded sqrt then division; `f32` within 4e-7
-    /// relative (micromath seed, three Newton steps); [`Q24`] within 2^-21 relative
-    /// plus 4 LSB (normalisation, four Newton steps; no division, no bit-serial sqrt).
+    /// relative (micromath seed, three Newton steps); [`Q24`] within 1 LSB plus 2e-9
+    /// relative (the square root's normalised mantissa, then one 64-by-32-bit division
+    /// in two hardware divisions; no bit-serial square root).
     fn inv_sqrt(self) -> Option<Self>;
     /// `true` for a usable number: finite (floats), not saturated (fixed point).
     fn is_valid(self) -> bool;
@@ -558,60 +558,78 @@ fn div_u64_by_u32(high: u32, low: u32, d: u32) -> u32 {
     (q1 << 16) | q0
 }
 
-/// `(a * b) >> 24` of two Q24 bit patterns, in 64 bits (one `SMULL` on Cortex-M3).
-#[inline(always)]
-fn q24_mul_wide(a: i64, b: i64) -> i64 {
-    (a * b) >> 24
-}
-
-/// 1 / x for Q24 bits `x > 0`: `x = m 2^-k` with `m` in [0.5, 1), the linear seed
-/// `48/17 - 32/17 m` (max relative error 1/17), three Newton steps `y (2 - m y)`
-/// (error 1/17 -> 3.5e-3 -> 1.2e-5 -> 1.5e-10, then truncation), and the shift back.
-/// `None` for `x <= 0` or a result beyond the Q24 range.
-fn q24_recip_positive(x: i32) -> Option<i32> {
-    if x <= 0 {
-        return None;
-    }
-    // Bit 23 is the leading one of m (2^23 = 0.5): 8 leading zeros.
-    let k = x.leading_zeros() as i32 - 8;
-    let m = i64::from(if k >= 0 { x << k } else { x >> -k });
-    const SEED_C0: i64 = (48 << 24) / 17;
-    const SEED_C1: i64 = (32 << 24) / 17;
-    const TWO: i64 = 2 << 24;
-    let mut y = SEED_C0 - q24_mul_wide(SEED_C1, m);
+/// The square root of a Q24 bit pattern `x > 0`, normalised: `x = m 4^-j` with `m` in
+/// `[2^30, 2^32)` (`shift = 2j`, the even count of `x`'s leading zeros), and `root =
+/// sqrt(m) 2^16` in `[2^31, 2^32)`, at most one above its exact value's floor.
+///
+/// `r = floor(sqrt(m))` by three Newton steps `(r + m / r) / 2` from a chord seed
+/// (relative error 5.6 %, then 1.5e-3, 1.1e-6, 6e-13, each step truncating by less than
+/// one) and a correction of at most one each way; the 16 bits below `r` from the
+/// remainder, `(m - r^2) / 2r` (one more Newton step, over by less than 2^-16). Four of the
+/// core's 32-bit hardware divisions, no loop over the bits (the `fixed` crate's square
+/// root iterates once per result bit).
+#[inline]
+fn q24_sqrt_normalised(x: i32) -> (u32, u32) {
+    // x < 2^31 has at least one leading zero: an even shift to [2^30, 2^32).
+    let shift = x.leading_zeros() & !1;
+    let m = (x as u32) << shift;
+    // The chord through (2^30, 2^15) and (2^32, 2^16), below sqrt: 2^15 + (m - 2^30) / 3 2^15.
+    let mut r = (1u32 << 15) + (m.saturating_sub(1 << 30) >> 15) / 3;
     for _ in 0..3 {
-        y = q24_mul_wide(y, TWO - q24_mul_wide(m, y));
+        // r >= 2^15 throughout (Newton's iterates stay above the root after the first).
+        let Some(d) = core::num::NonZeroU32::new(r) else { return (0, shift) };
+        r = (r + m / d) >> 1;
     }
-    // 1/x = 2^k / m = y 2^k, y in (1, 2].
-    let r = if k >= 0 { y.checked_shl(k as u32)? } else { (y + (1 << (-k - 1))) >> -k };
-    i32::try_from(r).ok().filter(|&r| r < i32::MAX)
+    // floor(sqrt(m)) <= 65535: within one of r after the steps.
+    r = r.min(u32::from(u16::MAX));
+    if r * r > m {
+        r -= 1;
+    }
+    if r < u32::from(u16::MAX) && (r + 1) * (r + 1) <= m {
+        r += 1;
+    }
+    // sqrt(m) 2^16 = r 2^16 + 2^16 (m - r^2) / (sqrt(m) + r), the last term at most
+    // (m - r^2) 2^15 / r: m - r^2 <= 2r, so the product fits 32 bits.
+    let Some(d) = core::num::NonZeroU32::new(r) else { return (0, shift) };
+    let fraction = (m.saturating_sub(r * r) << 15) / d;
+    ((r << 16).saturating_add(fraction), shift)
 }
 
-/// 1 / sqrt(x) for Q24 bits `x > 0`: `x = m 2^-2j` with `m` in [0.25, 1), a quadratic
-/// seed through `1/sqrt(m)` at m = 1/4, 1/2 and 1 (max relative error 6.6 %), four
-/// Newton steps `y (3 - m y^2) / 2` (error 6.5e-3, 6.3e-5, 6e-9, then truncation), and
-/// the shift back by `j`. `None` for `x <= 0` or a result beyond the Q24 range.
+/// `sqrt(x 2^24)` for Q24 bits `x` (the square root's Q24 bits; 0 for `x <= 0`): the
+/// exact root's floor, or one LSB above it (1.2 % of inputs; every positive `x` was checked
+/// against an exact integer root, `tests/numerics.rs` checks a sweep).
+#[inline]
+fn q24_sqrt_non_negative(x: i32) -> i32 {
+    if x <= 0 {
+        return 0;
+    }
+    let (root, shift) = q24_sqrt_normalised(x);
+    // sqrt(x 2^24) = sqrt(m) 2^(12 - shift/2) = root 2^-(4 + shift/2).
+    (root >> (4 + shift / 2)) as i32
+}
+
+/// 1 / x for Q24 bits `x != 0`: the exact quotient `2^48 / x` rounded towards zero
+/// ([`q24_div`], two hardware divisions). `None` for `x = 0` or a result at or beyond
+/// the Q24 range.
+#[inline]
+fn q24_recip(x: i32) -> Option<i32> {
+    q24_div(1 << 24, x).filter(|r| r.unsigned_abs() < i32::MAX as u32)
+}
+
+/// 1 / sqrt(x) for Q24 bits `x > 0`: `2^(52 + j) / root` from [`q24_sqrt_normalised`]
+/// (`x = m 4^-j`, `root = sqrt(m) 2^16`), as `floor(2^62 / root)` ([`div_u64_by_u32`], 31
+/// significant bits) shifted by `j - 10`. Within one LSB plus 2e-9 relative. `None` for
+/// `x <= 0` or a result at or beyond the Q24 range.
+#[inline]
 fn q24_inv_sqrt_positive(x: i32) -> Option<i32> {
     if x <= 0 {
         return None;
     }
-    // m's leading one at bit 23 or 22 (8 or 9 leading zeros): an even shift.
-    let lz = x.leading_zeros() as i32;
-    let two_j = (lz - 8) & !1;
-    let m = i64::from(if two_j >= 0 { x << two_j } else { x >> -two_j });
-    let j = two_j / 2;
-    const THREE: i64 = 3 << 24;
-    // The seed c0 - c1 m + c2 m^2 in Q24: 2.838240, 3.857864, 2.019625.
-    const C0: i64 = 47_617_758;
-    const C1: i64 = 64_724_224;
-    const C2: i64 = 33_883_682;
-    let mut y = C0 - q24_mul_wide(C1, m) + q24_mul_wide(C2, q24_mul_wide(m, m));
-    for _ in 0..4 {
-        let my2 = q24_mul_wide(m, q24_mul_wide(y, y));
-        y = q24_mul_wide(y, THREE - my2) >> 1;
-    }
-    // 1/sqrt(x) = 2^j / sqrt(m) = y 2^j.
-    let r = if j >= 0 { y.checked_shl(j as u32)? } else { (y + (1 << (-j - 1))) >> -j };
+    let (root, shift) = q24_sqrt_normalised(x);
+    // root >= 2^31 > 2^30: the quotient fits 32 bits, in (2^30, 2^31].
+    let q = div_u64_by_u32(1 << 30, 0, root);
+    let j = shift / 2;
+    let r = if j <= 10 { q >> (10 - j) } else { q.checked_shl(j - 10).filter(|&r| r >> (j - 10) == q)? };
     i32::try_from(r).ok().filter(|&r| r < i32::MAX)
 }
 
@@ -707,20 +725,13 @@ impl Scalar for Q24 {
         Q24(I8F24::from_bits(rounded.clamp(i64::from(i32::MIN), i64::from(i32::MAX)) as i32))
     }
     fn sqrt(self) -> Q24 {
-        if self.0 <= I8F24::ZERO {
-            Q24::ZERO
-        } else {
-            // fixed's integer square root: bounded (one pass over the bits), exact to 1 LSB.
-            Q24(self.0.sqrt())
-        }
+        Q24::from_bits(q24_sqrt_non_negative(self.to_bits().max(0)))
     }
     fn checked_div(self, rhs: Q24) -> Option<Q24> {
         q24_div(self.to_bits(), rhs.to_bits()).map(Q24::from_bits)
     }
     fn recip(self) -> Option<Q24> {
-        let x = self.to_bits();
-        let r = q24_recip_positive(x.checked_abs()?)?;
-        Some(Q24::from_bits(if x < 0 { -r } else { r }))
+        q24_recip(self.to_bits()).map(Q24::from_bits)
     }
     fn inv_sqrt(self) -> Option<Q24> {
         q24_inv_sqrt_positive(self.to_bits()).map(Q24::from_bits)
