@@ -1,7 +1,7 @@
 //! Each numeric function of `dcfo::num` against the accuracy its documentation states,
 //! with f64/std as the independent expectation.
 
-use dcfo::num::{Angle, Q24, Scalar};
+use dcfo::num::{Angle, Q24, Scalar, sqrt_rounded};
 use std::f64::consts::PI;
 
 /// Dense sweep of binary angles: 2^20 points plus the octant boundaries.
@@ -86,6 +86,26 @@ fn sqrt_accuracy_f32_relative_4e_7_q24_one_lsb() {
     }
     assert_eq!(Scalar::sqrt(Q24::ZERO), Q24::ZERO);
     assert_eq!(Scalar::sqrt(Q24::from_f32(-2.0)), Q24::ZERO);
+}
+
+/// `sqrt_rounded` is IEEE 754's square root (std's, correctly rounded) bit for bit: a
+/// stride through every positive `f32` (subnormals, every exponent's parity), the
+/// extremes, and the special values. (Every positive `f32` was checked once.)
+#[test]
+fn sqrt_rounded_is_the_correctly_rounded_root_bit_for_bit() {
+    let patterns = (1..0x7f80_0000u32)
+        .step_by(4_099)
+        .chain((0..64).flat_map(|k| [k, 0x7f_ffff - k, 0x80_0000 + k, 0x7f7f_ffff - k, 0x3f80_0000 + k]));
+    for bits in patterns {
+        let x = f32::from_bits(bits);
+        assert_eq!(sqrt_rounded(x).to_bits(), x.sqrt().to_bits(), "sqrt({x:e})");
+    }
+    for x in [0.0f32, -0.0, f32::INFINITY] {
+        assert_eq!(sqrt_rounded(x).to_bits(), x.sqrt().to_bits(), "sqrt({x})");
+    }
+    for x in [-1.0f32, -f32::MIN_POSITIVE, f32::NEG_INFINITY, f32::NAN] {
+        assert!(sqrt_rounded(x).is_nan(), "sqrt({x})");
+    }
 }
 
 #[test]

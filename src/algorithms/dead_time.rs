@@ -68,8 +68,8 @@
 use crate::algorithms::svpwm::DcBus;
 use crate::algorithms::transforms::{Abc, AlphaBeta, clarke, inverse_clarke};
 use crate::motor::MotorParams;
-use crate::num::Scalar;
 use crate::num::units::Base;
+use crate::num::{Scalar, sqrt_rounded};
 
 /// Compensation of the inverter's dead time and device drops, added to the voltage
 /// command per phase as `(dead_time / Ts * Vdc + device_drop) * sign(i)`
@@ -131,7 +131,7 @@ impl<T: Scalar> InverterErrorModel<T> {
             fade_rate: T::from_f32(fade_rate),
             dead_time_ratio: T::from_f32(ratio),
             device_drop: base.voltage(c.device_drop_v),
-            inv_band_sqrt: T::from_f32(libm::sqrtf(base.current_a / c.current_band_a)),
+            inv_band_sqrt: T::from_f32(sqrt_rounded(base.current_a / c.current_band_a)),
             ripple_per_volt: T::from_f32(Self::ripple_per_volt_si(period_s, motor) * base.impedance_ohm()),
         }
     }

@@ -82,7 +82,7 @@
 
 use super::DeadTimeCompensation;
 use crate::motor::MotorParams;
-use crate::num::{positive as pos, sin_cos};
+use crate::num::{positive as pos, sin_cos, sqrt_rounded};
 
 /// Crossover of the integral current controllers of the DC tests, rad/s (slow enough for
 /// any electrical time constant up to 6 ms whatever the rough resistance's error).
@@ -573,7 +573,7 @@ impl Commissioning {
             // A winding smooths the PWM: from one valley sample to the next, a held DC
             // current changes by its sensors' noise. Jumps of a fifth of the current mean
             // an inductance far too small to be the motor's: a short.
-            if libm::sqrtf(0.5 * self.sum_i2 * c) > 0.2 * self.i_ref {
+            if sqrt_rounded(0.5 * self.sum_i2 * c) > 0.2 * self.i_ref {
                 return Err(CommissioningError::ShortedPhase);
             }
             if (ia - self.i_ref).abs() > 0.3 * self.i_ref || ib.abs() > 0.3 * self.i_ref {
@@ -615,7 +615,7 @@ impl Commissioning {
             }
             if k == 0 {
                 self.vdc_mean = self.sum_vdc / c;
-                self.noise_a = libm::sqrtf(0.5 * self.sum_i2 / c);
+                self.noise_a = sqrt_rounded(0.5 * self.sum_i2 / c);
             }
             if k + 1 < SWEEP_LEVELS {
                 self.i_ref = self.level(k + 1);
@@ -828,7 +828,7 @@ impl Commissioning {
             // window is the vector's. So the mean of |E| over w is psi_a, where the
             // length of the mean vector would be short by the swing.
             let ef = self.e_filtered;
-            let e_abs = libm::sqrtf(ef.0 * ef.0 + ef.1 * ef.1);
+            let e_abs = sqrt_rounded(ef.0 * ef.0 + ef.1 * ef.1);
             self.e_abs_sum += e_abs;
             if e_abs > 0.0 {
                 // psi's direction: E / j = (E_q, -E_d); the current's projection on it.

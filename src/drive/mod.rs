@@ -91,7 +91,7 @@ use crate::algorithms::transforms::{Abc, AlphaBeta, CosSin, Dq, clarke, inverse_
 use crate::estimator::{Estimate, Estimator};
 use crate::motor::MotorParams;
 use crate::num::units::Base;
-use crate::num::{Angle, Scalar};
+use crate::num::{Angle, Scalar, sqrt_rounded};
 
 /// Where the drive's state machine is.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -395,7 +395,7 @@ impl<T: Scalar> Drive<T> {
         let inverter = match config.dead_time_compensation {
             Some(c) => {
                 representable::<T>(
-                    libm::sqrtf(base.current_a / c.current_band_a),
+                    sqrt_rounded(base.current_a / c.current_band_a),
                     "dead_time_compensation.current_band_a",
                 )?;
                 representable::<T>(
@@ -467,10 +467,10 @@ impl<T: Scalar> Drive<T> {
             // the swing: damping ratio 0.7 for k = 1.4 / w_n = 1.4 sqrt(M tau / (K_f pi))
             // / sqrt(I).
             damping_s_sqrt_a: 1.4
-                * libm::sqrtf(config.moving_mass_kg / (motor.thrust_constant_n_per_a() * omega_per_speed)),
+                * sqrt_rounded(config.moving_mass_kg / (motor.thrust_constant_n_per_a() * omega_per_speed)),
             startup_speed_filter_rate: {
                 let stiffness = motor.thrust_constant_n_per_a() * config.startup.current_a * omega_per_speed;
-                (5.0 * libm::sqrtf(stiffness / config.moving_mass_kg) * ts).min(1.0)
+                (5.0 * sqrt_rounded(stiffness / config.moving_mass_kg) * ts).min(1.0)
             },
         };
         // A speed drive passes through zero speed (a reversal, a stop) in the same
@@ -501,7 +501,7 @@ impl<T: Scalar> Drive<T> {
             // on the moving mass: its natural frequency w_n (rad/s) sets the damping,
             // the filters and the dither of the low-speed mode (`positioning` docs).
             let stiffness = motor.thrust_constant_n_per_a() * m.low_speed_current_a * omega_per_speed;
-            let wn = libm::sqrtf(stiffness / config.moving_mass_kg);
+            let wn = sqrt_rounded(stiffness / config.moving_mass_kg);
             let profile =
                 Profile::new(m.limits, 0.0).map_err(|_| DriveConfigError { field: "motion.limits" })?;
             Ok(Positioning {

@@ -558,9 +558,8 @@ fn div_u64_by_u32(high: u32, low: u32, d: u32) -> u32 {
     (q1 << 16) | q0
 }
 
-/// The square root of a Q24 bit pattern `x > 0`, normalised: `x = m 4^-j` with `m` in
-/// `[2^30, 2^32)` (`shift = 2j`, the even count of `x`'s leading zeros), and `root =
-/// sqrt(m) 2^16` in `[2^31, 2^32)`, at most one above its exact value's floor.
+/// `sqrt(m) 2^16` for `m` in `[2^30, 2^32)`: in `[2^31, 2^32)`, at most one above its
+/// exact value's floor.
 ///
 /// `r = floor(sqrt(m))` by three Newton steps `(r + m / r) / 2` from a chord seed
 /// (relative error 5.6 %, then 1.5e-3, 1.1e-6, 6e-13, each step truncating by less than
@@ -569,15 +568,12 @@ fn div_u64_by_u32(high: u32, low: u32, d: u32) -> u32 {
 /// core's 32-bit hardware divisions, no loop over the bits (the `fixed` crate's square
 /// root iterates once per result bit).
 #[inline]
-fn q24_sqrt_normalised(x: i32) -> (u32, u32) {
-    // x < 2^31 has at least one leading zero: an even shift to [2^30, 2^32).
-    let shift = x.leading_zeros() & !1;
-    let m = (x as u32) << shift;
+fn sqrt_q16_normalised(m: u32) -> u32 {
     // The chord through (2^30, 2^15) and (2^32, 2^16), below sqrt: 2^15 + (m - 2^30) / 3 2^15.
     let mut r = (1u32 << 15) + (m.saturating_sub(1 << 30) >> 15) / 3;
     for _ in 0..3 {
         // r >= 2^15 throughout (Newton's iterates stay above the root after the first).
-        let Some(d) = core::num::NonZeroU32::new(r) else { return (0, shift) };
+        let Some(d) = core::num::NonZeroU32::new(r) else { return 0 };
         r = (r + m / d) >> 1;
     }
     // floor(sqrt(m)) <= 65535: within one of r after the steps.
@@ -590,9 +586,66 @@ fn q24_sqrt_normalised(x: i32) -> (u32, u32) {
     }
     // sqrt(m) 2^16 = r 2^16 + 2^16 (m - r^2) / (sqrt(m) + r), the last term at most
     // (m - r^2) 2^15 / r: m - r^2 <= 2r, so the product fits 32 bits.
-    let Some(d) = core::num::NonZeroU32::new(r) else { return (0, shift) };
+    let Some(d) = core::num::NonZeroU32::new(r) else { return 0 };
     let fraction = (m.saturating_sub(r * r) << 15) / d;
-    ((r << 16).saturating_add(fraction), shift)
+    (r << 16).saturating_add(fraction)
+}
+
+/// The square root of a Q24 bit pattern `x > 0`, normalised: `x = m 4^-j` with `m` in
+/// `[2^30, 2^32)` (`shift = 2j`, the even count of `x`'s leading zeros), and `root =
+/// sqrt(m) 2^16` ([`sqrt_q16_normalised`]).
+#[inline]
+fn q24_sqrt_normalised(x: i32) -> (u32, u32) {
+    // x < 2^31 has at least one leading zero: an even shift to [2^30, 2^32).
+    let shift = x.leading_zeros() & !1;
+    (sqrt_q16_normalised((x as u32) << shift), shift)
+}
+
+/// The square root of `x` in `f32`, correctly rounded (to nearest, as IEEE 754 and
+/// libm's `sqrtf`: the same bits, every positive `f32` checked once against the host's
+/// `sqrt`; `tests/numerics.rs` checks a sweep), for settings formed once: libm's
+/// `sqrtf` is about 480 bytes of flash with its table, this a digit-by-digit integer
+/// root of the mantissa (25 steps; not inlined, one copy for its callers). NaN and
+/// negative `x` give NaN, `-0.0` gives `-0.0`, infinity itself.
+#[inline(never)]
+pub fn sqrt_rounded(x: f32) -> f32 {
+    if x.is_nan() || x < 0.0 {
+        return f32::NAN;
+    }
+    if x == 0.0 || x == f32::INFINITY {
+        return x;
+    }
+    // x = m 2^e with m a 24-bit integer whose top bit is set (subnormals normalised).
+    let bits = x.to_bits();
+    let field = (bits >> 23) as i32;
+    let (m, e) = if field == 0 {
+        let shift = (bits.leading_zeros() - 8) as i32;
+        (bits << shift, -149 - shift)
+    } else {
+        ((bits & 0x7f_ffff) | 0x80_0000, field - 150)
+    };
+    // n = m 2^s in [2^48, 2^50) with e - s even: r = floor(sqrt(n)) has 25 bits, one per
+    // step of the digit-by-digit root (25 steps: bounded, and small in flash).
+    let s = if e & 1 != 0 { 25 } else { 26 };
+    let mut rest = u64::from(m) << s;
+    let mut r = 0u64;
+    // The highest power of four in n, 2^48 (from n's bits: a loop of unknown count is not
+    // unrolled into 25 copies).
+    let mut bit = 1u64 << ((63 - rest.leading_zeros()) & !1);
+    while bit != 0 {
+        if rest >= r + bit {
+            rest -= r + bit;
+            r = (r >> 1) + bit;
+        } else {
+            r >>= 1;
+        }
+        bit >>= 2;
+    }
+    // Round the 25-bit root to 24: up when the bit below is set (a square root of an
+    // integer is never exactly halfway). 2^24 after rounding carries into the exponent.
+    let q = ((r >> 1) + (r & 1)) as u32;
+    let exponent = (e - s) / 2 + 1;
+    f32::from_bits((((exponent + 150) as u32) << 23).wrapping_add(q - (1 << 23)))
 }
 
 /// `sqrt(x 2^24)` for Q24 bits `x` (the square root's Q24 bits; 0 for `x <= 0`): the
