@@ -708,6 +708,10 @@ pub struct Estimator<T> {
     /// [`EstimatorConfig::resistance_uncertainty_ohm`] over `tan(`[`LOCK_ANGLE_RAD`]`)`
     /// (ohm).
     lock_resistance: T,
+    /// [`LOCK_ANGLE_SIN`] (formed once: a conversion is a routine in fixed point).
+    lock_angle_sin: T,
+    /// [`LOCK_ERROR_DECAY_PER_RAD`].
+    lock_error_decay_per_rad: T,
     /// The held voltage error of the lock check over `tan(`[`LOCK_ANGLE_RAD`]`)`, times
     /// `|psi|` (V Wb).
     lock_error: T,
@@ -796,6 +800,8 @@ impl<T: Scalar> Estimator<T> {
             offset_level_rate: T::from_f32(OFFSET_READING_MEAN_RATE_PER_RAD),
             fll_trust_level_multiple: T::from_f32(FLL_TRUST_LEVEL_MULTIPLE),
             lock_resistance: base.resistance(config.resistance_uncertainty_ohm / LOCK_ANGLE_TAN),
+            lock_angle_sin: T::from_f32(LOCK_ANGLE_SIN),
+            lock_error_decay_per_rad: T::from_f32(LOCK_ERROR_DECAY_PER_RAD),
             lock_error: T::ZERO,
         })
     }
@@ -1007,9 +1013,9 @@ impl<T: Scalar> Estimator<T> {
     fn resistance_allows_lock(&mut self, i: AlphaBeta<T>, psi: AlphaBeta<T>, omega_e: T, dt: T) -> bool {
         let psi_norm = approx_norm(psi);
         let along = (i.alpha * psi.alpha + i.beta * psi.beta).abs();
-        let error = self.lock_resistance * (along + T::from_f32(LOCK_ANGLE_SIN) * approx_norm(i) * psi_norm);
+        let error = self.lock_resistance * (along + self.lock_angle_sin * approx_norm(i) * psi_norm);
         let w = omega_e.abs();
-        let decay = (T::from_f32(LOCK_ERROR_DECAY_PER_RAD) * w * dt).min(T::ONE);
+        let decay = (self.lock_error_decay_per_rad * w * dt).min(T::ONE);
         self.lock_error = error.max(self.lock_error - decay * self.lock_error);
         self.lock_error <= w * self.psi_f * psi_norm
     }

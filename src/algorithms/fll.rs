@@ -178,6 +178,10 @@ pub const DIRECTION_SHARE_GAIN: f32 = 4.0;
 /// (dimensionless): a time constant of `1 / w_n`, a sixth of a period.
 const OMEGA_RIPPLE_RATE: f32 = 1.0;
 
+/// Rate of the flux-amplitude mean once the measurement has its full weight, as a share
+/// of its rate before (dimensionless): the mean then follows over about three periods.
+const SETTLED_MEAN_SHARE: f32 = 0.2;
+
 /// FLL tuning, SI.
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -280,6 +284,10 @@ pub struct Fll<T> {
     weight: T,
     /// Rate of the flux-amplitude filters per unit of notch frequency.
     ripple_rate: T,
+    /// [`SETTLED_MEAN_SHARE`] (formed once: a conversion is a routine in fixed point).
+    settled_mean_share: T,
+    /// [`OMEGA_RIPPLE_RATE`].
+    omega_ripple_rate: T,
     /// Largest flux-amplitude ripple, relative, for `settled`.
     max_ripple: T,
     /// Filtered `|x1|^2` (Wb^2).
@@ -349,6 +357,8 @@ impl<T: Scalar> Fll<T> {
             disagreement: start,
             weight: T::ZERO,
             ripple_rate: T::from_f32(0.25),
+            settled_mean_share: T::from_f32(SETTLED_MEAN_SHARE),
+            omega_ripple_rate: T::from_f32(OMEGA_RIPPLE_RATE),
             max_ripple: T::from_f32(0.3),
             flux_sq_mean: T::ZERO,
             flux_sq_ripple: T::ZERO,
@@ -412,7 +422,7 @@ impl<T: Scalar> Fll<T> {
         // two thirds of one.
         // Until the measurement has full weight the mean follows at the fast rate, so
         // that it starts from the flux it sees rather than from zero.
-        let mean_rate = if self.weight > self.settled_weight { slow * T::from_f32(0.2) } else { slow };
+        let mean_rate = if self.weight > self.settled_weight { slow * self.settled_mean_share } else { slow };
         // From a preset or reset (mean zero) the mean starts at the first measurement.
         self.flux_sq_mean = if self.flux_sq_mean == T::ZERO {
             mag_sq
@@ -426,7 +436,7 @@ impl<T: Scalar> Fll<T> {
         self.omega = omega.clamp_to(-self.start, self.start);
         // Frequency ripple: a DC error e in the back-EMF reads as a ripple of |e| / |psi|
         // rad/s at w (module docs), filtered like the amplitude ripple.
-        let fast = self.notch * dt * T::from_f32(OMEGA_RIPPLE_RATE);
+        let fast = self.notch * dt * self.omega_ripple_rate;
         self.omega_mean = self.omega_mean + fast * (self.omega - self.omega_mean);
         self.omega_ripple =
             self.omega_ripple + fast * ((self.omega - self.omega_mean).abs() - self.omega_ripple);
