@@ -390,8 +390,8 @@ impl<T: Scalar> Fll<T> {
             None => T::ZERO,
         };
         let weight = (mag_sq * self.inv_ref_flux_sq).min(T::ONE);
-        // The period rarely changes: its reciprocal is cached (a division or a Newton
-        // reciprocal per sample saved).
+        // The period rarely changes: its reciprocal is cached (a division per sample
+        // saved).
         if dt != self.dt {
             let Some(inv) = dt.recip() else {
                 return self.output();
