@@ -12,8 +12,10 @@
 //! instantiate all three side by side in one binary, and monomorphisation leaves no
 //! run-time cost. The trait is deliberately small: ring operations, a guarded
 //! division, a square root, validity, and the angle functions. Constants needed in
-//! per-sample code are associated constants, so no `f32 -> fixed` conversion ever
-//! runs in the control step.
+//! per-sample code are associated constants or fields formed by the constructors: a
+//! conversion from `f32` (a routine in fixed point) runs in the control step only for a
+//! value the step forms in `f32` (the positioning drive's profile, at the speed loop's
+//! divided rate).
 //!
 //! Angles are not `Scalar`s: an [`Angle`] is a 32-bit binary angle (a full turn is
 //! 2^32), so wrapping is exact and free, and phase accumulation never loses
@@ -778,7 +780,7 @@ impl Scalar for Q24 {
         Q24(I8F24::from_bits(rounded.clamp(i64::from(i32::MIN), i64::from(i32::MAX)) as i32))
     }
     fn sqrt(self) -> Q24 {
-        Q24::from_bits(q24_sqrt_non_negative(self.to_bits().max(0)))
+        Q24::from_bits(q24_sqrt_non_negative(self.to_bits()))
     }
     fn checked_div(self, rhs: Q24) -> Option<Q24> {
         q24_div(self.to_bits(), rhs.to_bits()).map(Q24::from_bits)
