@@ -400,7 +400,7 @@ fn band_pass_step<T: Scalar>((bp, q): (T, T), input: T, k: T, h: T, limit: T) ->
 /// `|v|` within 12 % (`max + min / 2`, no square root): for thresholds.
 fn approx_norm<T: Scalar>(v: AlphaBeta<T>) -> T {
     let (a, b) = (v.alpha.abs(), v.beta.abs());
-    a.max(b) + a.min(b) * T::HALF
+    a.max(b) + a.min(b).mul_unit(T::HALF)
 }
 
 /// How long no disturbance check may have failed before [`Estimate::locked`] is set
@@ -877,9 +877,10 @@ impl<T: Scalar> Estimator<T> {
                 // The notch frequency is signed while the PLL tunes it.
                 let w_dt = notch.abs() * dt;
                 let rate = w_dt.min(T::ONE);
+                // rate in [0, 1]: products without a saturation check.
                 self.disturbance_drift = AlphaBeta::new(
-                    self.disturbance_drift.alpha + rate * (inc.alpha - self.disturbance_drift.alpha),
-                    self.disturbance_drift.beta + rate * (inc.beta - self.disturbance_drift.beta),
+                    self.disturbance_drift.alpha + (inc.alpha - self.disturbance_drift.alpha).mul_unit(rate),
+                    self.disturbance_drift.beta + (inc.beta - self.disturbance_drift.beta).mul_unit(rate),
                 );
                 approx_norm(self.disturbance_drift) <= self.max_drift * w_dt * approx_norm(flux.psi_ab)
             }
@@ -1016,7 +1017,7 @@ impl<T: Scalar> Estimator<T> {
         let error = self.lock_resistance * (along + self.lock_angle_sin * approx_norm(i) * psi_norm);
         let w = omega_e.abs();
         let decay = (self.lock_error_decay_per_rad * w * dt).min(T::ONE);
-        self.lock_error = error.max(self.lock_error - decay * self.lock_error);
+        self.lock_error = error.max(self.lock_error - self.lock_error.mul_unit(decay));
         self.lock_error <= w * self.psi_f * psi_norm
     }
 
@@ -1043,7 +1044,7 @@ impl<T: Scalar> Estimator<T> {
         // so f32 and fixed point do not part at a threshold) as the FLL's goes to zero
         // or the other way.
         let (from_pll, from_fll) = (phase(out.omega_e), phase(fll_omega));
-        let confirmed = from_fll * self.fll_confirmation * fll_trust;
+        let confirmed = (from_fll * self.fll_confirmation).mul_unit(fll_trust);
         let raw = if from_pll > T::ZERO {
             from_pll.min(confirmed.max(T::ZERO))
         } else {
@@ -1075,10 +1076,17 @@ impl<T: Scalar> Estimator<T> {
         self.compensation_weight = (self.compensation_weight + h * self.compensation_fade).min(T::ONE);
         let excess = phi - phi.clamp_to(-self.phase_deadband, self.phase_deadband);
         self.compensation_phase = excess.clamp_to(-self.phase_limit, self.phase_limit);
-        let phi = self.compensation_armed * self.compensation_weight * self.compensation_phase
-            + fading_weight * fading_phase;
+        let phi = self.weighted_compensation(fading_weight, fading_phase);
         out.theta_e = out.theta_e - phi.radians_to_angle();
         out.cos_sin = CosSin::new(out.theta_e);
+    }
+
+    /// The compensation applied (rad): the present one at its arming and weight, plus
+    /// `fading_phase` (rad) at `fading_weight`. Every weight is in [0, 1], so the
+    /// products are taken without a saturation check.
+    fn weighted_compensation(&self, fading_weight: T, fading_phase: T) -> T {
+        self.compensation_phase.mul_unit(self.compensation_armed.mul_unit(self.compensation_weight))
+            + fading_phase.mul_unit(fading_weight)
     }
 
     /// The angle error a DC offset in the flux estimate causes, read from the rate of its
@@ -1109,7 +1117,8 @@ impl<T: Scalar> Estimator<T> {
             band_pass_step((self.offset_bp, self.offset_q), rate, self.offset_bandpass_k, h, T::ONE);
         let phase = self.offset_bp;
         let excess = phase - phase.clamp_to(-self.offset_deadband, self.offset_deadband);
-        self.offset_share * self.compensation_armed * excess
+        // OFFSET_PHASE_SHARE and the arming are in [0, 1].
+        excess.mul_unit(self.offset_share.mul_unit(self.compensation_armed))
     }
 
     /// How far the FLL's frequency is trusted (0..1) while a DC offset is read in the flux
@@ -1124,9 +1133,10 @@ impl<T: Scalar> Estimator<T> {
         let travel = notch.abs().max(self.agreement_floor) * dt;
         let magnitude = self.offset_bp.abs();
         let decay = (self.offset_peak_decay * travel).min(T::ONE);
-        self.offset_peak = magnitude.max(self.offset_peak - decay * self.offset_peak);
+        // decay and rate in [0, 1]: products without a saturation check.
+        self.offset_peak = magnitude.max(self.offset_peak - self.offset_peak.mul_unit(decay));
         let rate = (self.offset_level_rate * travel).min(T::ONE);
-        self.offset_level = self.offset_level + rate * (magnitude - self.offset_level);
+        self.offset_level = self.offset_level + (magnitude - self.offset_level).mul_unit(rate);
         let threshold = self.fll_trust_offset.max(self.fll_trust_level_multiple * self.offset_level);
         (T::ONE - (self.offset_peak - threshold) * self.inv_fll_trust_offset).clamp_to(T::ZERO, T::ONE)
     }
@@ -1142,8 +1152,7 @@ impl<T: Scalar> Estimator<T> {
         self.compensation_tracking = false;
         self.compensation_weight = (self.compensation_weight - h * self.compensation_fade_out).max(T::ZERO);
         if self.compensation_weight > T::ZERO || fading_weight > T::ZERO {
-            let phi = self.compensation_armed * self.compensation_weight * self.compensation_phase
-                + fading_weight * fading_phase;
+            let phi = self.weighted_compensation(fading_weight, fading_phase);
             out.theta_e = out.theta_e - phi.radians_to_angle();
             out.cos_sin = CosSin::new(out.theta_e);
         }

@@ -148,15 +148,17 @@ impl<T: Scalar> InverterErrorModel<T> {
         let u = inverse_clarke(u_ab);
         let hi = u.a.max(u.b).max(u.c);
         let lo = u.a.min(u.b).min(u.c);
-        let u0 = -(hi + lo) * T::HALF;
+        // Factors of magnitude at most one (halves, thirds, the fade weight, a duty)
+        // are taken with `mul_unit`: the product cannot leave the range.
+        let u0 = (-(hi + lo)).mul_unit(T::HALF);
         // Faded in with the duty spread (module docs, "Where the formula holds").
         let spread = (hi - lo) * inv_vdc;
         let weight = ((spread - self.fade_from) * self.fade_rate).clamp_to(T::ZERO, T::ONE);
-        let gain = self.ripple_per_volt * weight;
+        let gain = self.ripple_per_volt.mul_unit(weight);
         let leg = |uk: T, uj: T, um: T| {
             let d = (T::HALF + (uk + u0) * inv_vdc).clamp_to(T::ZERO, T::ONE);
             let above = (uk - uj).max(T::ZERO) + (uk - um).max(T::ZERO);
-            (gain * (above * T::ONE_THIRD - d * uk)).max(T::ZERO)
+            (gain * (above.mul_unit(T::ONE_THIRD) - uk.mul_unit(d))).max(T::ZERO)
         };
         Abc { a: leg(u.a, u.b, u.c), b: leg(u.b, u.c, u.a), c: leg(u.c, u.a, u.b) }
     }
@@ -170,7 +172,7 @@ impl<T: Scalar> InverterErrorModel<T> {
         let inv = self.inv_band_sqrt;
         let sign = |x: T| (x * inv * inv).clamp_to(-T::ONE, T::ONE);
         let leg = |ik: T, dk: T| {
-            let dead_time = dead * (sign(ik - dk) + sign(ik + dk)) * T::HALF;
+            let dead_time = (dead * (sign(ik - dk) + sign(ik + dk))).mul_unit(T::HALF);
             // The drop's sign, linear over the wider of the band and the ripple: whole
             // beyond the ripple (no division; in fixed point the quotient of a large
             // current over a small ripple would not be representable), `ik / dk` within.
@@ -183,7 +185,8 @@ impl<T: Scalar> InverterErrorModel<T> {
             } else {
                 sign(ik)
             };
-            dead_time + self.device_drop * drop_sign
+            // |drop_sign| <= 1.
+            dead_time + self.device_drop.mul_unit(drop_sign)
         };
         clarke(Abc { a: leg(i.a, delta.a), b: leg(i.b, delta.b), c: leg(i.c, delta.c) })
     }

@@ -410,10 +410,13 @@ impl<T: Scalar> Fll<T> {
             Some(x) => x.min(T::ONE),
             None => T::ZERO,
         };
-        let reading = dtheta.abs() + share * (along - dtheta.abs());
+        // share in [0, 1] (the notch is positive): no saturation check.
+        let reading = dtheta.abs() + (along - dtheta.abs()).mul_unit(share);
         let notch = (self.notch + g * (reading - self.notch * dt)).clamp_to(self.floor, self.start);
         // Settle detector: relative disagreement and weight, filtered at g / 4.
-        let rate = g * dt * self.settle_rate;
+        // g dt <= 1/2 (above) and the settle rate is 1/4: rate in [0, 1/8], and the
+        // products with it need no saturation check.
+        let rate = (g * dt).mul_unit(self.settle_rate);
         let diff = (omega.abs() - notch).abs();
         // Flux-amplitude ripple: an offset c in x1 modulates |x1|^2 at w by 2 c |psi|.
         let slow = self.notch * dt * self.ripple_rate;
@@ -431,8 +434,8 @@ impl<T: Scalar> Fll<T> {
         };
         self.flux_sq_ripple =
             self.flux_sq_ripple + slow * ((mag_sq - self.flux_sq_mean).abs() - self.flux_sq_ripple);
-        self.disagreement = self.disagreement + rate * (diff - self.disagreement);
-        self.weight = self.weight + rate * (weight - self.weight);
+        self.disagreement = self.disagreement + (diff - self.disagreement).mul_unit(rate);
+        self.weight = self.weight + (weight - self.weight).mul_unit(rate);
         self.omega = omega.clamp_to(-self.start, self.start);
         // Frequency ripple: a DC error e in the back-EMF reads as a ripple of |e| / |psi|
         // rad/s at w (module docs), filtered like the amplitude ripple.

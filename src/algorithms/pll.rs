@@ -266,7 +266,7 @@ impl<T: Scalar> Pll<T> {
         }
         let theta = self.theta;
         let cos_sin = CosSin::new(theta);
-        let eps = psi_ab.beta * cos_sin.cos - psi_ab.alpha * cos_sin.sin;
+        let eps = psi_ab.beta.mul_unit(cos_sin.cos) - psi_ab.alpha.mul_unit(cos_sin.sin);
         // eps / |psi| as eps * (|psi|^2)^-1/2: no square root and no division (both are
         // software routines in fixed point on an FPU-less core).
         let magnitude_sq = psi_ab.alpha * psi_ab.alpha + psi_ab.beta * psi_ab.beta;
@@ -292,9 +292,10 @@ impl<T: Scalar> Pll<T> {
             self.integral_residue = residue - carry * self.residue_scale;
             self.integral = (self.integral + carry).clamp_to(-self.max_omega, self.max_omega);
             let rate = (self.lock_rate * dt).min(T::ONE);
-            self.lock_metric = self.lock_metric + rate * (error.abs() - self.lock_metric);
+            self.lock_metric = self.lock_metric + (error.abs() - self.lock_metric).mul_unit(rate);
         }
-        let omega = omega_ff + self.integral + kp * error;
+        // |error| <= 1 (clamped above).
+        let omega = omega_ff + self.integral + kp.mul_unit(error);
         self.theta = theta + (omega * dt).radians_to_angle();
         Ok(PllOutput {
             theta_e: theta,

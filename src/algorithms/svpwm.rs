@@ -101,7 +101,7 @@ pub fn svpwm_on<T: Scalar>(u: AlphaBeta<T>, bus: &DcBus<T>) -> Result<Modulation
         return Err(SvpwmError::BadCommand);
     }
     let inv_vdc = bus.inv_voltage;
-    let v_max = bus.voltage * T::INV_SQRT3;
+    let v_max = bus.voltage.mul_unit(T::INV_SQRT3);
     let m2 = u.norm_squared();
     let (u, limited) = if m2 > v_max * v_max {
         // |u| > v_max > 0, so the inverse square root exists; checked anyway. (The inverse
@@ -114,7 +114,7 @@ pub fn svpwm_on<T: Scalar>(u: AlphaBeta<T>, bus: &DcBus<T>) -> Result<Modulation
     let p = inverse_clarke(u);
     let hi = p.a.max(p.b).max(p.c);
     let lo = p.a.min(p.b).min(p.c);
-    let offset = -(hi + lo) * T::HALF;
+    let offset = (-(hi + lo)).mul_unit(T::HALF);
     let duty = |v: T| (T::HALF + (v + offset) * inv_vdc).clamp_to(T::ZERO, T::ONE);
     Ok(Modulation { duties: Duties { a: duty(p.a), b: duty(p.b), c: duty(p.c) }, u_applied: u, limited })
 }

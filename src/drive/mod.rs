@@ -1022,8 +1022,9 @@ impl<T: Scalar> Drive<T> {
         let hfi_steers =
             self.state == DriveState::LowSpeed && self.positioning.as_ref().is_some_and(|p| p.hfi.is_some());
         if !hfi_steers {
+            // The rate is Ts / tau within (0, 1]: no saturation check.
             self.omega_filtered =
-                self.omega_filtered + k.speed_filter_rate * (estimate.omega_e - self.omega_filtered);
+                self.omega_filtered + (estimate.omega_e - self.omega_filtered).mul_unit(k.speed_filter_rate);
         }
         let hfi = if hfi_steers { self.hfi_low_speed(&estimate, out.i_ab) } else { None };
         let (theta, omega) = match (hfi, self.state) {
@@ -1057,7 +1058,8 @@ impl<T: Scalar> Drive<T> {
         } else {
             (T::ZERO, T::ZERO)
         };
-        let v_max = m.vdc * k.modulation_limit;
+        // modulation_limit / sqrt 3 is within (0, 0.58] (validated).
+        let v_max = m.vdc.mul_unit(k.modulation_limit);
         // HFI aligning holds the loops: the bridge applies the injection alone.
         let loops_run = hfi.is_none_or(|h| h.ready);
         let (u_d, u_q) = if !loops_run {
@@ -1182,7 +1184,10 @@ impl<T: Scalar> Drive<T> {
         let bands = (r.d * r.d + r.q * r.q).sqrt() * model.inv_band_sqrt * model.inv_band_sqrt;
         let w =
             ((bands - k.compensation_reference_from) * k.compensation_blend_rate).clamp_to(T::ZERO, T::ONE);
-        Dq::new(i_measured.d + w * (r.d - i_measured.d), i_measured.q + w * (r.q - i_measured.q))
+        Dq::new(
+            i_measured.d + (r.d - i_measured.d).mul_unit(w),
+            i_measured.q + (r.q - i_measured.q).mul_unit(w),
+        )
     }
 
     /// Open-loop I/f: ramps the frequency to the hand-over speed in the direction of

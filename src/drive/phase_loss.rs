@@ -69,7 +69,7 @@ impl<T: Scalar> PhaseLoss<T> {
     /// `threshold` (A) and the persistence `samples` (periods).
     pub(crate) fn new(rate: T, threshold: T, samples: u32) -> Self {
         PhaseLoss {
-            rate: rate.min(T::ONE),
+            rate: rate.clamp_to(T::ZERO, T::ONE),
             threshold,
             samples,
             current_mean: [T::ZERO; 3],
@@ -89,7 +89,8 @@ impl<T: Scalar> PhaseLoss<T> {
     /// `true` once a phase has been lost for longer than the persistence.
     pub(crate) fn update(&mut self, measured: Abc<T>, reference: Abc<T>) -> bool {
         let rate = self.rate;
-        let follow = |mean: &mut T, x: T| *mean = *mean + rate * (x.abs() - *mean);
+        // rate <= 1 (clamped in `new`).
+        let follow = |mean: &mut T, x: T| *mean = *mean + (x.abs() - *mean).mul_unit(rate);
         let [ma, mb, mc] = &mut self.current_mean;
         follow(ma, measured.a);
         follow(mb, measured.b);
@@ -100,7 +101,7 @@ impl<T: Scalar> PhaseLoss<T> {
         follow(rc, reference.c);
         let ([ma, mb, mc], [ra, rb, rc]) = (self.current_mean, self.reference_mean);
         let threshold = self.threshold;
-        let carries = |m: T, r: T| m >= r * T::HALF;
+        let carries = |m: T, r: T| m >= r.mul_unit(T::HALF);
         let starved = |m: T, r: T| r > threshold && m * T::TWO * T::TWO < r;
         let lost = (starved(ma, ra) && (carries(mb, rb) || carries(mc, rc)))
             || (starved(mb, rb) && (carries(ma, ra) || carries(mc, rc)))

@@ -393,8 +393,10 @@ impl<T: Scalar> SogiStep<T> {
     /// new `(x1, x2)`.
     #[inline(always)]
     fn advance(&self, x1: T, x2: T, u_prev: T, u: T) -> (T, T) {
-        let x1_next = (x1 * self.keep - (self.a + self.a) * x2 + self.ka * (u_prev + u)) * self.inv;
-        let x2_next = x2 + self.a * (x1_next + x1);
+        // |a| <= 0.21 and inv in (0, 1] (`Dcfo::update`): those products stay in range.
+        let x1_next =
+            (x1 * self.keep - x2.mul_unit(self.a + self.a) + self.ka * (u_prev + u)).mul_unit(self.inv);
+        let x2_next = x2 + (x1_next + x1).mul_unit(self.a);
         (x1_next, x2_next)
     }
 }
@@ -408,11 +410,14 @@ impl<T: Scalar> FluxObserver<T> for Dcfo<T> {
         let w = self.notch_omega(input.omega_e);
         // Coefficients shared by both axes.
         let th = (w * input.dt * T::HALF).min(self.max_half_step);
-        let th2 = th * th;
+        // Every factor below is at most tan(MAX_HALF_STEP_RAD) = 0.21 in magnitude (th is
+        // in (0, 0.2], its tangent and square smaller, `inv` in (0, 1]): products that
+        // cannot leave the range, taken without a saturation check.
+        let th2 = th.mul_unit(th);
         // tan(th) = th (1 + th^2/3 + 2 th^4 / 15 + ...)
-        let a = th * (T::ONE + th2 * (T::ONE_THIRD + th2 * self.tan_c5));
-        let ka = self.k * a;
-        let a2 = a * a;
+        let a = (T::ONE + (T::ONE_THIRD + self.tan_c5.mul_unit(th2)).mul_unit(th2)).mul_unit(th);
+        let ka = self.k.mul_unit(a);
+        let a2 = a.mul_unit(a);
         let Some(inv) = (T::ONE + ka + a2).recip() else {
             return Err(ObserverFault::InvalidPeriod);
         };
