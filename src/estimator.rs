@@ -1,11 +1,14 @@
-//! The sensorless estimator: a flux observer and the PLL wired together, as the drive
-//! runs them every control period and as trace replay runs them on recorded data.
+//! The sensorless estimator: a flux observer, the PLL and (for the DCFO) the FLL, composed
+//! as the drive runs them every control period and as trace replay runs them on recorded
+//! data. Having the composition in one place is what makes a replayed trace reproduce a
+//! closed-loop run's estimates bit for bit.
 //!
-//! Per sample: the observer takes the voltage applied during the period that just
-//! ended and the currents sampled now; its flux estimate feeds the PLL (and, for the
-//! DCFO, the FLL of [`crate::algorithms::fll`]); one of them tunes the DCFO's notch for the *next*
-//! sample. Having this composition in one place is what makes a replayed trace
-//! reproduce a closed-loop run's estimates bit for bit.
+//! Per sample the observer takes the voltage applied during the period that just ended
+//! and the currents sampled now; its flux estimate feeds the PLL (angle and speed) and
+//! the FLL of [`crate::algorithms::fll`] (the frequency from the flux's rotation); one of
+//! the two tunes the DCFO's notch for the *next* sample. The method and its notation are
+//! in `docs/method.md`; why each part below exists, what it costs, and the alternatives
+//! measured against it are in `docs/estimator-design.md`.
 //!
 //! ## Who tunes the notch ([`NotchTuning`], default `AcquireWithFll`)
 //! ```text
@@ -22,218 +25,108 @@
 //!               the integrator held within zeta * NOTCH_PHASE_BUDGET_RAD (7 %) of a
 //!               settled FLL's frequency (20 % while only its frequency has settled),
 //!               while the flux amplitude is undisturbed, as far as no DC
-//!               offset is read in the flux ("The DC offset's angle")
+//!               offset is read in the flux (the FLL's trust, below)
 //! ```
-//! The FLL reads the frequency from the flux whatever the notch's tuning, so it finds
-//! a moving mover from the zero state (the paper's loop, notch at its floor, never
-//! pulls in above about 20 Hz) and follows speed transients the PLL's slow integrator
-//! lags. It is biased by back-EMF errors along q (a wrong Rs under load, a DC step
-//! while the DCFO settles), which the PLL is not; so the PLL keeps the steady state,
-//! and the FLL only bounds how far the PLL's frequency may stray from it.
-//!
-//! The band's correction is continuous in the disagreement (f32 and Q8.24 stay within
-//! 0.1 deg of each other on the +2 V step) and withheld while the flux amplitude shows a
-//! DC offset ([`crate::algorithms::fll::FllOutput::flux_undisturbed`]); it is taken out at
-//! the FLL's own tracking rate `4 w` rather than at once, because the integrator is the
-//! speed estimate (moved in one step, the speed step's speed-estimate error rises from
-//! 0.026 to 0.086 m/s, and the Q8.24 drive's load step drifts 2 deg from f32's). The
-//! notch is not handed back to the FLL above a disagreement threshold, with the
-//! integrator set to the FLL's reading: after a DC step that reading ripples at `w` by
-//! about the offset over the back-EMF (+2 V at 10 Hz: 52-81 rad/s about 63), so such a
-//! hand-over samples a ripple peak, and whether a peak crosses the threshold parts f32
-//! and Q8.24 on the same inputs (12 deg apart on the +2 V step; docs/notch-tuning.md,
-//! "Tried and not kept").
+//! - **The FLL** reads the frequency whatever the notch's tuning, so it finds a moving
+//!   mover from the zero state (the paper's loop, its notch at the floor, never pulls in
+//!   above about 20 Hz) and follows speed changes the PLL's slow integrator lags. Back-EMF
+//!   errors along q bias it (a wrong `Rs` under load; a DC step, while the observer
+//!   settles, as a ripple at `w`), which the PLL is not. So the PLL keeps the steady
+//!   state, and the FLL bounds how far the PLL's integrator may stray from it: the excess
+//!   over the band is taken out at the FLL's own rate `4 w`, continuously in the
+//!   disagreement (no threshold for f32 and Q8.24 to part at) and never in one step (the
+//!   integrator is the speed estimate).
 //!
 //! ## Through zero speed
-//! Near zero speed the flux turns too slowly for the PLL's integrator to tune the notch:
-//! through a reversal it lags the mover by the whole speed change, and the notch, at
-//! its floor, passes a flux that no longer turns at the PLL's frequency, so the estimate
-//! would stay 180 degrees off after the reversal. The FLL reads the rotation whatever its
-//! rate and direction. So when the FLL reads below [`ZERO_SPEED_PER_NOTCH_FLOOR`] notch
-//! floors, the FLL takes the notch again and feeds the PLL forward (its integrator
-//! cleared, so the PLL's frequency does not jump), exactly as while acquiring but
-//! without the circle fit (a mover passing through zero speed accelerates: it draws no
-//! circle) and without [`Estimate::acquiring`] (the frequency is known: a drive need
-//! not treat it as a lost estimate). The PLL takes the notch back above
-//! [`HANDOVER_PER_NOTCH_FLOOR`] notch floors once the FLL's frequency agrees with its
-//! mean within the agreement tolerance: a mover still accelerating out of the reversal
-//! (at the rated thrust, `a / w^2` near 1) would leave the integrator behind. `dcfo
-//! track`, the estimator alone from zero state: within 10 degrees 1.3 to 1.7 electrical
-//! periods after `|v|` reaches the back-EMF floor on every reversal of the repository's
-//! motors, f32 and Q8.24 alike, no false lock; `dcfo paper`, `dcfo acquire` and the
-//! fault campaign are the same with it and without it. An open phase makes the FLL's
-//! reading swing below the floor too; were that reported as `acquiring`, the drive would
-//! drop its current reference at once and the phase-loss check would not see the
-//! evidence (`dcfo faults`: LOCK_LOST after 605 ms); not reported, it trips on
-//! CURRENT_CONTROL after 79 ms.
+//! The flux turns too slowly for the PLL's integrator to follow a reversal. Below
+//! [`ZERO_SPEED_PER_NOTCH_FLOOR`] notch floors the FLL takes the notch again and feeds
+//! the PLL forward (its integrator cleared, so the PLL's frequency does not jump), as
+//! while acquiring but without the circle fit (a mover passing through zero speed draws
+//! no circle) and without [`Estimate::acquiring`] (the frequency is known). The PLL
+//! takes the notch back above [`HANDOVER_PER_NOTCH_FLOOR`] notch floors once the FLL's
+//! reading agrees with its mean (the mover no longer accelerates).
 //!
 //! ## Phase compensation of the angle output
-//! The notch tuned by the PLL's integrator lags a speed change nobody commanded: on the
-//! paper's 40 N load step the mover drops from 88 to 57 rad/s in 90 ms, the notch stays
-//! up to 17 % above it and the flux estimate leads by 11 deg, while the PLL's full
-//! frequency `omega_hat = integral + kp eps` (the integrator plus its phase correction)
-//! follows the mover to within 1 rad/s. The notch's phase error is known to first
-//! order, `(w_notch - w) / (zeta w)` (docs/method.md §8), so `(w_notch - omega_hat) / (zeta
-//! |w_notch|)` estimates it. It cannot tune the notch or drive the PLL: that closes the
-//! loop the [`crate::algorithms::pll`] docs analyse (`c kp = 8 > 1`, unstable). It *can* correct the
-//! angle the estimator reports, an open path with no stability question: the output
-//! angle is the PLL's angle turned back by that phase. What keeps the correction clean:
-//! - It is `c kp = 8` times the PLL's phase error, so whatever disturbs that error is
-//!   amplified. The FLL reads the frequency independently (from the flux's rotation,
-//!   not the angle), so the compensation is applied only as far as the FLL's frequency
-//!   confirms that the notch is off the same way ([`COMPENSATION_FLL_SHARE`]); without
-//!   that check a 65 % bus sag rides through with 5.7 deg instead of 3.9 (`dcfo
-//!   faults`). The FLL's own reading is not taken as the estimate: it lags the mover, and
-//!   gains less on the load step.
-//! - A DC offset in the flux estimate (a DC step being removed) makes the PLL's error
-//!   ripple at exactly `w`; a narrow notch at `w` ([`COMPENSATION_NOTCH_DAMPING`]) takes
-//!   that out and passes the slower error of a speed change.
-//! - A dead band ([`NOTCH_PHASE_DEADBAND_RAD`]) leaves the steady ripple alone, and a
-//!   limit ([`NOTCH_PHASE_COMPENSATION_LIMIT_RAD`]) bounds what a wrong frequency can do.
-//! - It is armed in proportion to the travel with [`Estimate::locked`] set since the
-//!   PLL took the notch, fully after one period ([`COMPENSATION_ARM_RAD`]; it is not
-//!   armed at once by the first locked sample, because a flag set for a single sample
-//!   in Q8.24 and not in f32 would arm it in one of them only), and fades in over one
-//!   period of tracking ([`COMPENSATION_FADE_RAD`]): right after acquisition the
-//!   PLL's error is its own convergence, not a speed change (applied at once, many more
-//!   cold starts miss their budget; docs/notch-tuning.md, "Tried and not kept"), and a
-//!   fade rather than a switch keeps Q8.24 with f32 where the two arm a few samples
-//!   apart. The FLL check is continuous for the same reason: a sign test there puts
-//!   them 1.8 deg apart at 0.15 m/s.
-//! - It is dropped while the estimate is not [tracking](Estimate::tracking) and fades in
-//!   again after, from zero, while the compensation applied before the loss goes on
-//!   fading out beside it (it does not resume at the faded weight: the new reading would
-//!   replace the old at once, and a flag resuming a sample apart in f32 and Q8.24 puts
-//!   them 2.5 deg apart for that sample in the paper's +2 V step; they stay within
-//!   0.1 deg): a PLL that has lost the angle or disagrees with the FLL reports a
-//!   phase error that is not the notch's. Without that, a stuck current sensor (`dcfo
-//!   faults`) steers the drive on a compensated wrong angle for 605 ms with 27 A behind
-//!   the sensor before LOCK_LOST, instead of the 69 ms to OVER_CURRENT it takes without
-//!   compensation.
+//! This and the next section's correction are open paths: the PLL, the FLL, the notch
+//! and the flags see the uncorrected flux, and each is armed in proportion to the
+//! travel with [`Estimate::locked`] set since the PLL took the notch
+//! ([`COMPENSATION_ARM_RAD`]).
 //!
-//! The loops inside keep their states: the PLL, the FLL, the notch and the lock flags
-//! see exactly what they would see without the compensation. It gains most on the 40 N
-//! load step; the DC steps are where the FLL reads the offset as a ripple at `w` and the
-//! check holds the compensation back (the figures as built are under "The DC offset's
-//! angle").
+//! A notch off by `dw` turns the observer's phase by `dw / (zeta w)` (`docs/method.md`
+//! §8). The PLL's full frequency `omega_hat = integral + kp eps` follows an uncommanded
+//! speed change (a load step) that the integrator, and so the notch, lags; `(w_notch -
+//! omega_hat) / (zeta |w_notch|)` estimates the phase, and the angle output is turned
+//! back by it. It cannot tune the notch or drive the PLL: that closes the loop the
+//! [`crate::algorithms::pll`] docs show unstable (`c kp = 8 > 1`). Since it is `c kp`
+//! times the PLL's error, it is applied only as far as the FLL's frequency confirms the
+//! notch is off the same way ([`COMPENSATION_FLL_SHARE`], scaled by the FLL's trust,
+//! below), with its ripple at `w` notched out ([`COMPENSATION_NOTCH_DAMPING`]), less a
+//! dead band, within a limit, faded in over a period of tracking and out over a quarter
+//! period when tracking stops.
 //!
 //! ## The DC offset's angle
-//! A DC step in the observer's inputs (the paper's +2 V and +0.2 A) leaves a DC offset
-//! `delta` in the flux estimate that the DCFO removes through its slowest pole (`0.26 w`);
-//! meanwhile the estimate's angle is off by the offset's part across the flux, and as
-//! the flux turns that part sweeps the whole offset (17 deg at the worst phase of +2 V,
-//! `crate::algorithms::observer::dcfo`, "DC steps"). The same offset is visible at once in the
-//! estimate's *magnitude*: with `delta_dq = delta e^{-j theta}`, `|psi_hat| = psi_f +
-//! Re(delta_dq)` to first order, and for a constant `delta`, `d Re(delta_dq) / dt = w
-//! Im(delta_dq)`. So the angle error is the magnitude's rate over `w |psi_hat|`, where
-//! a mover turning at a steady speed has none. Two uses, both armed with the notch's
-//! phase compensation ([`COMPENSATION_ARM_RAD`]: off while acquiring, when the magnitude
-//! is the acquisition's):
-//! - the DCFO feeds the magnitude's deviation from its slow mean back along the flux
-//!   ([`crate::algorithms::observer::Dcfo::set_magnitude_feedback`]): what is radial now was across
-//!   the flux a quarter period ago, so the offset is taken out by the rotation faster
-//!   than by the notch alone;
-//! - the angle output is turned back by [`OFFSET_PHASE_SHARE`] of the rate's reading
-//!   (through a band-pass at `w` that passes the offset's ripple and not the inverter's
-//!   `6 w` harmonics, less [`OFFSET_PHASE_DEADBAND_RAD`], within
-//!   [`OFFSET_PHASE_LIMIT_RAD`]). An open path: the PLL and the notch see the
-//!   uncorrected flux. It is kept while the loops disagree, since a DC step is what makes
-//!   them;
-//! - the FLL is trusted only as far as no offset is read: its band on the notch and its
-//!   confirmation of the notch's phase compensation are scaled by a trust that is full
-//!   while the reading's held peak stays within [`FLL_TRUST_OFFSET_RAD`] (or within
-//!   [`FLL_TRUST_LEVEL_MULTIPLE`] of the reading's own recent level, if that is more:
-//!   a drive whose speed keeps swinging reads the swing all the time, a DC step rises
-//!   above it) and none as much again beyond. The FLL reads its frequency from the back-EMF's increment
-//!   across the flux estimate: a DC step puts the uncancelled DC voltage into the one
-//!   and the offset into the other, and both ripple the reading at `w` by about the
-//!   offset's share of the flux (+2 V at 10 Hz: 20 %). Trusted in full, the band pulls
-//!   the PLL-tuned notch after that ripple (14.5 % off the mover after the step on ideal
-//!   inputs; 10.2 % with the trust, the rest being the PLL integrator's own response to
-//!   the step's angle transient), and the compensation, confirmed by the same ripple,
-//!   turns the angle the wrong way (by 7.7 deg at one phase of the paper's +2 V step). The
-//!   FLL's own detector, the flux amplitude's held peak
-//!   ([`crate::algorithms::fll::FllOutput::flux_undisturbed`]), sees an offset from about a tenth of
-//!   the flux; the band-passed reading from a few hundredths. A speed
-//!   change on a flux without offset (the 40 N load step: a third of the speed lost in
-//!   90 ms) leaves the magnitude alone and the trust full, so the band still bounds the
-//!   notch's lag there (`a_dc_offset_withdraws_the_flls_trust_and_a_speed_change_keeps_it`).
+//! A DC step in the observer's inputs leaves an offset `delta` in the flux estimate,
+//! which the DCFO removes through its slowest pole (`0.26 w`); meanwhile the angle is
+//! off by the offset's part across the flux. The same offset shows at once in the
+//! estimate's magnitude: with `delta_dq = delta e^{-j theta}`, `|psi_hat| = psi_f +
+//! Re(delta_dq)` to first order and `d Re(delta_dq) / dt = w Im(delta_dq)`, so the
+//! angle error is the magnitude's rate over `w |psi_hat|`, which a mover turning
+//! steadily does not have. Three uses:
+//! - the angle output is turned back by [`OFFSET_PHASE_SHARE`] of that reading
+//!   (band-passed at `w`, less [`OFFSET_PHASE_DEADBAND_RAD`], within
+//!   [`OFFSET_PHASE_LIMIT_RAD`]);
+//! - the DCFO feeds the magnitude's deviation back along the flux
+//!   ([`crate::algorithms::observer::Dcfo::set_magnitude_feedback`]): what is radial
+//!   now was across the flux a quarter period ago;
+//! - the FLL is trusted as far as the reading's held peak stays within
+//!   [`FLL_TRUST_OFFSET_RAD`] (or [`FLL_TRUST_LEVEL_MULTIPLE`] times its own recent
+//!   level), not at all as much again beyond: the trust scales the FLL's band and its
+//!   confirmation of the compensation, because a DC step ripples the FLL's reading at
+//!   `w` by about the offset's share of the flux, which would drag the notch and
+//!   confirm a wrong compensation.
 //!
-//! A salient motor's active flux grows with the current along it, `(Ld - Lq) i_d`:
-//! both readings take that out (`|psi| (Ld - Lq) d i_d = (Ld - Lq) d(i . psi)` to
-//! first order in `i_d`), or a current ripple would be read as an offset (on the salient
-//! example motor, 24 of 576 cold starts over budget instead of 8).
-//!
-//! In the linear model (`docs/dc_step_analysis.py`, section 5, worst of 16 phases at
-//! 10 Hz): +2 V 17.1 deg without either, 11.7 with the feedback alone, 6.2 with both;
-//! +0.2 A 8.5 without, 3.1 with both; the phase error of a notch 10 % off the mover
-//! unchanged (6.1 / 5.4 deg). In the closed-loop drive as built, with the FLL's trust,
-//! over the paper's scenarios at eight event phases each (`paper_phases`, median /
-//! max): +2 V 9.5 / 10.5 deg (`dcfo paper` 9.7), +0.2 A 4.8 / 5.8, R = 2 Rs 3.9 / 4.6,
-//! 40 N load step 5.6 / 5.7, speed step 2.9 / 3.1, steady 0.62 / 0.75, reset at speed
-//! 1.4 / 3.1. `dcfo acquire`: no cold start over budget, Q8.24 within 0.25 deg of f32;
-//! on the 20 mm-pitch example motors 0.59 and 0.73 deg. What is left of the +2 V step
-//! is the PLL integrator following the step's angle transient. The PLL is not fed the
-//! corrected flux (a closed loop through the notch): it gains on the +2 V step but puts
-//! Q8.24 1.5 deg off f32 at 0.1 m/s, where the output path keeps it within 0.7 deg.
-//! Neither is the integrator fed the PLL's error less the offset's reading, nor the
-//! trust taken from other detectors: the measured alternatives are in
-//! docs/notch-tuning.md, "Tried and not kept".
+//! For a salient motor the readings first take out the active flux's `(Ld - Lq) i_d`
+//! (`(Ld - Lq) d(i . psi)` to first order), or a current ripple would read as an
+//! offset.
 //!
 //! ## Cold starts: the circle fit ([`crate::algorithms::arc_fit`])
 //! From reset and on [`Estimator::reacquire`] the integrated back-EMF's arc is fitted
 //! with a circle through the start; about a third of a period later the fit gives the
-//! mover flux's angle and frequency, and the estimator seeds itself with them as a
-//! drive seeds it after an open-loop segment (the observer on the flux, the FLL on
-//! the frequency, the PLL on the angle; the flags are earned again). What the fit
-//! replaces is the DCFO's removal of the integrator's unknown initial flux, an offset
-//! as large as the flux, through its slowest pole `0.26 w`, during which the FLL reads
-//! the observer's own correction as a ripple. After the seed the FLL still ripples
-//! while the observer takes on the DC state the seed left out (sensor offsets, the
-//! inverter): the hand-over to the PLL then takes the FLL's mean frequency rather than
-//! its reading. An explicit [`Estimator::seed`] stops the fit. `dcfo acquire` (576 cold
-//! starts): none over budget, no false lock (the figures under "The DC offset's
-//! angle"). Over the paper's scenarios at eight event phases each the start only
-//! changes the realisation of the run: the medians move by about half a degree or less
-//! with it.
-//!
-//! The fit also gives the DC error in the observer's inputs, from the circle the
-//! back-EMF itself draws (its centre; [`crate::algorithms::arc_fit`], "DC errors"), and
-//! the seed starts the DCFO with its disturbance estimate holding it. Without that, +2 V
-//! at 0.1 m/s (60 % of the back-EMF) bends the chord's arc by tens of degrees and the
-//! DCFO then takes the error on through its slowest pole: 51 of 576 cold starts over
-//! budget, all at 0.1-0.3 m/s. With it none is, the longest 0.49 s of 0.6 s.
-//! [`Estimator::fitting`] tells when the fit is over.
+//! mover flux's angle and frequency and the DC error in the inputs (the circle's
+//! centre), and the estimator seeds itself with them as a drive seeds it after an
+//! open-loop segment: the observer on the flux with its disturbance estimate holding the
+//! DC error, the FLL on the frequency, the PLL on the angle; the flags are earned again.
+//! Without it the DCFO removes the integrator's unknown initial flux, an offset as large
+//! as the flux, through its slowest pole. After a seed the hand-over to the PLL takes
+//! the FLL's mean frequency, not its reading, which ripples while the observer takes on
+//! the DC state the seed left out. An explicit [`Estimator::seed`] stops the fit;
+//! [`Estimator::fitting`] tells when it is over.
 //!
 //! ## Two flags
-//! - [`Estimate::tracking`]: the PLL is locked and, with an FLL, both frequencies
-//!   agree. What a drive may close its loops on (the hand-over from I/f, the lock
-//!   supervision).
-//! - [`Estimate::locked`]: `tracking`, and the FLL is [settled](crate::algorithms::fll::FllOutput::settled):
-//!   the flux estimate is steady and has been for the DCFO's settling time. What a user
-//!   may trust the angle by: over the acquisition sweep (576 cold starts) and the paper
-//!   scenarios (eight event phases each) it is never set while the true error exceeds
-//!   15 deg. It also needs the FLL [undisturbed](crate::algorithms::fll::FllOutput::undisturbed)
-//!   and the observer's DC estimate quiet: the increment of the DCFO's disturbance
-//!   estimate `d`, low-passed at the notch frequency, below [`MAX_DISTURBANCE_DRIFT`]
-//!   of the back-EMF `w |psi| dt`. After a DC step the observer moves its DC state for
-//!   a few `1 / (0.26 w)` while both loops agree on a wrong angle (the +2 V step of the
-//!   paper's Fig. 14: -20 deg at 200 ms with every frequency detector calm); the drift
-//!   of `d` is that uncancelled DC voltage itself. A rotating component in `d` (the
-//!   fundamental a mistuned notch leaks, harmonics) passes the filter at most at
-//!   `0.7` and `1 / 6`: a notch off by a tenth leaks about that much, and costs about
-//!   6 deg of phase, so the check is not blind to it either (`tests/lock_flag.rs`).
-//!   A failed check clears the flag at once; it is set again only after a quarter
-//!   period without one ([`CALM_ANGLE_RAD`]): without that hold a detector dipping under
-//!   its limit mid-disturbance let 2 and 78 samples above 15 deg through (the +2 V and
-//!   the doubled-Rs scenarios, one event phase each of eight).
-//!   Last, a resistance error up to [`EstimatorConfig::resistance_uncertainty_ohm`] (the
-//!   motor file's resistance again) could not turn the angle beyond
-//!   [`LOCK_ANGLE_RAD`] at the present current, speed and flux: the flag is down while a
-//!   large current lies along the flux at low speed (an I/f start, a drive's low-speed
-//!   mode), where every other check passes while the angle is 15-55 deg off (every
-//!   `dcfo sim` scenario on every motor file: `host/tests/sim_lock_flag.rs`): two
-//!   products, two approximate norms and a held peak.
+//! - [`Estimate::tracking`]: the PLL is locked and, with an FLL, both frequencies agree.
+//!   What a drive may close its loops on (the hand-over from I/f, the lock supervision).
+//! - [`Estimate::locked`]: what a user may trust the angle by, within [`LOCK_ANGLE_RAD`]
+//!   (the replay trace's `locked` column). `tracking`, and:
+//!   - the FLL [settled](crate::algorithms::fll::FllOutput::settled) and
+//!     [undisturbed](crate::algorithms::fll::FllOutput::undisturbed): the flux steady,
+//!     for the DCFO's settling time;
+//!   - the observer's DC estimate quiet: the increment of the disturbance estimate `d`,
+//!     low-passed at the notch frequency, below [`MAX_DISTURBANCE_DRIFT`] of the
+//!     back-EMF `w |psi| dt`. After a DC step both loops agree on a wrong angle while the
+//!     observer moves its DC state, and the drift of `d` is that uncancelled voltage
+//!     itself; a mistuned notch's leak passes the filter too (`tests/lock_flag.rs`);
+//!   - a quarter period ([`CALM_ANGLE_RAD`]) since any of those checks last failed;
+//!   - a resistance error up to [`EstimatorConfig::resistance_uncertainty_ohm`] unable
+//!     to turn the angle beyond [`LOCK_ANGLE_RAD`] at the present current, speed and
+//!     flux: the flag is down while a large current lies along the flux at low speed (an
+//!     I/f start, a low-speed mode), where the other checks pass with the angle far off.
+//!
+//! ## Accuracy and cost
+//! The figures are the tools' own and are not restated here: `dcfo paper` (the paper's
+//! scenarios), `dcfo acquire` (cold starts), `dcfo track` (reversals and sharp speed
+//! steps, with the known limit: a speed step through a 20 ms prefilter still costs more
+//! than the 8 degrees asked) and `bench_qemu` (instructions per period, `results/cost.md`).
+//! Q8.24 follows f32 on the same inputs within the bounds `tests/` assert.
 
 use crate::algorithms::arc_fit::{ArcFit, ArcFitOutcome};
 use crate::algorithms::fll::{Fll, FllConfig, FllConfigError};
