@@ -1,7 +1,6 @@
-//! Where the mover's flux was when the estimator started, and the DC error in its
-//! inputs: circle fits to the arc the integrated back-EMF draws and to the back-EMF
-//! itself, which seed the observer once about a third of an electrical period has been
-//! seen.
+//! Where the mover's flux was when the estimator started, and the DC error in its inputs:
+//! circle fits to the arc the integrated back-EMF draws and to the back-EMF itself, which
+//! seed the observer after about a third of an electrical period.
 //!
 //! ## Why
 //! A flux observer integrates `u - Rs i`; started from zero on a mover that is already
@@ -12,12 +11,10 @@
 //! ```
 //!
 //! `p` runs on a circle of radius `|psi|` whose centre is `-psi(0)`: an offset as large
-//! as the flux itself. The DCFO removes it through its slowest pole (`docs/method.md`
-//! §3; [`crate::algorithms::observer::Dcfo`]): more than an electrical period to bring the angle
-//! error under 5 deg, of a budget of 2, and the FLL that tunes the notch meanwhile reads
-//! the observer's own correction `(h / Ls) d` as a ripple of about `0.2 w` on the
-//! frequency (enough to put the notch well off the mover at the hand-over). The offset is
-//! the one unknown of a known geometry, so it is fitted instead of waited for.
+//! as the flux. The DCFO ([`crate::algorithms::observer::Dcfo`]) removes it only through
+//! its slowest pole, over more than an electrical period, while the FLL reads the
+//! observer's own correction `(h / Ls) d` as a ripple on the frequency. The offset is the
+//! one unknown of a known geometry, so it is fitted instead of waited for.
 //!
 //! ## The fit
 //! Every point of the arc satisfies `|p - c|^2 = r^2` with `|c| = r` (the arc starts at
@@ -28,102 +25,63 @@
 //! G c = b / 2,    G = mean(p p^T),    b = mean(|p|^2 p)
 //! ```
 //!
-//! five running means, a 2 x 2 solve by the adjugate, no square root. `G` is the
-//! arc's spread: it is well conditioned once the arc has turned. The fit is taken when
-//! the smaller eigenvalue of `G` reaches [`MIN_SPREAD_RATIO`] of the larger, tested
-//! without a square root as `det G >= q / (1 + q)^2 (tr G)^2` (for eigenvalues
-//! `l1 >= l2` and `q = l2 / l1`, `det / tr^2 = q / (1 + q)^2` grows with `q`), and the
-//! chord has reached [`MIN_CHORD_SHARE`] of the magnet flux (so noise on a still mover
-//! is never fitted). On the acquisition sweep (`dcfo acquire`) that is 0.25-0.45 of a
-//! period after the start. Then `psi(t) = p(t) - c`, its angle is the mover's, and the
-//! angle turned since the start over the time elapsed is the frequency, both signs.
+//! Five running means, a 2 x 2 solve by the adjugate, no square root. The fit is taken
+//! once the arc has turned enough for `G` to be well conditioned (its eigenvalues' ratio
+//! `q` reaches [`MIN_SPREAD_RATIO`], tested as `det G >= q / (1 + q)^2 (tr G)^2`) and the
+//! chord has reached [`MIN_CHORD_SHARE`] of the magnet flux, so that noise on a still
+//! mover is never fitted. Then `psi(t) = p(t) - c` gives the mover's angle, and the angle
+//! turned since the start over the time elapsed the frequency, in either direction.
 //!
-//! ## What the chord cannot see, and the guards
-//! - A DC error in `u` or `i` (an offset, a wrong `Rs` under load) makes `p` drift and
-//!   bends the fit. The drift is not fitted as well (five unknowns): over a third of
-//!   a period that is too poorly conditioned (more cold starts miss their budget than
-//!   with no fit at all; `docs/acquisition.md`). The back-EMF's circle sees it (below).
-//! - The fitted radius `|c|` must lie within [`RADIUS_RANGE`] of the magnet flux, the
-//!   chord within [`MAX_CHORD_SHARE`] of it (a drift of more than the flux is not an
-//!   arc), and the fit must come within [`MAX_FIT_TURNS`] periods of the notch floor;
-//!   otherwise the fit gives up and the estimator acquires as it would without it.
-//! - The radius is fitted rather than taken from the motor file: a seed at the file's
-//!   `psi_f` gives the same results and depends on the
-//!   file being right.
+//! A DC error in `u` or `i` (an offset, a wrong `Rs` under load) makes `p` drift and bends
+//! this fit; over a third of a period the drift is too poorly conditioned to fit as well,
+//! so the back-EMF's circle reads it (below). Guards: the radius `|c|` within
+//! [`RADIUS_RANGE`] of the magnet flux, the chord within [`MAX_CHORD_SHARE`] of it (a
+//! larger drift is not an arc), and the fit within [`MAX_FIT_TURNS`] periods of the notch
+//! floor; otherwise the fit gives up and the estimator acquires without it.
 //!
 //! ## DC errors: the back-EMF's circle
-//! The back-EMF `e = (u - Rs i) - Ls di/dt` with a DC error `du` in it (a voltage
-//! offset; a current offset `di` is `du = -Rs di`) is `j w psi + du`: a circle whose
-//! *centre* is the DC error. Its derivative domain turns the chord's drift `du t` into
-//! a constant. So beside the chord, the back-EMF (the chord's increments over the
-//! period) is low-passed ([`EMF_FILTER_PER_FLOOR`]: the sensors' noise through
-//! `Ls di/dt`) and a general circle (centre and radius free: `|e|^2 = 2 c . e + k`,
-//! linear in `c` and `k`) is fitted to it by least squares over running means, as the
-//! chord's, from when the filter has settled ([`EMF_FILTER_SETTLE`]). Its centre is
-//! `du`, the angle of `e - du` leads the flux by a quarter turn in the direction of
-//! motion (less the filters' known lags), and the fit is tried each sample once the
-//! points spread ([`EMF_MIN_SPREAD_RATIO`]) until a circle passes its checks:
-//! - its radius matches the frequency and the magnet flux (`|w| psi_f`, within
-//!   [`EMF_RADIUS_RANGE`]);
-//! - the chord integrated since the start bears it out: with `du t` taken out, the
-//!   chord must be the arc from the start to the fitted angle now, within
-//!   [`EMF_CHORD_TOLERANCE`] of the flux. The chord then gives the frequency (the angle
-//!   turned since the start): it is integrated, so the flux harmonics that make the
-//!   back-EMF's circle wobble (`n` times larger in the back-EMF than in the flux for a
-//!   harmonic of order `n`) barely move it. A transient at the start that the fit took
-//!   for a DC error (a drive's current loop ringing after it lost the angle, the
-//!   inverter's dead time near zero current) leaves a chord the fit does not explain:
-//!   in the drive's flying restart at 0.3 m/s (`dcfo faults`, lock-loss) the back-EMF
-//!   fit sees 2.2 V that is not there, and without this check the drive loses the mover.
+//! The back-EMF `e = (u - Rs i) - Ls di/dt` with a DC error `du` (V) in it (a current
+//! offset `di` is `du = -Rs di`) is `j w psi + du`: a circle whose *centre* is the DC
+//! error (the derivative turns the chord's drift `du t` into a constant). So beside the
+//! chord, the back-EMF is low-passed ([`EMF_FILTER_PER_FLOOR`]: the sensors' noise
+//! through `Ls di/dt`) and, once the filter has settled ([`EMF_FILTER_SETTLE`]) and the
+//! points spread ([`EMF_MIN_SPREAD_RATIO`]), a general circle (`|e|^2 = 2 c . e + k`,
+//! linear in `c` and `k`) is fitted to it each sample. Its centre is `du`, and the angle
+//! of `e - du` leads the flux by a quarter turn (less the filters' known lags). A circle
+//! passes when:
+//! - its radius matches `|w| psi_f` within [`EMF_RADIUS_RANGE`];
+//! - the chord since the start, less `du t`, is the arc from the start to the fitted
+//!   angle within [`EMF_CHORD_TOLERANCE`] of the motor file's flux (which also refuses a
+//!   circle the inverter's error has bent at light load). A transient at the start taken
+//!   for a DC error (a current loop ringing after a lost angle, the inverter's dead time
+//!   near zero current) fails this check. The chord then gives the frequency: integrated,
+//!   it barely moves with the flux harmonics that make the back-EMF's circle wobble.
 //!
-//! What is taken is not the first circle to pass but the mean of those that pass over
-//! the next [`EMF_CONFIRM_SHARE`] of the fit's time (each angle measured against the
-//! first one's, turned on at its frequency; the mean, which is the angle at the
-//! circles' mean time, is then turned on to the present at the chord's frequency): one
-//! circle's angle moves by about a degree from one sample to the next at 0.1 m/s, and
-//! f32 and Q8.24, passing a sample apart, seeded 1.2 deg apart.
-//!
-//! The fit is for the low speeds, where a DC error is large beside the back-EMF: up to
-//! [`EMF_FIT_MAX_PER_FLOOR`] times the notch floor (16 Hz at the default floor). Below
-//! that a chord fit is held back while the back-EMF fit runs, and taken (turned on to
-//! the present) if the back-EMF fit gives up or is not borne out; above it the chord
-//! fit comes first. The seed then starts the observer with its disturbance estimate
-//! already holding the DC error ([`crate::algorithms::observer::Dcfo::seed`]), instead of taking it
-//! on through its slowest pole.
+//! The seed is the mean of the circles that pass over the next [`EMF_CONFIRM_SHARE`] of
+//! the fit's time after the first: one circle's angle moves by about a degree per sample
+//! at 0.1 m/s, and f32 and Q8.24 pass a sample apart. Up to [`EMF_FIT_MAX_PER_FLOOR`]
+//! times the notch floor, where a DC error is large beside the back-EMF, a chord fit is
+//! held back and taken only if the back-EMF fit gives up or is not borne out; above, the
+//! chord's fit comes first. The seed starts the observer with its disturbance estimate
+//! holding the DC error ([`crate::algorithms::observer::Dcfo::seed`]).
 //!
 //! ## Noise: the back-EMF fit takes its variance out
-//! The back-EMF carries the current sensors' noise through `Ls di/dt`: per sample
-//! `sqrt(2) Ls sigma_i / Ts`, which on a motor with much inductive flux per ampere of
-//! sensor noise is as large as the back-EMF itself at 3 Hz (salient example motor 1.0
-//! times, paper motor 0.36; the filter takes it to about a fifth). The circle fit above
-//! is algebraic (Kasa's): noise of variance `s^2` per axis adds `s^2 I` to the points'
-//! covariance `C` (and `2 s^2 mean` to `b`), which on a third of a turn, whose spread
-//! across is a few hundredths of the radius squared, pulls the centre towards the arc:
-//! the circle comes out small (refused by the radius check for hundreds of samples),
-//! and the DC error the centre gives is off by several tenths of a volt. So the fit
-//! estimates `s^2` from the points themselves, as Taubin's fit does: the smallest root
-//! `x` of its cubic (Chernov's form, a few Newton steps from zero; the fourth moment it
-//! needs is one more running mean) is the noise's variance to a few percent
-//! (`tests`: within 3.5 % on noisy arcs, zero on exact ones), and the solve and the
-//! spread test use `C - x I` and `b - 2 x mean`: the centre of the arc, and a fit that
-//! waits while the noise spreads the points more than the arc does. On noisy arcs with
-//! a DC error of 60 % of the back-EMF at 3 Hz the angle is within 1.1 deg and the DC
-//! within 2 % of the back-EMF (the plain fit: 12.8 deg, 22 %).
+//! The back-EMF carries the current sensors' noise through `Ls di/dt` (`sqrt(2) Ls
+//! sigma_i / Ts` per sample, V), as large as the back-EMF at 3 Hz on a motor with much
+//! inductive flux per ampere of sensor noise. Noise of variance `s^2` per axis adds
+//! `s^2 I` to the points' covariance `C` (and `2 s^2 mean` to `b`), which on a third of a
+//! turn pulls an algebraic (Kasa) fit's centre towards the arc: a small circle and a wrong
+//! DC error. So the fit estimates `s^2` as Taubin's fit does, as the smallest root `x` of
+//! its cubic (Chernov's form, a few Newton steps from zero, one more running mean), and
+//! solves and tests the spread with `C - x I` and `b - 2 x mean`. In fixed point the
+//! running means round to nearest ([`Scalar::mul_nearest`]): a product rounded down biases
+//! them by half an LSB an update, which over a thousand updates turns the fitted angle.
 //!
-//! In fixed point the running means are updated with a product rounded to nearest
-//! ([`Scalar::mul_nearest`]): the `fixed` crate's product rounds down, and over a
-//! thousand updates that half-LSB bias moved the back-EMF circle's centre enough to
-//! turn Q8.24's fitted angle by up to 1 deg on exact data.
-//!
-//! ## Accuracy
-//! `dcfo acquire` measures what the fits give a cold start (every start's lock time
-//! against its budget, false locks, Q8.24 against f32; `--motor` for other motors,
-//! `--plant ideal` without the inverter's and sensors' errors). Where the back-EMF's
-//! circle is not `w psi_f` (at light load the inverter's error along the current
-//! enlarges it by up to a quarter at 3.3 Hz, and shrinks it at zero current), the
-//! chord's check against the motor file's flux refuses the fit and the chord's own fit,
-//! bent by any offset, seeds instead; checking the chord against the flux the back-EMF
-//! fit measured instead lost the drive's flying restart (`docs/acquisition.md`).
+//! ## Accuracy and cost
+//! The tests in this file check both fits on exact and noisy arcs, in f32 and Q8.24, and
+//! `dcfo acquire` measures what they give a cold start. Each sample is bounded
+//! ([`ArcFit::update`]); the fit's last sample is the estimator's worst step, printed by
+//! `bench_qemu` (`docs/cost-budget.md`).
 #![forbid(unsafe_code)]
 
 use crate::algorithms::transforms::AlphaBeta;

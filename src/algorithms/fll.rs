@@ -3,44 +3,30 @@
 //! forward, and finds a moving mover from a cold start.
 //!
 //! ## The discriminator
-//! The DCFO's band-pass output `x1 = D psi` (its flux estimate) and the increment of its
-//! integrator `dpsi_i` (the back-EMF `e dt` plus the observer's slow DC correction)
-//! give, per sample,
+//! From the DCFO's band-pass output `x1 = D psi` (its flux estimate) and the increment
+//! `dpsi_i` of its integrator (the back-EMF `e dt` plus the observer's DC correction):
 //!
 //! ```text
 //! dtheta = Im(conj(x1) dpsi_i) / max(|x1|^2, psi_ref^2)    (rad per sample)
 //! ```
 //!
-//! For a flux vector `psi = |psi| e^{j w t}` (either direction) and a band-pass tuned to
-//! any `w_n > 0`, `D(jw) = 1 / (1 + jX)`, so `Re D = |D|^2` and
-//! `Im(conj(D psi) j w psi) = w |psi|^2 |D|^2 = w |x1|^2`: while `|x1| >= psi_ref`,
-//! `dtheta / dt` is **exactly** `w`, whatever the notch error. The phase error that a
-//! mistuned notch puts on `x1` (`dw / (zeta w)`, see [`crate::algorithms::observer::Dcfo`]) cancels
-//! out. Sampled, the increment is a chord centred half a sample before `x1`, so the
-//! band-pass phase `phi` is read as `phi + w dt / 2`: a relative error up to
-//! `(|w| dt / 2) |tan phi|` while the notch is off (1.5 % at 400 rad/s with the notch at
-//! half the frequency), none once it is on (`tests/fll.rs`).
+//! For any notch `w_n > 0`, `D(jw) = 1 / (1 + jX)` has `Re D = |D|^2`, so
+//! `Im(conj(D psi) j w psi) = w |x1|^2`: while `|x1| >= psi_ref`, `dtheta / dt` is
+//! exactly `w` (rad/s) in either direction, whatever the notch error (the phase it puts
+//! on `x1`, see [`crate::algorithms::observer::Dcfo`], cancels). Sampling adds a relative
+//! error up to `(|w| dt / 2) |tan phi|`, `phi` the band-pass phase: none once the notch
+//! is on. Below `psi_ref` the `max` weights a measurement down: a weak or absent flux
+//! reads as "no rotation", so the notch sweeps *down*.
 //!
-//! ## What biases it
-//! The discriminator is `e_q / |psi|`: the back-EMF component along the rotation. Any
-//! error in the back-EMF along q reads as speed. In steady state a DC offset `dc` in the
-//! observer's voltage is cancelled inside `dpsi_i` by the DCFO's feedback
-//! (`dc + (h/Ls) d = 0`), but while the DCFO settles it puts a ripple at `w` of
-//! amplitude `|dc| / |psi|` rad/s on the reading (12.5 rad/s for the paper's +2 V at
-//! 0.16 Wb). A resistance error `dR` reads as `dR i_q / psi_f` rad/s (31 rad/s per
-//! ampere for a doubled Rs on the paper motor), a bias that grows with thrust. The
-//! PLL on `x1` has neither: it follows the rotation of the estimate, whatever its
-//! amplitude. Hence the estimator's `NotchTuning::AcquireWithFll`: the FLL finds
-//! the frequency and takes over in speed transients; the PLL holds the steady state.
-//! Tried and not kept: the rotation rate of `x1` itself (`Im(conj(x1) dx1)`, unbiased,
-//! but it closes a loop through the band-pass phase: 1.7x peaking and a closed-loop
-//! drive that lost lock), a notch at `w` on the reading, subtracting the drift of the
-//! DCFO's DC estimate from `dpsi_i` (neither moved the +2 V step), and an
-//! acceleration state (below).
+//! What biases it: `dtheta / dt` is `e_q / |psi|`, so any back-EMF error along q reads as
+//! speed. A DC offset `dc` (V) ripples it at `w` by `|dc| / |psi|` rad/s while the DCFO
+//! removes the offset; a resistance error `dR` (ohm) biases it by `dR i_q / psi_f` rad/s.
+//! The PLL on `x1` has neither, so in the estimator (`NotchTuning::AcquireWithFll`) the
+//! FLL acquires and takes over in speed transients, and the PLL holds the steady state.
 //!
 //! ## The loop
-//! Two first-order trackers with the rate `g = gain_per_omega * w_n` (1/s), scaled
-//! with the notch frequency `w_n` so the loop has the same shape at every speed:
+//! Two first-order trackers at the rate `g = gain_per_omega * w_n` (1/s, capped at
+//! `g dt = 1/2` so that every period is stable), the same shape at every speed:
 //!
 //! ```text
 //! omega    += g (dtheta - omega dt)          signed frequency (rad/s)
@@ -48,110 +34,54 @@
 //! r         = |dtheta| + m (s dtheta - |dtheta|),  s = sign(omega),  m = min(c |omega| / omega_n, 1)
 //! ```
 //!
-//! The notch's reading `r` is the rotation along the direction the signed frequency has
-//! found (`s dtheta`, linear in the noise) once that frequency is a `1 / c` share of the
-//! notch (`m = 1`; `c` = [`DIRECTION_SHARE_GAIN`] = 4, below), and `|dtheta|` while it
-//! is not (from reset, through a reversal), so that
-//! the notch sweeps and follows whatever the direction; `m` moves the one into the other
-//! continuously (no threshold for f32 and fixed point to part at). The reading is not
-//! `|dtheta|` always, because that is biased: at low speed the per-sample rotation is
-//! comparable to the noise on the increment (the current sensors' noise through
-//! `Ls di`), and the mean of `|x + n|` exceeds `|x|` (by 17 % for noise of the
-//! rotation's size), so the notch sits above the mover, the DCFO's angle lags by
-//! `dw / (zeta w)` and the two frequencies never agree. On the salient example motor at
-//! 3.3 Hz a rectified reading holds the notch at 25 rad/s on a 21 rad/s mover, 10 deg of
-//! steady error, and 3 of 48 cold starts lock within their window (none within budget;
-//! `dcfo acquire --motor motors/salient.toml`); `tests/fll.rs` checks the bias.
+//! The notch reads the rotation along the direction found (`s dtheta`, linear in the
+//! noise) once `|omega|` is a `1 / c` share of the notch (`c` = [`DIRECTION_SHARE_GAIN`]),
+//! and `|dtheta|` before that (from reset, through a reversal), blended so that f32 and
+//! fixed point have no threshold to part at. `|dtheta|` alone is biased at low speed,
+//! where the sensors' noise through `Ls di` is comparable to the rotation per sample:
+//! the mean of `|x + n|` exceeds `|x|` (by 17 % for noise the size of the rotation), and
+//! a notch above the mover makes the DCFO's angle lag. The notch must also follow fast
+//! (`gain_per_omega = 4`): on the instantaneous frequency the SOGI passes a
+//! constant-amplitude flux of *any* frequency trajectory exactly, so the DCFO's transient
+//! angle error is the notch's error `dw` through `dw / (zeta w)`, and a tracker lags a
+//! ramp of `a` (rad/s^2) by `a / g` (rad/s).
 //!
 //! ## Noise: where the notch can stay above the mover
-//! Let the noise make the mean of `|dtheta|` `rho` times the rotation (`rho >= 1`; 1.17
-//! for noise of the rotation's size, as above). Besides `omega_n = |w|` the notch's
-//! update has an equilibrium with `m < 1` where `omega_n = (1 - m) rho |w| + m |w|`, `m
-//! = c |w| / omega_n`, i.e. `omega_n^2 - rho |w| omega_n + c (rho - 1) w^2 = 0`, which
-//! has roots when `rho^2 >= 4 c (rho - 1)`. With `c = 1` that is
-//! `(rho - 2)^2 >= 0`: for any `rho > 2` the notch can stay at `(rho - 1) |w|`, and the
-//! sweep from above meets that root first. Its band-pass then attenuates the flux the
-//! FLL reads, which makes the noise larger still. On a motor with `Lq I / psi_f` 1.2
-//! (30 mH, 0.1 Wb) at 3.3 Hz with a current offset `c = 1` holds the notch at
-//! 80-140 rad/s on a 21 rad/s mover, the angle 110-130 deg off for all of the 1.8 s
-//! window. With `c = 4` the high root exists only for `rho >= 8 + 4 sqrt(3) = 14.9`.
-//! `dcfo acquire` on that motor: 30 of 576 cold starts never lock (73 with `c = 1`, 23
-//! to 38 with `c` from 2 to 8, the sensors' realisation); the paper motor, both example
-//! motors and a 230 V motor are the same with `c = 1` and `c = 4`, `dcfo faults` all met
-//! (`tests/fll.rs` checks the notch at noise five and ten times the rotation). `c = 4`
-//! applies while the FLL steers the DCFO's notch ([`Fll::set_steering`]): once the PLL
-//! does, the FLL's notch only scales its trackers' rate and its settle check, and there
-//! `c = 1` keeps the paper's doubled-resistance scenario at 7.9 deg (median over eight
-//! event phases) where `c = 4` takes it to 11.1.
-//!
-//! Below `psi_ref` a measurement is weighted down by `|x1|^2 / psi_ref^2` (the `max` in
-//! the denominator): a weak or absent flux reads as "no rotation", so the notch sweeps
-//! *down*. Divisions: the reciprocals of a quantity bounded below and of the period,
-//! and `|omega| / omega_n` (`omega_n` is at least the floor).
-//!
-//! ## Why the notch must follow fast: `gain_per_omega = 4`
-//! With the notch exactly on the instantaneous frequency, the SOGI passes a
-//! constant-amplitude flux vector of *any* frequency trajectory without error (its
-//! complex envelope equations hold `x1 = psi` exactly). The DCFO's transient angle
-//! error is therefore the notch's error `dw`, seen through `dw / (zeta w)`. A tracker
-//! of rate `g` lags a ramp of `a` rad/s^2 by `a / g`, so `g` should be as large as the
-//! noise allows. Measured on a synthetic 10 Hz flux whose speed wobbles by +-7 rad/s at
-//! 6 Hz (estimator alone, ideal voltage, the FLL tuning the notch throughout): max
-//! angle error 8.8 deg at `g = 0.25 w`, 7.7 at `w`, 4.8 at `2 w`, 2.4 at `4 w`; its
-//! phase-modulation response stays within 1.00-1.19 in gain and 0 to -17 deg up to 8 Hz
-//! (PLL-tuned notch: -29 deg at 4 Hz). In the closed-loop drive with the FLL always
-//! tuning the notch, `4 w` takes the paper's 40 N load step to 3.8 deg (PLL-tuned
-//! notch: 26.8 deg). An added acceleration state (critically damped alpha-beta tracker)
-//! made the wobble worse (11 deg at `w`): its double pole sits at `g / 2`. `g dt` stays
-//! below 1/2 for any period (at the paper motor's start frequency and 10 kHz: 0.45).
+//! If noise makes the mean of `|dtheta|` `rho` times the rotation, the notch has a second
+//! equilibrium (`m < 1`) at a root of `omega_n^2 - rho |w| omega_n + c (rho - 1) w^2`,
+//! real when `rho^2 >= 4 c (rho - 1)`. With `c = 1` that is any `rho`: from `rho > 2` the
+//! sweep from above meets the root `(rho - 1) |w|` first, and a notch held there
+//! attenuates the flux, which raises the noise further. With `c = 4` the root needs
+//! `rho >= 8 + 4 sqrt(3) = 14.9`. `c = 4` applies while the FLL steers the DCFO's notch
+//! ([`Fll::set_steering`]); once the PLL steers, `c = 1` holds a doubled resistance better.
 //!
 //! ## Acquisition: start high, sweep down
-//! From reset the notch starts at `start_omega_rad_s`, above any speed the motor reaches
-//! (default: the speed at which the back-EMF equals the rated phase voltage). There the
-//! DCFO's band-pass settles within a few `1 / w_n` — the integrator's unknown initial
-//! flux is a step that a high-frequency band-pass forgets quickly — and every flux
-//! below it is passed with its rotation intact (attenuated by `2 zeta w / w_n`). With no
-//! usable flux the notch sweeps down as `d w_n / dt = -gain w_n^2`, reaching a speed `w`
-//! after about `1 / (gain w)`, i.e. `1 / (2 pi gain)` electrical periods; with a flux
-//! it converges on `|w|` at the rate `g`. The sweep needs no knowledge of the speed and
-//! no search logic: it is the same update.
+//! From reset the notch starts at `start_omega_rad_s`, above any speed the motor reaches,
+//! where the band-pass soon forgets the integrator's unknown initial flux and passes any
+//! slower flux's rotation intact. With no usable flux it sweeps down as
+//! `d w_n / dt = -gain w_n^2`, reaching `w` after about `1 / (2 pi gain)` electrical
+//! periods; with a flux it converges on `|w|` at `g`. No search logic: the same update.
 //!
-//! ## Settled
-//! [`FllOutput::frequency_settled`]: the measurement has had full weight, and `|omega|`
-//! and the notch frequency agree within [`FllConfig::settle_tolerance`], both filtered
-//! at `g / 4`. [`FllOutput::settled`] adds that the flux estimate is trustworthy:
-//! - its amplitude is steady: an offset `c` left in `x1` (the integrator's initial flux,
-//!   a DC step not yet removed) modulates `|x1|^2` at `w` by `2 c |psi|`, so the mean
-//!   absolute deviation of `|x1|^2` from its mean (over about three periods) must stay
-//!   below 0.3 of that mean (`c / |psi|` below about 0.24, 14 deg); the deviation rises
-//!   within a sixth of a period and decays over two thirds of one;
-//! - and it has been so for [`FllConfig::settle_guard_rad`] of electrical angle (default
-//!   15 rad, 2.4 periods): four time constants of the DCFO's slowest pole (`0.263 w` for
-//!   `zeta = 1`, `h = -0.2 Ls w`), the time it needs to remove what acquisition left in
-//!   its integrator. Without the guard the acquisition sweep claims lock on
-//!   decaying 17 deg transients in 213 of 576 cold starts; with it, in none.
+//! ## Settled and undisturbed
+//! [`FllOutput::frequency_settled`]: full-weight measurements, `|omega|` and the notch
+//! within [`FllConfig::settle_tolerance`]. [`FllOutput::settled`] adds a steady flux
+//! amplitude (an offset `c` in `x1` swings `|x1|^2` by `2 c |psi|`; its mean deviation
+//! must stay below 0.3 of the mean, `c` under about `0.24 |psi|`, 14 deg), held for
+//! [`FllConfig::settle_guard_rad`] of electrical angle (15 rad by default, four time
+//! constants of the DCFO's slowest pole) so that a decaying acquisition transient is not
+//! taken for a lock. [`FllOutput::undisturbed`], which the estimator's `locked` flag
+//! requires, sees a DC step while it is being removed, with two detectors filtered at
+//! `w_n` (a sixth of a period): the frequency's ripple within [`MAX_OMEGA_RIPPLE`] (a DC
+//! error of about a tenth of the back-EMF), and the held peak of `|x1|^2`'s deviation
+//! within [`MAX_FLUX_SQ_PEAK`] (an offset of about `0.1 |psi|`, 6 deg, seen within a
+//! quarter period in any direction). A real speed change trips it too, so the notch's
+//! tuning does not wait on it.
 //!
-//! ## Undisturbed
-//! [`FllOutput::undisturbed`] says that no disturbance is being removed right now; the
-//! estimator's `locked` flag requires it (the notch's tuning does not: a real speed
-//! change trips it too, and then the FLL must be free to bound the notch). Two fast
-//! detectors, both filtered at the notch frequency (about a sixth of a period):
-//! - the frequency estimate's ripple `| omega - mean |`, mean and ripple filtered at
-//!   `w_n`: a DC error `e` in the back-EMF puts a ripple of `|e| / |psi|` rad/s at `w` on
-//!   the reading (above), read at about `0.45 |e| / |psi|` after the filters; the limit,
-//!   [`MAX_OMEGA_RIPPLE`] = 0.05 of `w_n`, is a DC error of about a tenth of the
-//!   back-EMF;
-//! - the flux amplitude's peak deviation from its mean, held and decaying at `w_n`: an
-//!   offset `c` in `x1` swings `|x1|^2` by `2 c |psi|` twice a period, and the held peak
-//!   sees it within a quarter period whatever the offset's direction; the limit,
-//!   [`MAX_FLUX_SQ_PEAK`] = 0.2 of the mean, is an offset of about `0.1 |psi|` (6 deg).
-//!
-//! The slower steadiness check of [`FllOutput::settled`] (a mean absolute deviation over
-//! two thirds of a period) sees the paper's +2 V step too late: the angle error passes
-//! 15 deg within 25 ms of the step, and on that check alone the flag stays set for 66 ms
-//! of it. Measured with both detectors and the estimator's drift check: no sample
-//! locked above 15 deg in the paper's scenarios (eight event phases each) and in the
-//! 576 cold starts of `dcfo acquire`, and the flag as available there as without them.
+//! ## Accuracy and cost
+//! `tests/fll.rs` checks the discriminator through a mistuned notch in either direction,
+//! the sweep without a flux, and the notch under noise of one, five and ten times the
+//! rotation; `dcfo acquire` and `dcfo paper` measure what it gives the estimator. Its
+//! cost is part of the estimator's step, printed by `bench_qemu` (`docs/cost-budget.md`).
 
 use crate::algorithms::transforms::AlphaBeta;
 use crate::num::units::Base;

@@ -19,15 +19,14 @@
 //! Routh: Hurwitz for every `zeta > 0` iff `eta_h < 0`, i.e. `h < 0`.
 //!
 //! ## Defaults: zeta = 1.0, eta_h = -0.2
-//! `zeta` trades harmonic rejection against transient tracking. The band-pass delays
-//! angle *changes* by its group delay `1 / (zeta w)` at the fundamental (22.5 ms at
-//! 10 Hz for zeta = 0.707), and a notch off by `dw` shifts the phase by `dw / (zeta w)`.
-//! In the closed-loop drive (`dcfo-host` simulation, paper scenarios) zeta = 0.707 gave
-//! the cleanest steady state but lost a 40 N load step, zeta = 1.2 the best load step
-//! but larger DC-step transients; zeta = 1.0 balances them (|H(j5w)| = 0.37 instead of
-//! 0.28). For zeta = 1.0, `eta_h = -0.2` places the slowest pole at `-0.26 w` with every
-//! pole's damping above 0.76; larger `|eta_h|` makes a slow, lightly damped pair, smaller
-//! a slow real pole. At 10 Hz that is a 61 ms time constant for recovering from a DC step.
+//! A narrower band-pass (smaller `zeta`) rejects harmonics and DC steps better, but
+//! delays angle *changes* by `1 / (zeta w)` (s) and turns a notch error `dw` (rad/s) into
+//! `dw / (zeta w)` (rad) of phase. In the drive a DC step also moves the notch's tuning,
+//! which a narrower band-pass turns into more phase than it saves on the step, and it
+//! loses the load step: hence `zeta = 1.0`; a lower `zeta` needs a notch tuning that a DC
+//! step does not move. For `zeta = 1.0`, `eta_h = -0.2` puts the slowest pole at
+//! `-0.26 w` (61 ms at 10 Hz) with every pole's damping above 0.76; a larger `|eta_h|`
+//! makes a slow, lightly damped pair, a smaller one a slow real pole.
 //!
 //! ## DC steps: the transient
 //! A DC error appearing in the inputs at `t = 0` (an equivalent voltage `du`, V, and a
@@ -38,55 +37,13 @@
 //! e(s) = 2 zeta w (du + s dpsi) / (s^3 + (2 zeta - eta_h) w s^2 + w^2 s - eta_h w^3)
 //! ```
 //!
-//! (from the equations above with the notch at the true `w`; the true flux passes
-//! untouched). `e` rises, peaks about half a period after the step and decays through
-//! the slowest pole. The largest angle error the step can cause, over the phase at which it
-//! comes, is `asin(max |e| / psi_f)`: no loop on the angle alone takes it back. For the
-//! paper's cases at 10 Hz (`tests/observer_analysis.rs` checks the discrete observer
-//! against this closed form within 1 % of the peak):
-//!
-//! | zeta / eta_h | +2 V | +0.2 A | slowest pole | least damping |
-//! |---|--:|--:|--:|--:|
-//! | 1.0 / -0.2 (default) | 17.0 deg | 8.4 deg | 0.26 w | 0.76 |
-//! | 0.8 / -0.2 | 14.7 | 7.3 | 0.40 w | 0.89 |
-//! | 0.7 / -0.2 | 13.4 | 6.7 | 0.36 w | 0.83 |
-//! | 0.6 / -0.3 | 11.1 | 5.6 | 0.41 w | 0.62 |
-//! | 0.5 / -0.3 | 9.9 | 4.9 | 0.40 w | 0.52 |
-//! | 1.0 / -0.8 | 11.3 | 5.6 | 0.14 w | 0.24 |
-//!
-//! So the step's transient is set by `zeta` first: a narrower band-pass rejects a DC step
-//! faster (and harmonics better), but delays angle changes by `1 / (zeta w)` and turns a
-//! notch error `dw` into `dw / (zeta w)` of phase. Measured in the closed-loop drive
-//! (`+2 V` at eight event phases, replaying the drive's own inputs through the estimator
-//! with the notch forced to the true frequency and without the angle's phase
-//! compensation, in the estimator), the cost of the loops around the observer:
-//!
-//! | +2 V, max over the window | zeta 1.0 / -0.2 | zeta 0.5 / -0.3 |
-//! |---|--:|--:|
-//! | observer, notch at the true `w` | 14.5-16.4 deg | 6.8-9.6 deg |
-//! | observer, its own notch (PLL-tuned) | 13.7-21.5 | 9.4-18.8 |
-//! | angle out, notch at the true `w`, no phase compensation | - | 7.9-10.7 |
-//! | angle out, PLL-tuned notch and phase compensation, no offset angle | 14.3-22.4 | 10.9-27.4 |
-//!
-//! At `zeta = 0.5` the observer alone meets a 10 deg target, but the PLL-tuned notch
-//! (its integrator moves while the step's transient turns the flux angle) and the phase
-//! compensation (which reads that movement as a notch error, `1 / zeta` times larger)
-//! give back more than the narrower band-pass gains; with them, `zeta = 0.5` also loses
-//! the 40 N load step (9.2 deg median against 7.5). A lower `zeta` therefore needs a
-//! notch tuning that a DC step does not move; without one the default is 1.0.
-//!
-//! How much is at stake (docs/notch-tuning.md): with the closed-loop
-//! sim handing the notch the plant's true speed and the phase compensation off, `zeta =
-//! 0.5 / eta_h = -0.3` gives over eight event phases (median / max) +2 V 9.2 / 10.9 deg,
-//! +0.2 A 4.5 / 5.2, load step 1.9 / 2.4, speed step 3.1 / 3.5 and steady 1.02 / 1.10:
-//! the observer's own figures of the table above. The transients above the table's
-//! values are the tuning's, not the observer's.
-//!
-//! What changing the observer's structure could buy on the DC steps (an integral term
-//! in the feedback, a DC-voltage estimator on the back-EMF residual, a band-pass
-//! narrowed after a detected step, a feedback on the flux magnitude) is worked out in the
-//! linear model in `docs/dc-step-analysis.md`. The last is built (below, "The magnitude
-//! feedback"), with the angle correction it makes possible in the estimator.
+//! (the notch at the true `w`; the true flux passes untouched). `e` rises, peaks about
+//! half a period after the step and decays through the slowest pole. The largest angle
+//! error over the phase at which the step comes is `asin(max |e| / psi_f)`, and no loop
+//! on the angle alone takes it back: for the paper's cases at 10 Hz, 17.0 deg (+2 V) and
+//! 8.4 deg (+0.2 A) at the defaults, 9.9 and 4.9 deg at `zeta = 0.5`, `eta_h = -0.3`.
+//! What changing the observer's structure could buy is worked out in the linear model in
+//! `docs/dc-step-analysis.md`; of those, the magnitude feedback is built.
 //!
 //! ## The magnitude feedback (armed by the estimator)
 //! A DC offset `delta` left in `psi_hat` shows in its magnitude at once, `|psi_hat| =
@@ -98,34 +55,34 @@
 //! -p w (|psi_hat|^2 - m) / (2 m) psi_hat,     m' = a w (|psi_hat|^2 - m)
 //! ```
 //!
-//! the radial deviation from the magnitude's slow mean `m` (no square root: the squared
-//! magnitude's deviation over `2 m` is the relative one to first order), with `p = 1`,
-//! `a = 0.1` ([`DcfoConfig::magnitude_gain`], [`DcfoConfig::magnitude_mean_rate`]). For
-//! a salient motor the magnitude is that of the active flux, `psi_f + (Ld - Lq) i_d`, so
-//! `2 (Ld - Lq) i . psi_hat` is taken off `|psi_hat|^2` first. On the offset the
-//! feedback acts like a leak of rate `p w / 2` averaged over a turn (what is radial now
-//! was across the flux a quarter period ago); on the true flux it does nothing, so the
-//! band-pass keeps its unity gain and zero phase at `w`, and a notch off the mover turns
-//! the phase as before (the feedback only sees a magnitude that changes). The mean
-//! follows a notch's changing gain and the magnet's temperature; the flux's magnitude
-//! itself is not taken from the motor file. In the continuous-time model
-//! (`docs/dc_step_analysis.py`, section 5) the paper's steps at the worst of 16 phases go
-//! from 17.1 to 11.7 deg (+2 V) and 8.5 to 5.7 deg (+0.2 A), and the discrete observer
-//! agrees within 0.05 deg (`tests/observer_analysis.rs`). Unarmed (after [`Dcfo::new`]),
-//! the observer is the paper's; the estimator arms it once its loops have tracked the
-//! mover for a period, since while acquiring the magnitude is the acquisition's.
+//! the radial deviation from the magnitude's slow mean `m` (over `2 m`, the relative
+//! one to first order with no square root), `p` = [`DcfoConfig::magnitude_gain`] = 1,
+//! `a` = [`DcfoConfig::magnitude_mean_rate`] = 0.1. For a salient motor the magnitude is
+//! the active flux's, `psi_f + (Ld - Lq) i_d`: `2 (Ld - Lq) i . psi_hat` is taken off
+//! first. On the offset this is a leak of rate `p w / 2` averaged over a turn; on the true
+//! flux it is zero, so the band-pass keeps its unity gain and zero phase at `w`. `m`
+//! follows a notch's changing gain and the magnet's temperature, as the motor file's flux
+//! would not. Unarmed (after [`Dcfo::new`]) the observer is the paper's; the estimator
+//! arms it once its loops have tracked the mover for a period (while acquiring, the
+//! magnitude is the acquisition's).
 //!
 //! ## Discretisation
 //! - Integrator: the held voltage is integrated exactly, the resistive drop by the
 //!   trapezoidal rule, the feedback `(h/Ls) d` with the previous sample's `d`.
-//! - SOGI: trapezoidal (Tustin) with the frequency pre-warped, `a = tan(w dt / 2)`
-//!   (odd series to the 5th power, relative error < 3.5e-6 for `w dt/2 <= 0.2`), so
-//!   the discrete band-pass has exactly unity gain and zero phase at `w`: the property
-//!   "no amplitude or phase error at the fundamental" holds in the discrete observer,
-//!   not just its continuous model. The notch frequency changes every sample at the
-//!   cost of a few multiplications and one division by `1 + k a + a^2 >= 1`.
-//! - `w dt / 2` is limited to 0.2 (w below 4000 rad/s at 10 kHz): far above any speed
-//!   the motor reaches, and the domain where the series and the discretisation hold.
+//! - SOGI: trapezoidal (Tustin) with the frequency pre-warped, `a = tan(w dt / 2)` (odd
+//!   series to the 5th power, relative error < 3.5e-6 for `w dt / 2 <= 0.2`), so the
+//!   discrete band-pass, not just its continuous model, has exactly unity gain and zero
+//!   phase at `w`. `w dt / 2` is limited to 0.2 (w below 4000 rad/s at 10 kHz), far above
+//!   any speed the motor reaches.
+//!
+//! ## Accuracy and cost
+//! `tests/observer_analysis.rs` measures the discrete observer against this analysis:
+//! unity gain and zero phase at the fundamental from 2 to 50 Hz, the DC and harmonic
+//! rejection, the DC step against its closed form (within 1 % of the peak), and the armed
+//! observer against the linear model of the magnitude feedback (within 0.2 deg). A new
+//! notch frequency each sample costs a few multiplications and one division by
+//! `1 + k a + a^2 >= 1`; the whole observer is the `observer` stage printed by
+//! `bench_qemu` (`docs/cost-budget.md`).
 
 use super::voltage_model::VoltageModel;
 use super::{FluxEstimate, FluxObserver, ObserverFault, ObserverInput, ObserverMotor, check_input};
