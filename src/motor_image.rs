@@ -35,10 +35,9 @@
 use crate::algorithms::dead_time::DeadTimeCompensation;
 use crate::algorithms::motion::ProfileLimits;
 use crate::motor::{MotorParams, ParamError};
-use crc::{CRC_16_IBM_3740, Crc};
+use crate::num::checksum::crc16;
 
 const MAGIC: [u8; 4] = *b"DCFM";
-const CRC16: Crc<u16> = Crc::<u16>::new(&CRC_16_IBM_3740);
 /// Where the CRC is in a version-3 record.
 const CRC_AT: usize = 80;
 /// Where the CRC is in a version-2 record, and that record's length.
@@ -216,7 +215,7 @@ impl MotorImage {
         for (i, v) in self.values().iter().enumerate() {
             out[8 + 4 * i..12 + 4 * i].copy_from_slice(&v.to_le_bytes());
         }
-        let crc = CRC16.checksum(&out[..CRC_AT]);
+        let crc = crc16(&out[..CRC_AT]);
         out[CRC_AT..CRC_AT + 2].copy_from_slice(&crc.to_le_bytes());
         out
     }
@@ -255,7 +254,7 @@ impl MotorImage {
         }
         let (covered, rest) = rec.split_at(crc_at.min(Self::LEN));
         let sent = rest.get(..2).map(|c| u16::from_le_bytes([c[0], c[1]]));
-        if sent != Some(CRC16.checksum(covered)) {
+        if sent != Some(crc16(covered)) {
             return Err(MotorImageError::BadCrc);
         }
         // Older records: the CRC and reserved bytes where the newer fields are read as
@@ -373,7 +372,7 @@ mod tests {
         for (i, v) in values.iter().enumerate() {
             b[8 + 4 * i..12 + 4 * i].copy_from_slice(&v.to_le_bytes());
         }
-        let crc = CRC16.checksum(&b[..48]);
+        let crc = crc16(&b[..48]);
         b[48..50].copy_from_slice(&crc.to_le_bytes());
         b
     }
@@ -392,7 +391,7 @@ mod tests {
         let mut v1 = v1_record(&MotorParams::paper(), 24.0);
         v1[6] = 0x44;
         v1[7] = 0x43;
-        let crc = CRC16.checksum(&v1[..48]);
+        let crc = crc16(&v1[..48]);
         v1[48..50].copy_from_slice(&crc.to_le_bytes());
         v1[50..].fill(0xA5);
         assert_eq!(MotorImage::decode(&v1), MotorImage::new(MotorParams::paper(), 24.0));
@@ -442,7 +441,7 @@ mod tests {
                 assert_eq!(at(68), a.map_or(0.0, |l| l.max_speed_m_per_s));
                 assert_eq!(at(72), a.map_or(0.0, |l| l.max_accel_m_per_s2));
                 assert_eq!(at(76), with_axis.map_or(0.0, |a| a.payload_kg));
-                assert_eq!(u16::from_le_bytes([bytes[80], bytes[81]]), CRC16.checksum(&bytes[..80]));
+                assert_eq!(u16::from_le_bytes([bytes[80], bytes[81]]), crc16(&bytes[..80]));
                 assert_eq!(bytes[82..], [0; 6]);
                 let back = MotorImage::decode(&bytes).unwrap();
                 assert_eq!(back, image);
@@ -462,7 +461,7 @@ mod tests {
         for (i, v) in c.iter().enumerate() {
             b[48 + 4 * i..52 + 4 * i].copy_from_slice(&v.to_le_bytes());
         }
-        let crc = CRC16.checksum(&b[..60]);
+        let crc = crc16(&b[..60]);
         b[60..62].copy_from_slice(&crc.to_le_bytes());
         b
     }
@@ -485,7 +484,7 @@ mod tests {
             assert_eq!(MotorImage::decode(&v2[..63]), Err(MotorImageError::TooShort));
             let mut axis_flag = v2;
             axis_flag[6] |= 2;
-            let crc = CRC16.checksum(&axis_flag[..60]);
+            let crc = crc16(&axis_flag[..60]);
             axis_flag[60..62].copy_from_slice(&crc.to_le_bytes());
             assert_eq!(MotorImage::decode(&axis_flag), Err(MotorImageError::Compensation));
             // Re-encoded, it is version 3 without an axis.
@@ -523,7 +522,7 @@ mod tests {
         // Axis values without the axis flag, with the CRC right.
         let mut bytes = MotorImage { axis: Some(axis()), ..image }.encode();
         bytes[6..8].copy_from_slice(&0u16.to_le_bytes());
-        let crc = CRC16.checksum(&bytes[..CRC_AT]);
+        let crc = crc16(&bytes[..CRC_AT]);
         bytes[CRC_AT..CRC_AT + 2].copy_from_slice(&crc.to_le_bytes());
         assert_eq!(MotorImage::decode(&bytes), Err(MotorImageError::Axis("flags")));
         // Every message names the field.
@@ -612,7 +611,7 @@ mod tests {
         let mut bytes = MotorImage { compensation: Some(comp()), ..paper }.encode();
         for flags in [0u16, 4, 5, 0x8001] {
             bytes[6..8].copy_from_slice(&flags.to_le_bytes());
-            let crc = CRC16.checksum(&bytes[..CRC_AT]);
+            let crc = crc16(&bytes[..CRC_AT]);
             bytes[CRC_AT..CRC_AT + 2].copy_from_slice(&crc.to_le_bytes());
             assert_eq!(MotorImage::decode(&bytes), Err(MotorImageError::Compensation), "flags {flags}");
         }

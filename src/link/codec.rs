@@ -3,7 +3,7 @@
 
 use core::marker::PhantomData;
 
-use crc::{CRC_16_IBM_3740, Crc};
+use crate::num::checksum::crc16;
 
 use super::board;
 use super::cobs;
@@ -20,8 +20,6 @@ pub const RX_CAPACITY: usize = ActuationFrame::WIRE_LEN - 1;
 
 /// The largest raw frame (payload + CRC, bytes): the board link's capture chunk.
 pub(super) const MAX_RAW_LEN: usize = board::CaptureChunk::RAW_LEN;
-
-pub(super) const CRC16: Crc<u16> = Crc::<u16>::new(&CRC_16_IBM_3740);
 
 // COBS adds exactly one byte only below 254 raw bytes.
 const _: () = assert!(MAX_RAW_LEN < 254);
@@ -52,7 +50,7 @@ pub fn encode<F: Frame>(frame: &F, out: &mut [u8]) -> Result<usize, EncodeError>
 #[inline(never)]
 fn seal(raw: &mut [u8], payload_len: usize, out: &mut [u8]) -> Option<usize> {
     let (payload, crc) = raw.split_at_mut_checked(payload_len)?;
-    let sum = CRC16.checksum(payload).to_le_bytes();
+    let sum = crc16(payload).to_le_bytes();
     if crc.len() != sum.len() {
         return None;
     }
@@ -83,7 +81,7 @@ pub fn decode_raw<F: Frame>(raw: &[u8]) -> Result<F, LinkError> {
 fn checked_payload(raw: &[u8], payload_len: usize) -> Result<&[u8], LinkError> {
     let (payload, crc) = raw.split_at_checked(payload_len).ok_or(LinkError::Length)?;
     let sent = u16::from_le_bytes(<[u8; 2]>::try_from(crc).map_err(|_| LinkError::Length)?);
-    if CRC16.checksum(payload) != sent {
+    if crc16(payload) != sent {
         return Err(LinkError::Crc);
     }
     Ok(payload)

@@ -661,7 +661,7 @@ mod commissioning_tests {
         // Raw payloads a careless sender might produce, CRC set right: refused by value.
         let raw = |payload: &[u8]| {
             let mut raw = payload.to_vec();
-            raw.extend_from_slice(&super::super::codec::CRC16.checksum(payload).to_le_bytes());
+            raw.extend_from_slice(&crate::num::checksum::crc16(payload).to_le_bytes());
             raw
         };
         let mut report = [0u8; CommissioningReport::PAYLOAD_LEN];

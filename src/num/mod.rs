@@ -24,8 +24,9 @@
 //! # Layer
 //! The ground floor, beside [`crate::motor`]: [`units`] imports the motor's parameters
 //! (for [`units::Base::for_motor`]) and nothing else of the crate; the rest imports
-//! nothing of the crate at all.
+//! nothing of the crate at all; [`checksum`] is the bytes' CRC of the link and the records.
 
+pub mod checksum;
 pub mod units;
 
 use core::ops::{Add, Mul, Neg, Sub};
