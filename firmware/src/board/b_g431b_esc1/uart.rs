@@ -109,6 +109,15 @@ impl embedded_io::Write for Esc1Uart {
         Ok(buf.len())
     }
 
+    /// Every byte, blocking: the trait's default loops on `write` and panics on a
+    /// zero-length write, a path the optimiser cannot always prove dead.
+    fn write_all(&mut self, buf: &[u8]) -> Result<(), Self::Error> {
+        for &b in buf {
+            self.write_byte(b);
+        }
+        Ok(())
+    }
+
     fn flush(&mut self) -> Result<(), Self::Error> {
         while self.usart.isr().read().tc().bit_is_clear() {}
         Ok(())
