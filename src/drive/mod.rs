@@ -239,11 +239,30 @@ struct Constants<T> {
     inv_psi_f: T,
     /// Damping of a dragging current vector (the I/f start, the low-speed mode): the
     /// vector is retarded by `k dw_e` (rad) with `k = damping_s_sqrt_a / sqrt(|I|)`
-    /// (s, `|I|` in A), damping ratio 0.7 of the vector's spring on the moving mass.
-    damping_s_sqrt_a: f32,
+    /// (s, `|I|` in A), damping ratio 0.7 of the vector's spring on the moving mass;
+    /// here `damping_s_sqrt_a / sqrt(I_base)` (s), for `|I|` in working units
+    /// ([`Constants::vector_damping_s`]).
+    damping_s_sqrt_unit: f32,
+    /// The smallest vector amplitude (working units) the damping is formed for: 1 mA,
+    /// or 1e-4 of the base current where that is more (its `1 / sqrt` stays within
+    /// Q8.24's range).
+    damping_min_amplitude: T,
     /// Per-period rate of the low-pass on the mover's speed error during the I/f
     /// start: five times the spring's natural frequency at the start-up current.
     startup_speed_filter_rate: f32,
+}
+
+impl<T: Scalar> Constants<T> {
+    /// The damping `k` (s) of a current vector of amplitude `amplitude` (working units)
+    /// dragging the mover: `damping_s_sqrt_a / sqrt(|I|)`, `|I|` at least
+    /// `damping_min_amplitude`. The root is taken in the working type ([`Scalar::sqrt`]:
+    /// in Q8.24 an integer root on the hardware divider, where an `f32` root in software
+    /// on an FPU-less core costs several hundred instructions); accuracy that of `sqrt`
+    /// and one `f32` division.
+    #[inline(never)]
+    fn vector_damping_s(&self, amplitude: T) -> f32 {
+        self.damping_s_sqrt_unit / amplitude.max(self.damping_min_amplitude).sqrt().to_f32()
+    }
 }
 
 /// The drive. See the module documentation.
@@ -466,8 +485,12 @@ impl<T: Scalar> Drive<T> {
             // Retarding the vector by k dw_e (rad) gives a force -K_f I k dw_e against
             // the swing: damping ratio 0.7 for k = 1.4 / w_n = 1.4 sqrt(M tau / (K_f pi))
             // / sqrt(I).
-            damping_s_sqrt_a: 1.4
-                * sqrt_rounded(config.moving_mass_kg / (motor.thrust_constant_n_per_a() * omega_per_speed)),
+            damping_s_sqrt_unit: 1.4
+                * sqrt_rounded(
+                    config.moving_mass_kg
+                        / (motor.thrust_constant_n_per_a() * omega_per_speed * base.current_a),
+                ),
+            damping_min_amplitude: T::from_f32((1e-3 / base.current_a).max(1e-4)),
             startup_speed_filter_rate: {
                 let stiffness = motor.thrust_constant_n_per_a() * config.startup.current_a * omega_per_speed;
                 (5.0 * sqrt_rounded(stiffness / config.moving_mass_kg) * ts).min(1.0)
@@ -555,6 +578,9 @@ impl<T: Scalar> Drive<T> {
                             dt_s: ts,
                             load_limit_n: config.current_limit_a * motor.thrust_constant_n_per_a(),
                             speed_limit_m_per_s: 2.0 * m.low_speed_m_per_s.max(0.01),
+                            // The thrust current in working units.
+                            thrust_unit_n: motor.thrust_constant_n_per_a() * base.current_a,
+                            hold_ratio: HOLD_BANDWIDTH_SHARE,
                         })
                         .map_err(|_| DriveConfigError { field: "motion.hfi" })?,
                     ),
@@ -565,9 +591,6 @@ impl<T: Scalar> Drive<T> {
                 slip_margin_rad_s: wn + m.low_speed_m_per_s * omega_per_speed,
                 slip_settle_s: 2.0 * core::f32::consts::TAU / wn,
                 slip_guard_s: 0.0,
-                hold_bandwidth_rad_s: m
-                    .hfi
-                    .map_or(0.0, |h| HOLD_BANDWIDTH_SHARE * HOLD_OBSERVER_SHARE * h.bandwidth_rad_s),
                 anchor_angle: Angle::ZERO,
                 anchor_x_m: 0.0,
                 anchor_pending_m: 0.0,
@@ -1236,8 +1259,7 @@ impl<T: Scalar> Drive<T> {
             self.startup_speed_error_rad_s +=
                 k.startup_speed_filter_rate * (error_rad_s - self.startup_speed_error_rad_s);
         }
-        let amplitude_a = self.i_dq_ref.q.abs().to_f32() * k.base.current_a;
-        let damping_s = k.damping_s_sqrt_a / Scalar::sqrt(amplitude_a.max(1e-3));
+        let damping_s = k.vector_damping_s(self.i_dq_ref.q.abs());
         let retard = (damping_s * self.startup_speed_error_rad_s).clamp(-0.5, 0.5);
         let theta = self.theta_ol - retard.radians_to_angle();
         self.theta_ol = self.theta_ol + (self.omega_ol * k.dt).radians_to_angle();

@@ -223,10 +223,7 @@ pub(super) struct Positioning<T> {
     /// With HFI: position, speed and load observer on the HFI position and the commanded
     /// thrust ([`crate::algorithms::load_observer`]); at rest the drive holds the reference with a
     /// PD law on its estimates and its load estimate fed forward.
-    pub(super) hold_observer: Option<LoadObserver>,
-    /// Closed-loop bandwidth of that hold, rad/s (critically damped PD: `k_v = 2 w_c`,
-    /// `k_x = w_c^2`).
-    pub(super) hold_bandwidth_rad_s: f32,
+    pub(super) hold_observer: Option<LoadObserver<T>>,
 }
 
 impl<T> Positioning<T> {
@@ -433,8 +430,8 @@ impl<T: Scalar> Drive<T> {
             p.aligned = self.i_dq_ref.d == target && self.i_dq_ref.q == T::ZERO;
         }
         let i_ref = self.i_dq_ref;
-        let amplitude_a =
-            Scalar::sqrt(i_ref.d * i_ref.d + i_ref.q * i_ref.q).to_f32() * self.k.base.current_a;
+        let amplitude = Scalar::sqrt(i_ref.d * i_ref.d + i_ref.q * i_ref.q);
+        let amplitude_a = amplitude.to_f32() * self.k.base.current_a;
         if let Some(v) = speed_target {
             p.profile.set_speed_target(v);
         }
@@ -495,7 +492,7 @@ impl<T: Scalar> Drive<T> {
         }
         // The vector trails the reference position by damping_s times the speed error:
         // a thrust against the mover's swing on the current vector's spring.
-        let damping_s = k.damping_s_sqrt_a / Scalar::sqrt(amplitude_a.max(1e-3));
+        let damping_s = k.vector_damping_s(amplitude);
         let retard = (damping_s * p.speed_error_rad_s).clamp(-0.5, 0.5);
         p.retard_rate_rad_s += p.current_loop_rate * ((retard - p.retard_rad) / dt_s - p.retard_rate_rad_s);
         p.retard_rad = retard;
@@ -858,8 +855,7 @@ impl<T: Scalar> Drive<T> {
         }
         let error = self.omega_ref - self.omega_filtered;
         let limit = self.k.current_limit;
-        let current_a = self.k.base.current_a;
-        let iq_applied_a = self.i_dq_ref.q.to_f32() * current_a;
+        let iq_applied = self.i_dq_ref.q;
         let Some(p) = &mut self.positioning else {
             return Some((theta, T::ZERO, step));
         };
@@ -871,14 +867,8 @@ impl<T: Scalar> Drive<T> {
         // holds (moving, the speed loop has the thrust).
         let hold = match &mut p.hold_observer {
             Some(o) => {
-                o.update(x_hat, iq_applied_a * p.thrust_n_per_a);
-                let wc = p.hold_bandwidth_rad_s;
-                at_rest.then(|| {
-                    let accel = sp.accel_m_per_s2
-                        + 2.0 * wc * (sp.speed_m_per_s - o.speed_m_per_s())
-                        + wc * wc * (sp.position_m - o.position_m());
-                    T::from_f32((p.mass_kg * accel + o.load_n()) / p.thrust_n_per_a / current_a)
-                })
+                o.update(T::from_f32(x_hat), iq_applied);
+                at_rest.then(|| o.hold_thrust(&o.target(sp.position_m, sp.speed_m_per_s, sp.accel_m_per_s2)))
             }
             None => None,
         };
