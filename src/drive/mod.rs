@@ -238,14 +238,14 @@ struct Constants<T> {
     rs: T,
     inv_psi_f: T,
     /// Damping of a dragging current vector (the I/f start, the low-speed mode): the
-    /// vector is retarded by `k dw_e` (rad) with `k = damping_s_sqrt_a / sqrt(|I|)`
-    /// (s, `|I|` in A), damping ratio 0.7 of the vector's spring on the moving mass;
-    /// here `damping_s_sqrt_a / sqrt(I_base)` (s), for `|I|` in working units
+    /// vector is retarded by `k dw_e` (rad) with `k = c / sqrt(|I|)`, damping ratio 0.7
+    /// of the vector's spring on the moving mass (`c = 1.4 sqrt(M / (K_f dtheta/dx))`,
+    /// s A^0.5). Held as `c / sqrt(I_base)` (s), for `|I|` in working units
     /// ([`Constants::vector_damping_s`]).
     damping_s_sqrt_unit: f32,
-    /// The smallest vector amplitude (working units) the damping is formed for: 1 mA,
-    /// or 1e-4 of the base current where that is more (its `1 / sqrt` stays within
-    /// Q8.24's range).
+    /// The smallest vector amplitude (working units) the damping is formed for, so that
+    /// `k` stays finite at zero current: 1 mA, or 1e-4 of the base current where that
+    /// is more (its Q8.24 root then keeps 17 significant bits).
     damping_min_amplitude: T,
     /// Per-period rate of the low-pass on the mover's speed error during the I/f
     /// start: five times the spring's natural frequency at the start-up current.
@@ -254,7 +254,7 @@ struct Constants<T> {
 
 impl<T: Scalar> Constants<T> {
     /// The damping `k` (s) of a current vector of amplitude `amplitude` (working units)
-    /// dragging the mover: `damping_s_sqrt_a / sqrt(|I|)`, `|I|` at least
+    /// dragging the mover: `c / sqrt(|I|)` ([`Constants::damping_s_sqrt_unit`]), `|I|` at least
     /// `damping_min_amplitude`. The root is taken in the working type ([`Scalar::sqrt`]:
     /// in Q8.24 an integer root on the hardware divider, where an `f32` root in software
     /// on an FPU-less core costs several hundred instructions); accuracy that of `sqrt`

@@ -221,7 +221,6 @@ pub use wire::{EncodeError, LinkError, PROTOCOL_VERSION};
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::num::checksum::crc16;
 
     #[test]
     fn sizes_match_the_documented_layouts() {
@@ -253,10 +252,5 @@ mod tests {
         for (i, a) in raw.iter().enumerate() {
             assert!(raw[i + 1..].iter().all(|b| b != a), "{raw:?}");
         }
-    }
-
-    #[test]
-    fn crc_is_ibm_3740() {
-        assert_eq!(crc16(b"123456789"), 0x29B1);
     }
 }
