@@ -7,7 +7,7 @@
 //!   [`simulation`] (the drive in closed loop over a scenario), [`recorder`] (sensored
 //!   recordings for the estimator alone).
 //! - The drive images: [`hil_link`] (the host end of the lock-step HIL link), [`qemu`],
-//!   [`target`].
+//!   [`target`], [`exec_profile`] (where an image's instructions go, from QEMU's log).
 //! - Files and output: [`trace`], [`motor_file`], [`scenario_file`], [`summary`],
 //!   [`plot`], [`observer`], [`progress`].
 #![forbid(unsafe_code)]
@@ -16,6 +16,7 @@
 pub mod cli;
 pub mod closed_loop;
 pub mod commands;
+pub mod exec_profile;
 pub mod hil_link;
 pub mod motor_file;
 pub mod observer;

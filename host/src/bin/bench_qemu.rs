@@ -51,7 +51,13 @@
 //! cargo run --release -p dcfo-host --bin bench_qemu -- --json    # + JSON, last line
 //! cargo run --release -p dcfo-host --bin bench_qemu -- --check   # the budget (CI)
 //! cargo run --release -p dcfo-host --bin bench_qemu -- --record  # re-record, deliberately
+//! cargo run --release -p dcfo-host --bin bench_qemu -- --profile m3  # where the worst step goes
 //! ```
+//!
+//! `--profile m3|m4f` runs only that core's benchmark, under QEMU's translation and
+//! execution log, and prints per function the instructions of the costliest step and the
+//! mean step, and the soft-float routines by their callers
+//! (`dcfo_host::exec_profile`). It takes about ten minutes and no figure is checked.
 //!
 //! Needs `qemu-system-arm` (7.2), `arm-none-eabi-size` and `arm-none-eabi-nm`
 //! (binutils-arm-none-eabi) and the two thumb targets.
@@ -65,6 +71,7 @@ use anyhow::{Context, Result, bail};
 use clap::Parser;
 use dcfo::motor_image::MotorImage;
 use dcfo_host::commands::board::session::qemu_image_cmdline;
+use dcfo_host::exec_profile::{ExecProfile, Symbols};
 use dcfo_host::motor_file::load_motor;
 use dcfo_host::qemu::{QemuCpu, build_qemu_example, qemu_example_elf, target_dir};
 use serde_json::{Map, Value, json};
@@ -151,6 +158,10 @@ struct Args {
     /// Write the measured figures into bench/recorded.json (a deliberate update).
     #[arg(long, conflicts_with = "check")]
     record: bool,
+    /// Only profile the benchmark on one core (`m3` or `m4f`): per function, the
+    /// instructions of the costliest step and of the mean one (module docs).
+    #[arg(long, value_parser = ["m3", "m4f"], conflicts_with_all = ["check", "record", "json"])]
+    profile: Option<String>,
 }
 
 /// One benchmark image and the QEMU board it runs on.
@@ -220,6 +231,13 @@ fn run(args: &Args) -> Result<bool> {
     let image = MotorImage::new(motor, dcfo_host::commands::stroke::bus_for(&motor))
         .map_err(|e| anyhow::anyhow!("{MOTOR_FILE}: no motor image: {e:?}"))?;
     let cmdline = qemu_image_cmdline(&image);
+    if let Some(core) = &args.profile {
+        let board =
+            BOARDS.iter().find(|b| b.key.starts_with(core.as_str())).context("--profile: no such core")?;
+        build_qemu_example(&root, board.qemu, "bench")?;
+        profile(&qemu_example_elf(&root, board.qemu, "bench"), board, &cmdline)?;
+        return Ok(true);
+    }
 
     for board in &BOARDS {
         build_qemu_example(&root, board.qemu, "bench")?;
@@ -436,6 +454,84 @@ fn run_qemu(elf: &Path, cpu: QemuCpu, cmdline: &str) -> Result<String> {
     }
     Ok(text)
 }
+
+/// How many functions `--profile` lists.
+const PROFILE_LINES: usize = 30;
+
+/// `--profile`: runs `elf` on `board` under QEMU's `in_asm,exec,nochain` log (on its
+/// stderr) and prints where the steps' instructions go (`dcfo_host::exec_profile`).
+fn profile(elf: &Path, board: &Board, cmdline: &str) -> Result<()> {
+    use std::io::{BufRead, BufReader, Read};
+    let nm = Command::new("arm-none-eabi-nm")
+        .args(["-n", "-C", "--defined-only"])
+        .arg(elf)
+        .output()
+        .context("running arm-none-eabi-nm (apt install binutils-arm-none-eabi)")?;
+    if !nm.status.success() {
+        bail!("arm-none-eabi-nm {} failed", elf.display());
+    }
+    let symbols = Symbols::from_nm(&String::from_utf8_lossy(&nm.stdout));
+    let marker =
+        symbols.find(PROFILE_MARKER).with_context(|| format!("{}: no {PROFILE_MARKER}", elf.display()))?;
+    let (machine, core) = board.qemu.machine_and_cpu();
+    let t = Instant::now();
+    let mut child = Command::new("qemu-system-arm")
+        .args(["-M", machine, "-cpu", core, "-display", "none", "-monitor", "none"])
+        .args(["-icount", &format!("shift={ICOUNT_SHIFT},align=off,sleep=off")])
+        .args(["-semihosting-config", "enable=on,target=native", "-serial", "stdio"])
+        .args(["-d", "in_asm,exec,nochain"])
+        .arg("-kernel")
+        .arg(elf)
+        .args(["-append", cmdline])
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .context("running qemu-system-arm (apt-get install qemu-system-arm)")?;
+    let mut stdout = child.stdout.take().context("qemu's stdout")?;
+    let uart = std::thread::spawn(move || {
+        let mut s = String::new();
+        stdout.read_to_string(&mut s).map(|_| s)
+    });
+    let mut log = BufReader::with_capacity(1 << 20, child.stderr.take().context("qemu's stderr")?);
+    let mut p = ExecProfile::new(symbols, marker);
+    let mut line = String::new();
+    while log.read_line(&mut line).context("reading qemu's log")? > 0 {
+        p.line(line.trim_end());
+        line.clear();
+    }
+    let status = child.wait().context("waiting for qemu")?;
+    let out = uart.join().map_err(|_| anyhow::anyhow!("the UART reader panicked"))?.context("qemu's UART")?;
+    if !status.success() || !out.contains("END") {
+        bail!("{} on {machine} exited with {status}; output:\n{out}", elf.display());
+    }
+    let r = p.finish().context("no step was profiled")?;
+    println!(
+        "{}: {} steps ({PROFILE_MARKER} calls) in {:.0} s; mean {:.0} instructions, costliest {} (step {})",
+        board.label,
+        r.windows,
+        t.elapsed().as_secs_f64(),
+        r.mean,
+        r.worst,
+        r.worst_window
+    );
+    println!("| {:>9} | {:>9} | function |", "costliest", "mean");
+    println!("|----------:|----------:|----------|");
+    for s in r.functions.iter().take(PROFILE_LINES) {
+        println!("| {:>9} | {:>9.0} | {} |", s.worst, s.mean, s.name);
+    }
+    println!();
+    println!("Soft-float routines and conversions in the costliest step, by caller:");
+    println!("| {:>9} | caller |", "costliest");
+    println!("|----------:|--------|");
+    for s in r.float_by_caller.iter().take(PROFILE_LINES) {
+        println!("| {:>9} | {} |", s.worst, s.name);
+    }
+    Ok(())
+}
+
+/// The bench's timed call of one `Drive::step`: a profile window per call.
+const PROFILE_MARKER: &str = "stage_step_brief";
 
 /// Reads the firmware's lines (`firmware/examples/bench.rs` lists them).
 fn parse(out: &str) -> Result<Run> {
