@@ -94,8 +94,9 @@ pub struct Share {
     pub name: String,
     /// In the costliest window.
     pub worst: u64,
-    /// Mean over the windows.
-    pub mean: f64,
+    /// Mean over the windows, where it is counted (`None` in
+    /// [`Report::float_by_caller`], which counts the costliest window only).
+    pub mean: Option<f64>,
 }
 
 /// What [`ExecProfile::finish`] reports.
@@ -257,7 +258,7 @@ impl ExecProfile {
                 .map(|(i, &c)| Share {
                     name: self.symbols.name(i).to_owned(),
                     worst: c,
-                    mean: means.and_then(|m| m.get(i)).map_or(0.0, |&s| s as f64 / windows as f64),
+                    mean: means.and_then(|m| m.get(i)).map(|&s| s as f64 / windows as f64),
                 })
                 .collect();
             v.sort_by_key(|s| std::cmp::Reverse(s.worst));
@@ -332,8 +333,8 @@ mod tests {
         assert!((r.mean - 13.0).abs() < 1e-12);
         let work = r.functions.iter().find(|s| s.name == "work").expect("work");
         assert_eq!(work.worst, 10);
-        assert!((work.mean - 7.5).abs() < 1e-12);
-        assert_eq!(r.float_by_caller, vec![Share { name: "work".into(), worst: 7, mean: 0.0 }]);
+        assert!(work.mean.is_some_and(|m| (m - 7.5).abs() < 1e-12));
+        assert_eq!(r.float_by_caller, vec![Share { name: "work".into(), worst: 7, mean: None }]);
     }
 
     #[test]

@@ -57,7 +57,8 @@
 //! `--profile m3|m4f` runs only that core's benchmark, under QEMU's translation and
 //! execution log, and prints per function the instructions of the costliest step and the
 //! mean step, and the soft-float routines by their callers
-//! (`dcfo_host::exec_profile`). It takes about ten minutes and no figure is checked.
+//! (`dcfo_host::exec_profile`). It takes several minutes (seven for the M3) and checks no
+//! figure.
 //!
 //! Needs `qemu-system-arm` (7.2), `arm-none-eabi-size` and `arm-none-eabi-nm`
 //! (binutils-arm-none-eabi) and the two thumb targets.
@@ -433,17 +434,25 @@ fn check(recorded_path: &Path, figures: &Map<String, Value>, big_data: &[(String
     Ok(ok)
 }
 
-/// Runs `elf` on `cpu`'s board with the instruction counter as the clock and the motor
-/// image on its command line; returns UART0's output.
-fn run_qemu(elf: &Path, cpu: QemuCpu, cmdline: &str) -> Result<String> {
+/// QEMU on `cpu`'s board running `elf` with the instruction counter as the clock, the
+/// motor image `cmdline` on its command line and UART0 on its stdout.
+fn qemu_command(elf: &Path, cpu: QemuCpu, cmdline: &str) -> Command {
     let (machine, core) = cpu.machine_and_cpu();
-    let out = Command::new("qemu-system-arm")
-        .args(["-M", machine, "-cpu", core, "-display", "none", "-monitor", "none"])
+    let mut c = Command::new("qemu-system-arm");
+    c.args(["-M", machine, "-cpu", core, "-display", "none", "-monitor", "none"])
         .args(["-icount", &format!("shift={ICOUNT_SHIFT},align=off,sleep=off")])
         .args(["-semihosting-config", "enable=on,target=native", "-serial", "stdio"])
         .arg("-kernel")
         .arg(elf)
-        .args(["-append", cmdline])
+        .args(["-append", cmdline]);
+    c
+}
+
+/// Runs `elf` on `cpu`'s board with the instruction counter as the clock and the motor
+/// image on its command line; returns UART0's output.
+fn run_qemu(elf: &Path, cpu: QemuCpu, cmdline: &str) -> Result<String> {
+    let (machine, _) = cpu.machine_and_cpu();
+    let out = qemu_command(elf, cpu, cmdline)
         .stdin(Stdio::null())
         .stderr(Stdio::inherit())
         .output()
@@ -473,16 +482,10 @@ fn profile(elf: &Path, board: &Board, cmdline: &str) -> Result<()> {
     let symbols = Symbols::from_nm(&String::from_utf8_lossy(&nm.stdout));
     let marker =
         symbols.find(PROFILE_MARKER).with_context(|| format!("{}: no {PROFILE_MARKER}", elf.display()))?;
-    let (machine, core) = board.qemu.machine_and_cpu();
+    let (machine, _) = board.qemu.machine_and_cpu();
     let t = Instant::now();
-    let mut child = Command::new("qemu-system-arm")
-        .args(["-M", machine, "-cpu", core, "-display", "none", "-monitor", "none"])
-        .args(["-icount", &format!("shift={ICOUNT_SHIFT},align=off,sleep=off")])
-        .args(["-semihosting-config", "enable=on,target=native", "-serial", "stdio"])
+    let mut child = qemu_command(elf, board.qemu, cmdline)
         .args(["-d", "in_asm,exec,nochain"])
-        .arg("-kernel")
-        .arg(elf)
-        .args(["-append", cmdline])
         .stdin(Stdio::null())
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
@@ -518,7 +521,8 @@ fn profile(elf: &Path, board: &Board, cmdline: &str) -> Result<()> {
     println!("| {:>9} | {:>9} | function |", "costliest", "mean");
     println!("|----------:|----------:|----------|");
     for s in r.functions.iter().take(PROFILE_LINES) {
-        println!("| {:>9} | {:>9.0} | {} |", s.worst, s.mean, s.name);
+        let mean = s.mean.map_or_else(|| "-".to_owned(), |m| format!("{m:.0}"));
+        println!("| {:>9} | {mean:>9} | {} |", s.worst, s.name);
     }
     println!();
     println!("Soft-float routines and conversions in the costliest step, by caller:");
