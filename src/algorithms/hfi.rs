@@ -376,7 +376,7 @@ impl<T: Scalar> Hfi<T> {
             lock_rate: T::from_f32((t / config.lock_filter_s).min(1.0)),
             lock_threshold: T::from_f32(config.lock_threshold),
             min_margin: T::from_f32(config.min_polarity_margin),
-            settle_samples: libm::ceilf(config.settle_s / t) as u32,
+            settle_samples: ceil_count(config.settle_s / t),
             pulse: u32::from(config.pulse_periods),
             rest: u32::from(config.rest_periods),
             phase: HfiPhase::Converging,
@@ -594,6 +594,14 @@ impl<T: Scalar> Hfi<T> {
     }
 }
 
+/// The smallest whole count of samples at least `samples` (`ceil`, saturating at the
+/// `u32` range; NaN gives 0): a comparison after the truncating cast, where libm's
+/// `ceilf` is a routine of its own in the image.
+fn ceil_count(samples: f32) -> u32 {
+    let n = samples as u32;
+    if (n as f32) < samples { n.saturating_add(1) } else { n }
+}
+
 #[cfg(test)]
 mod tests {
     //! Against the analysis: an ideal discrete salient R-L motor at standstill (exact
@@ -675,6 +683,16 @@ mod tests {
     fn wrap_deg(x: f64, period: f64) -> f64 {
         let r = x.rem_euclid(period);
         if r >= period / 2.0 { r - period } else { r }
+    }
+
+    #[test]
+    fn the_settling_count_is_the_ceiling_of_the_samples() {
+        for x in [0.0f32, 0.25, 1.0, 1.0 + f32::EPSILON, 2.5, 99.999, 100.0, 3.0e9, 5.0e9] {
+            let expected = f64::from(x).ceil().min(f64::from(u32::MAX)) as u32;
+            assert_eq!(ceil_count(x), expected, "{x}");
+        }
+        assert_eq!(ceil_count(f32::NAN), 0);
+        assert_eq!(ceil_count(-3.5), 0);
     }
 
     #[test]
