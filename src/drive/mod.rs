@@ -83,7 +83,7 @@ pub use crate::algorithms::dead_time::DeadTimeCompensation;
 use crate::algorithms::dead_time::InverterErrorModel;
 use crate::algorithms::hfi::Hfi;
 use crate::algorithms::load_observer::{LoadObserver, LoadObserverConfig};
-use crate::algorithms::motion::{Profile, ProfileLimits};
+use crate::algorithms::motion::{Period, Profile, ProfileLimits};
 use crate::algorithms::observer::ObserverKind;
 use crate::algorithms::pi::Pi;
 use crate::algorithms::svpwm::{DcBus, Duties, svpwm, svpwm_on};
@@ -527,8 +527,13 @@ impl<T: Scalar> Drive<T> {
             let wn = sqrt_rounded(stiffness / config.moving_mass_kg);
             let profile =
                 Profile::new(m.limits, 0.0).map_err(|_| DriveConfigError { field: "motion.limits" })?;
+            let period = |dt_s: f32| Period::new(dt_s).ok_or(DriveConfigError { field: "control_period_s" });
+            let control_period = period(ts)?;
+            let speed_loop_period = period(ts * f32::from(config.speed_loop_divider))?;
             Ok(Positioning {
                 profile,
+                control_period,
+                speed_loop_period,
                 follows_speed,
                 enter_omega: base.omega(m.low_speed_m_per_s * omega_per_speed),
                 enter_m_per_s: m.low_speed_m_per_s,

@@ -114,7 +114,7 @@ use super::MotionConfig;
 use super::{Constants, Drive, DriveState};
 use crate::algorithms::hfi::Hfi;
 use crate::algorithms::load_observer::LoadObserver;
-use crate::algorithms::motion::{MotionError, Move, Profile, Setpoint};
+use crate::algorithms::motion::{MotionError, Move, Period, Profile, Setpoint};
 use crate::algorithms::transforms::{AlphaBeta, Dq};
 use crate::estimator::Estimate;
 use crate::num::{Angle, Scalar, asin, decay, sin_cos};
@@ -128,7 +128,10 @@ const ANGLE_STEPS_PER_TURN: f32 = 4_294_967_296.0;
 /// Positioning state and constants (working units unless named in SI).
 #[derive(Clone, Debug)]
 pub(super) struct Positioning<T> {
-    pub(super) profile: Profile<MOVE_QUEUE>,
+    pub(super) profile: Profile<T, MOVE_QUEUE>,
+    /// The control period and the speed loop's: the profile's steps.
+    pub(super) control_period: Period<T>,
+    pub(super) speed_loop_period: Period<T>,
     /// A speed drive's low-speed mode: the profile follows the speed reference
     /// ([`Profile::follow_speed`]) through the band, no moves, no position loop.
     pub(super) follows_speed: bool,
@@ -226,7 +229,7 @@ pub(super) struct Positioning<T> {
     pub(super) hold_observer: Option<LoadObserver<T>>,
 }
 
-impl<T> Positioning<T> {
+impl<T: Scalar> Positioning<T> {
     /// `true` once the reference at `sp` is fast enough to leave the low-speed mode:
     /// beyond the exit threshold, or, following a speed, at a target the band's
     /// threshold or faster (a target inside the hysteresis would otherwise keep the
@@ -435,7 +438,7 @@ impl<T: Scalar> Drive<T> {
         if let Some(v) = speed_target {
             p.profile.set_speed_target(v);
         }
-        let sp = if p.aligned { p.profile.step(dt_s) } else { p.profile.setpoint() };
+        let sp = if p.aligned { p.profile.step(&p.control_period) } else { p.profile.setpoint() };
         let omega_ref = Self::electrical_speed(&self.k, sp.speed_m_per_s);
         // The mover's speed from the q voltage of the last step: in the frame turning at
         // `w_frame`, u_q = Rs i_q + w_frame Ld i_d + w psi_f cos(delta); the inverter's
@@ -643,9 +646,8 @@ impl<T: Scalar> Drive<T> {
         if !(self.speed_divider_count.saturating_add(2) == n || n == 1) {
             return None;
         }
-        let dt_s = self.k.dt_s * f32::from(n);
         let p = self.positioning.as_mut()?;
-        let sp = p.profile.step(dt_s);
+        let sp = p.profile.step(&p.speed_loop_period);
         p.accel_ff_target = Self::accel_feed_forward(p, &sp);
         p.reference_omega = Self::electrical_speed(&self.k, sp.speed_m_per_s);
         let alpha = Self::electrical_acceleration(&self.k, sp.accel_m_per_s2);
