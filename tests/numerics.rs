@@ -214,6 +214,25 @@ fn recip_accuracy_floats_rounded_q24_one_lsb() {
 }
 
 #[test]
+fn recip_count_floats_rounded_q24_within_half_an_lsb() {
+    let lsb = 2f64.powi(-24);
+    let counts = (1..100_000u32).chain((0..32).map(|k| 1u32 << k)).chain([3 << 24, u32::MAX - 1, u32::MAX]);
+    let mut worst_lsb = 0.0f64;
+    for n in counts {
+        let exact = 1.0 / f64::from(n);
+        let got = Q24::recip_count(n).to_bits() as f64 * lsb;
+        // Rounded to nearest: at most half an LSB off (a tie rounds up).
+        assert!((got - exact).abs() <= 0.5 * lsb, "1/{n}: {got} for {exact}");
+        worst_lsb = worst_lsb.max((got - exact).abs() / lsb);
+        assert_eq!(f32::recip_count(n), 1.0 / n as f32, "{n}");
+        assert_eq!(f64::recip_count(n), exact, "{n}");
+    }
+    println!("Q24 recip_count worst error {worst_lsb:.3} LSB");
+    assert_eq!(Q24::recip_count(0).to_bits(), i32::MAX);
+    assert_eq!(f32::recip_count(0), f32::INFINITY);
+}
+
+#[test]
 fn inv_sqrt_accuracy_f32_4e_7_q24_one_lsb_plus_2e_9_relative() {
     let lsb = 2f64.powi(-24);
     let mut worst_rel = 0.0f64;

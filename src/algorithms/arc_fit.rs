@@ -426,7 +426,7 @@ impl<T: Scalar> ArcFit<T> {
         // samples).
         // 1 / n formed in f32 and converted: n itself (thousands) is beyond fixed
         // point's range, its reciprocal is not.
-        let inv_n = T::from_f32(1.0 / self.samples as f32);
+        let inv_n = T::recip_count(self.samples);
         let mean = |m: T, x: T| m + (x - m).mul_nearest(inv_n);
         self.gxx = mean(self.gxx, p.alpha * p.alpha);
         self.gxy = mean(self.gxy, p.alpha * p.beta);
@@ -714,7 +714,7 @@ impl<T: Scalar> EmfFit<T> {
     /// Takes the point `p` (scaled, from the first fitted sample; `p_sq = |p|^2 <= 16`)
     /// into the running means, as the `samples`-th.
     fn accumulate(&mut self, p: AlphaBeta<T>, p_sq: T) {
-        let inv_n = T::from_f32(1.0 / self.samples as f32);
+        let inv_n = T::recip_count(self.samples);
         let mean = |m: T, x: T| m + (x - m).mul_nearest(inv_n);
         self.mx = mean(self.mx, p.alpha);
         self.my = mean(self.my, p.beta);
@@ -741,7 +741,7 @@ impl<T: Scalar> EmfFit<T> {
             count: 0,
         });
         c.count = c.count.saturating_add(1);
-        let inv_n = T::from_f32(1.0 / c.count as f32);
+        let inv_n = T::recip_count(c.count);
         let mean = |m: T, x: T| m + (x - m).mul_nearest(inv_n);
         c.offset = mean(c.offset, (theta_e - c.reference).to_radians());
         c.omega = mean(c.omega, omega_e);

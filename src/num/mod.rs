@@ -111,6 +111,12 @@ pub trait Scalar:
     /// Accuracy: floats correctly rounded (one division); [`Q24`] within 1 LSB
     /// (the quotient rounded towards zero: [`Scalar::checked_div`] of one by `self`).
     fn recip(self) -> Option<Self>;
+    /// `1 / n` for a count `n >= 1`: a running mean's weight. Accuracy: floats correctly
+    /// rounded (one division); [`Q24`] rounded to nearest (within half an LSB), by one
+    /// 32-bit integer division (`UDIV` on Cortex-M3, where `1.0 / n as f32` is two
+    /// soft-float calls). `n = 0` gives the largest value (`1 / 0` saturated; the floats'
+    /// infinity).
+    fn recip_count(n: u32) -> Self;
     /// `1 / sqrt(self)` for `self > 0`; `None` for `self <= 0`, NaN, or a result out of
     /// range. Accuracy: `f64` correctly rounded sqrt then division; `f32` within 4e-7
     /// relative (micromath seed, three Newton steps); [`Q24`] within 1 LSB plus 2e-9
@@ -290,6 +296,9 @@ impl Scalar for f32 {
     fn recip(self) -> Option<f32> {
         Scalar::checked_div(1.0, self)
     }
+    fn recip_count(n: u32) -> f32 {
+        1.0 / n as f32
+    }
     fn inv_sqrt(self) -> Option<f32> {
         if !(self > 0.0 && self.is_finite()) {
             return None;
@@ -365,6 +374,9 @@ impl Scalar for f64 {
     }
     fn recip(self) -> Option<f64> {
         Scalar::checked_div(1.0, self)
+    }
+    fn recip_count(n: u32) -> f64 {
+        1.0 / f64::from(n)
     }
     fn inv_sqrt(self) -> Option<f64> {
         if !(self > 0.0 && self.is_finite()) {
@@ -788,6 +800,14 @@ impl Scalar for Q24 {
     }
     fn recip(self) -> Option<Q24> {
         q24_recip(self.to_bits()).map(Q24::from_bits)
+    }
+    fn recip_count(n: u32) -> Q24 {
+        const ONE_BITS: u32 = 1 << 24;
+        match n {
+            0 => Q24::from_bits(i32::MAX),
+            // (2^24 + n / 2) / n: 1 / n rounded to nearest; below 2^25 for every n >= 1.
+            _ => Q24::from_bits(((ONE_BITS + n / 2) / n) as i32),
+        }
     }
     fn inv_sqrt(self) -> Option<Q24> {
         q24_inv_sqrt_positive(self.to_bits()).map(Q24::from_bits)
