@@ -473,8 +473,9 @@ struct EmfFit<T> {
     /// The same through a second, slower low-pass (cut-off `wc / EMF_ANGLE_FILTER_RATIO`),
     /// for the angle at the fit (dimensionless, scaled alike).
     emf_slow: AlphaBeta<T>,
-    /// The slow filter's cut-off (rad/s).
+    /// The slow filter's cut-off (rad/s) and its inverse (s/rad).
     slow_cutoff: T,
+    inv_slow_cutoff: T,
     /// Its settling time, as the floor's angle (rad).
     slow_settle_rad: T,
     /// `2 / (psi_f * max_omega)` (1/V).
@@ -569,6 +570,7 @@ impl<T: Scalar> EmfFit<T> {
             emf: AlphaBeta::default(),
             emf_slow: AlphaBeta::default(),
             slow_cutoff: base.omega(cutoff_rad_s / EMF_ANGLE_FILTER_RATIO),
+            inv_slow_cutoff: T::from_f32(1.0 / base.omega::<f32>(cutoff_rad_s / EMF_ANGLE_FILTER_RATIO)),
             slow_settle_rad: T::from_f32(
                 EMF_FILTER_SETTLE * EMF_ANGLE_FILTER_RATIO * floor_rad_s / cutoff_rad_s,
             ),
@@ -906,16 +908,23 @@ impl<T: Scalar> EmfFit<T> {
         // The back-EMF leads the flux by a quarter turn in the direction of motion; the
         // filter delays it: a discrete first-order low-pass `y += wc dt (x - y)` by
         // `atan(w (1 - wc dt) / wc)` (to second order in `w dt`), and its input, a
-        // period's mean, is half a period old.
+        // period's mean, is half a period old. The slow filter's output gives the angle
+        // once it has settled, the fast one's before. The lag is added as the argument of
+        // `1 + j w (1 - wc dt) / wc` (at most 0.64 in magnitude across the fit's range, so
+        // the product stays in range): one arctangent of the rotated vector gives the
+        // angle and its lag.
         let quarter = Angle::from_radians(T::from_f32(core::f32::consts::FRAC_PI_2));
         let lead = if omega_e < T::ZERO { -quarter } else { quarter };
         let half_sample = (omega_e * dt * T::HALF).radians_to_angle();
-        let lag = |cutoff: T| T::atan2(omega_e * (T::ONE - cutoff * dt), cutoff) + half_sample;
-        let theta_e = if elapsed_rad - self.start_rad >= self.slow_settle_rad {
-            T::atan2(self.emf_slow.beta - cy, self.emf_slow.alpha - cx) - lead + lag(self.slow_cutoff)
+        let (w, w_per_cutoff, cutoff) = if elapsed_rad - self.start_rad >= self.slow_settle_rad {
+            let slow = AlphaBeta::new(self.emf_slow.alpha - cx, self.emf_slow.beta - cy);
+            (slow, omega_e * self.inv_slow_cutoff, self.slow_cutoff)
         } else {
-            angle_now - lead + lag(self.cutoff)
+            (v, w_cut, self.cutoff)
         };
+        let lag_tan = w_per_cutoff * (T::ONE - cutoff * dt);
+        let lagged = AlphaBeta::new(w.alpha - w.beta * lag_tan, w.beta + w.alpha * lag_tan);
+        let theta_e = T::atan2(lagged.beta, lagged.alpha) - lead + half_sample;
         let (ux, uy) = (cx * self.unscale, cy * self.unscale);
         if !(ux.is_valid() && uy.is_valid()) {
             return None;
