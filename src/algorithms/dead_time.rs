@@ -224,8 +224,29 @@ mod tests {
     }
 
     fn paper() -> InverterErrorModel<f64> {
-        let c = DeadTimeCompensation { dead_time_s: 2e-6, device_drop_v: 0.95, current_band_a: 0.01 };
-        InverterErrorModel::for_drive(&c, 1e-4, &MotorParams::paper(), &Base::SI)
+        InverterErrorModel::for_drive(&paper_inverter(), 1e-4, &MotorParams::paper(), &Base::SI)
+    }
+
+    /// The paper motor's inverter: 2 us dead time, 0.95 V drop, 0.01 A sign band.
+    fn paper_inverter() -> DeadTimeCompensation {
+        DeadTimeCompensation { dead_time_s: 2e-6, device_drop_v: 0.95, current_band_a: 0.01 }
+    }
+
+    /// [`model`] in Q8.24 on the paper motor's base (returned with it): the ripple in
+    /// full from zero spread.
+    fn q24_model() -> (Base, InverterErrorModel<Q24>) {
+        let motor = MotorParams::paper();
+        let base = Base::for_motor(&motor);
+        let q = InverterErrorModel {
+            fade_from: Q24::ZERO,
+            ..InverterErrorModel::for_drive(&paper_inverter(), 1e-4, &motor, &base)
+        };
+        (base, q)
+    }
+
+    /// Leg currents `i` (A) in `base`'s Q8.24 working units.
+    fn q24_currents(base: &Base, i: Abc<f64>) -> Abc<Q24> {
+        Abc { a: base.current(i.a as f32), b: base.current(i.b as f32), c: base.current(i.c as f32) }
     }
 
     /// The leg's current over one period from the switching pattern itself (phase
@@ -309,15 +330,8 @@ mod tests {
     /// Q8.24's range, and a division that gave up there took the drop out altogether.
     #[test]
     fn a_large_current_takes_the_whole_drop_in_fixed_point_too() {
-        let motor = MotorParams::paper();
-        let c = DeadTimeCompensation { dead_time_s: 2e-6, device_drop_v: 0.95, current_band_a: 0.01 };
-        let base = Base::for_motor(&motor);
+        let (base, q) = q24_model();
         let si = model();
-        let q: InverterErrorModel<Q24> = InverterErrorModel {
-            fade_from: Q24::ZERO,
-            fade_rate: Q24::from_f32(1e3),
-            ..InverterErrorModel::for_drive(&c, 1e-4, &motor, &base)
-        };
         let vdc = 311.0;
         let bus = DcBus::new(vdc).expect("a valid bus");
         let u_ab = AlphaBeta::new(40.0, 0.0);
@@ -326,11 +340,7 @@ mod tests {
         let i = Abc { a: -100.0 * delta_b, b: 200.0 * delta_b, c: -100.0 * delta_b };
         let want = inverse_clarke(si.compensation(u_ab, &bus, i));
         let to_q = |v: f64| base.voltage::<Q24>(v as f32);
-        let i_q = Abc {
-            a: base.current::<Q24>(i.a as f32),
-            b: base.current::<Q24>(i.b as f32),
-            c: base.current::<Q24>(i.c as f32),
-        };
+        let i_q = q24_currents(&base, i);
         let q_bus = DcBus::new(to_q(vdc)).expect("a valid bus");
         let got =
             inverse_clarke(q.compensation(AlphaBeta::new(to_q(u_ab.alpha), to_q(u_ab.beta)), &q_bus, i_q));
@@ -345,14 +355,8 @@ mod tests {
     /// two sides of the switch within the smoothed sign's own change over the gap.
     #[test]
     fn the_whole_sign_beyond_the_band_meets_the_smoothed_one() {
-        let motor = MotorParams::paper();
-        let c = DeadTimeCompensation { dead_time_s: 2e-6, device_drop_v: 0.95, current_band_a: 0.01 };
-        let base = Base::for_motor(&motor);
+        let (base, q) = q24_model();
         let si = model();
-        let q: InverterErrorModel<Q24> = InverterErrorModel {
-            fade_from: Q24::ZERO,
-            ..InverterErrorModel::for_drive(&c, 1e-4, &motor, &base)
-        };
         let vdc = 311.0;
         let bus = DcBus::new(vdc).expect("a valid bus");
         let q_bus = DcBus::new(base.voltage::<Q24>(vdc as f32)).expect("a valid bus");
@@ -376,11 +380,7 @@ mod tests {
                 // ripple): (Td/Ts Vdc / 2 + 0) |gap| / band.
                 let allowed = 0.5 * 0.02 * vdc * 1e-4 / 0.01 + 1e-9;
                 assert!((got - whole).abs() <= allowed, "f64 gap {gap}: {got} vs {whole}");
-                let i_q = Abc {
-                    a: base.current::<Q24>(i.a as f32),
-                    b: base.current::<Q24>(i.b as f32),
-                    c: base.current::<Q24>(i.c as f32),
-                };
+                let i_q = q24_currents(&base, i);
                 let got_q = f64::from(base.to_volts(inverse_clarke(q.compensation(q_u, &q_bus, i_q)).b));
                 assert!((got_q - whole).abs() <= allowed + 1e-3, "Q8.24 gap {gap}: {got_q} vs {whole}");
             }
