@@ -336,12 +336,18 @@ impl<T: Scalar> Fll<T> {
         // The notch's reading: along the signed frequency's direction as far as that
         // frequency has reached a quarter of the notch, |dtheta| otherwise (module docs).
         let along = if self.omega < T::ZERO { -dtheta } else { dtheta };
-        let share = match (self.direction_share_gain * self.omega.abs()).checked_div(self.notch) {
-            Some(x) => x.min(T::ONE),
-            None => T::ZERO,
+        // A rotation along the direction found reads `|dtheta|` whatever the share: the
+        // share's division is formed only for one against it (noise, a reversal).
+        let reading = if along >= dtheta.abs() {
+            dtheta.abs()
+        } else {
+            let share = match (self.direction_share_gain * self.omega.abs()).checked_div(self.notch) {
+                Some(x) => x.min(T::ONE),
+                None => T::ZERO,
+            };
+            // share in [0, 1] (the notch is positive): no saturation check.
+            dtheta.abs() + (along - dtheta.abs()).mul_unit(share)
         };
-        // share in [0, 1] (the notch is positive): no saturation check.
-        let reading = dtheta.abs() + (along - dtheta.abs()).mul_unit(share);
         let notch = (self.notch + g * (reading - self.notch * dt)).clamp_to(self.floor, self.start);
         // Settle detector: relative disagreement and weight, filtered at g / 4.
         // g dt <= 1/2 (above) and the settle rate is 1/4: rate in [0, 1/8], and the
