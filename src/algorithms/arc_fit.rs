@@ -799,8 +799,9 @@ impl<T: Scalar> EmfFit<T> {
             + T::TWO * (mx * my * h) * (self.sxy * h)
             + (my * my * h) * (self.syy * h);
         let qr = (mx * h) * (self.rx * h) + (my * h) * (self.ry * h);
-        let four = T::from_f32(4.0);
-        let mzz_4 = self.mrr + four * (q2 - qr) + T::TWO * m2 * (self.mr * h) - T::from_f32(3.0) * m2 * m2;
+        // Small integers as exact sums (a conversion is a library routine in fixed point).
+        let (three, four) = (T::TWO + T::ONE, T::TWO + T::TWO);
+        let mzz_4 = self.mrr + four * (q2 - qr) + T::TWO * m2 * (self.mr * h) - three * m2 * m2;
         // The same over the trace squared (dimensionless), and the moments of |e|^2 about
         // the centroid with e: E[(e - mean) |e - mean|^2] = b - 2 C mean.
         let mzz = mzz_4 * inv_trace * inv_trace * four;
@@ -816,11 +817,11 @@ impl<T: Scalar> EmfFit<T> {
         // P(x) = a0 + a1 x + a2 x^2 + 4 x^3.
         let a0 = kxx * cyy - T::TWO * kxy * cxy + kyy * cxx - var_z * cov;
         let a1 = var_z + four * cov - kxx - kyy;
-        let a2 = T::ZERO - T::from_f32(3.0) - mzz;
+        let a2 = T::ZERO - three - mzz;
         let mut x = T::ZERO;
         let mut y = a0;
         for _ in 0..NOISE_NEWTON_STEPS {
-            let slope = a1 + x * (a2 + a2 + T::from_f32(12.0) * x);
+            let slope = a1 + x * (a2 + a2 + three * four * x);
             let Some(inv_slope) = slope.recip() else { break };
             let next = x - y * inv_slope;
             let y_next = a0 + next * (a1 + next * (a2 + four * next));
@@ -898,7 +899,7 @@ impl<T: Scalar> EmfFit<T> {
         // dividing.
         let w_rel = omega_e * self.inv_max_omega;
         let w_cut = omega_e * self.inv_cutoff;
-        let expected_sq = T::from_f32(4.0) * w_rel * w_rel;
+        let expected_sq = (T::TWO + T::TWO) * w_rel * w_rel;
         let radius_sq_filtered = (v.alpha * v.alpha + v.beta * v.beta) * (T::ONE + w_cut * w_cut);
         if radius_sq_filtered < self.min_ratio_sq * expected_sq
             || radius_sq_filtered > self.max_ratio_sq * expected_sq
