@@ -103,8 +103,12 @@ mod firmware {
 
     #[entry]
     fn main() -> ! {
-        let Some(dp) = pac::Peripherals::take() else { stop("device peripherals taken twice") };
-        let Some(mut cp) = cortex_m::Peripherals::take() else { stop("core peripherals taken twice") };
+        let Some(dp) = pac::Peripherals::take() else {
+            stop(defmt::intern!("device peripherals taken twice"))
+        };
+        let Some(mut cp) = cortex_m::Peripherals::take() else {
+            stop(defmt::intern!("core peripherals taken twice"))
+        };
         // The stack (below the statics, flip-link): painted, so that a probe can read its
         // high-water mark, and its lowest bytes made a fault through the MPU, in case
         // the bus does not fault just below RAM.
@@ -180,7 +184,9 @@ mod firmware {
         if power.hardware_trip() {
             halt(
                 &mut led,
-                "TIM1 break active at start-up: an over-current comparator, lock-up or clock failure",
+                defmt::intern!(
+                    "TIM1 break active at start-up: an over-current comparator, lock-up or clock failure"
+                ),
             );
         }
 
@@ -193,7 +199,9 @@ mod firmware {
             );
             halt(
                 &mut led,
-                "current offsets: no ADC conversions, or outside the window (op-amp, channel or bias fault)",
+                defmt::intern!(
+                    "current offsets: no ADC conversions, or outside the window (op-amp, channel or bias fault)"
+                ),
             );
         }
         defmt::info!("current offsets (counts): {}", sensors.current_offsets());
@@ -204,9 +212,9 @@ mod firmware {
             : DriveOnBoard<f32, Bridge<Esc1Sensors, Esc1PowerStage>> =
                 DriveOnBoard { control: ControlLoop::new(drive, u16::MAX), board: Bridge { sensors, power } }
         );
-        let Some(control) = control else { halt(&mut led, "control state taken twice") };
+        let Some(control) = control else { halt(&mut led, defmt::intern!("control state taken twice")) };
         if !install(&CONTROL, control) {
-            halt(&mut led, "control state busy at start-up");
+            halt(&mut led, defmt::intern!("control state busy at start-up"));
         }
         // SAFETY: set before the interrupt is unmasked; no critical section here relies on
         // priorities (they use PRIMASK).
@@ -249,7 +257,10 @@ mod firmware {
             }
             let _ = led.set_state((last_state == DriveState::Running).into());
             if STALL.stalled() {
-                halt(&mut led, "control interrupt stalled: no ADC end of conversion for 10-20 ms");
+                halt(
+                    &mut led,
+                    defmt::intern!("control interrupt stalled: no ADC end of conversion for 10-20 ms"),
+                );
             }
         }
     }

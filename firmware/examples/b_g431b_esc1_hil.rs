@@ -57,8 +57,12 @@ mod firmware {
 
     #[entry]
     fn main() -> ! {
-        let Some(dp) = pac::Peripherals::take() else { stop("device peripherals taken twice") };
-        let Some(mut cp) = cortex_m::Peripherals::take() else { stop("core peripherals taken twice") };
+        let Some(dp) = pac::Peripherals::take() else {
+            stop(defmt::intern!("device peripherals taken twice"))
+        };
+        let Some(mut cp) = cortex_m::Peripherals::take() else {
+            stop(defmt::intern!("core peripherals taken twice"))
+        };
         // The stack (below the statics, flip-link): painted, so that a probe can read its
         // high-water mark, and its lowest bytes made a fault through the MPU, in case
         // the bus does not fault just below RAM.
@@ -76,11 +80,11 @@ mod firmware {
             Err(e) => stop(e.field),
         };
         let Some(queue) = cortex_m::singleton!(: Queue<u8, TX_QUEUE_BYTES> = Queue::new()) else {
-            stop("transmit queue taken twice")
+            stop(defmt::intern!("transmit queue taken twice"))
         };
         let (producer, mut consumer) = queue.split();
         if !install(&HIL, Hil { server: HilServer::new(drive), tx: producer }) {
-            stop("HIL state busy at start-up");
+            stop(defmt::intern!("HIL state busy at start-up"));
         }
 
         // HCLK / 8.

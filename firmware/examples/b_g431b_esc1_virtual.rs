@@ -70,8 +70,12 @@ mod firmware {
 
     #[entry]
     fn main() -> ! {
-        let Some(dp) = pac::Peripherals::take() else { stop("device peripherals taken twice") };
-        let Some(mut cp) = cortex_m::Peripherals::take() else { stop("core peripherals taken twice") };
+        let Some(dp) = pac::Peripherals::take() else {
+            stop(defmt::intern!("device peripherals taken twice"))
+        };
+        let Some(mut cp) = cortex_m::Peripherals::take() else {
+            stop(defmt::intern!("core peripherals taken twice"))
+        };
         stack::paint();
         let guarded = stack::guard(&mut cp.MPU);
         // The bridge stays off: init leaves MOE clear and nothing here enables it (the
@@ -87,7 +91,7 @@ mod firmware {
             Ok(image) => image,
             Err(_) => match MotorImage::new(MotorParams::paper(), PAPER_AXIS_BUS_V) {
                 Ok(image) => image,
-                Err(_) => stop("paper motor refused"),
+                Err(_) => stop(defmt::intern!("paper motor refused")),
             },
         };
         let period_s = 1.0 / DEFAULT_PWM_HZ as f32;
@@ -100,7 +104,7 @@ mod firmware {
             Err(e) => stop(e.field),
         };
         let Ok(virtual_motor) = VirtualMotor::new(&image.motor, &virtual_axis(&image, period_s)) else {
-            stop("virtual motor settings refused")
+            stop(defmt::intern!("virtual motor settings refused"))
         };
         // The drive in a static of its own, in .bss (`Slot`); `None` only if this ran twice.
         let control = cortex_m::singleton!(
@@ -109,9 +113,9 @@ mod firmware {
                 board: VirtualBoard::new(virtual_motor),
             }
         );
-        let Some(control) = control else { stop("control state taken twice") };
+        let Some(control) = control else { stop(defmt::intern!("control state taken twice")) };
         if !install(&CONTROL, control) {
-            stop("control state busy at start-up");
+            stop(defmt::intern!("control state busy at start-up"));
         }
         // HCLK / 8.
         start_systick(
