@@ -338,15 +338,16 @@ impl<T: Scalar> Fll<T> {
         let along = if self.omega < T::ZERO { -dtheta } else { dtheta };
         // A rotation along the direction found reads `|dtheta|` whatever the share: the
         // share's division is formed only for one against it (noise, a reversal).
-        let reading = if along >= dtheta.abs() {
-            dtheta.abs()
+        let rotation = dtheta.abs();
+        let reading = if along >= rotation {
+            rotation
         } else {
             let share = match (self.direction_share_gain * self.omega.abs()).checked_div(self.notch) {
                 Some(x) => x.min(T::ONE),
                 None => T::ZERO,
             };
             // share in [0, 1] (the notch is positive): no saturation check.
-            dtheta.abs() + (along - dtheta.abs()).mul_unit(share)
+            rotation + (along - rotation).mul_unit(share)
         };
         let notch = (self.notch + g * (reading - self.notch * dt)).clamp_to(self.floor, self.start);
         // Settle detector: relative disagreement and weight, filtered at g / 4.
