@@ -84,6 +84,20 @@
 //!   confirmation of the compensation, because a DC step ripples the FLL's reading at
 //!   `w` by about the offset's share of the flux, which would drag the notch and
 //!   confirm a wrong compensation.
+
+//!
+//! A speed change the drive did not command (a replayed recording, a load) also swings
+//! the flux magnitude: the notch lags the mover and the band-pass passes it off its
+//! centre. The reading cannot tell that from an offset within the quarter period that
+//! matters, but the thrust can: a mover changes speed only under a change of force, and
+//! a DC error in the inputs moves the FLL's reading without moving the thrust current
+//! (the drive's speed loop, answering the ripple it reads, pushes the current *against*
+//! it). So the trust is also the share [`THRUST_CHANGE_PER_RATED_CURRENT`] of the rated
+//! current that the thrust current `(psi x i) / psi_f` has changed by over about a
+//! period (a low-pass at [`THRUST_FAST_RATE_PER_RAD`] less one at
+//! [`THRUST_SLOW_RATE_PER_RAD`] of the travel), counted only the way the FLL's frequency
+//! departs from the PLL's integrator (a speed-up with a thrust towards the motion, a
+//! slow-down with one against it), whichever of the two trusts more.
 //!
 //! For a salient motor the readings first take out the active flux's `(Ld - Lq) i_d`
 //! (`(Ld - Lq) d(i . psi)` to first order), or a current ripple would read as an
@@ -268,6 +282,27 @@ pub const FLL_TRUST_OFFSET_RAD: f32 = 0.5 * OFFSET_PHASE_DEADBAND_RAD;
 /// and the flux magnitude with it) the drive keeps 5.6 deg with the trust from the level
 /// (2 and 3 alike, as without any trust), 15.5 with the fixed limit alone.
 pub const FLL_TRUST_LEVEL_MULTIPLE: f32 = 2.0;
+
+/// Change of the thrust current, relative to the motor's rated current
+/// (dimensionless), at which the FLL is trusted in full whatever the offset reading,
+/// when it goes the way the FLL's frequency departs from the PLL's (module docs, "The DC
+/// offset's angle"). Measured with `dcfo track` (sharp / wide step, paper motor and
+/// `motors/low_r.toml`) and `paper_phases` (+2 V and +0.2 A, median / worst of eight
+/// event phases): 0.2 gave 7.1 / 7.0 and 8.7 / 23.6 deg, +0.2 A 4.7 / **7.0**; 0.3 gave
+/// 7.2 / 7.0 and 10.1 / 23.6, +2 V 9.5 / 10.5, +0.2 A 4.7 / 5.3; 0.4 gave 7.6 / 7.0 and
+/// 11.1 / 23.6 (as without: 11.6 / 21.0 and 26.2 / 36.3, +2 V 9.5 / 10.5, +0.2 A
+/// 4.8 / 5.8). Counted in either direction instead, 0.3 gave the +2 V step 9.6 / 11.0:
+/// the speed loop's answer to the offset's ripple is a thrust change too.
+pub const THRUST_CHANGE_PER_RATED_CURRENT: f32 = 0.3;
+
+/// Rate of the thrust current's fast low-pass per radian of electrical travel (1/rad):
+/// a time constant of a third of a period.
+pub const THRUST_FAST_RATE_PER_RAD: f32 = 0.5;
+
+/// Rate of the thrust current's slow low-pass per radian of electrical travel (1/rad):
+/// about 1.3 periods. The difference of the two is the thrust's change over about a
+/// period, with a DC current offset's ripple at `w` taken down to a third.
+pub const THRUST_SLOW_RATE_PER_RAD: f32 = 0.125;
 
 /// Rate of the offset reading's mean magnitude per radian of electrical travel
 /// (dimensionless): about eight periods. 0.05 moved the +0.2 A step's median over eight
@@ -598,6 +633,16 @@ pub struct Estimator<T> {
     offset_level_rate: T,
     /// [`FLL_TRUST_LEVEL_MULTIPLE`].
     fll_trust_level_multiple: T,
+    /// `psi x i` (Wb A, the thrust current times the flux), low-passed at
+    /// [`THRUST_FAST_RATE_PER_RAD`] and at [`THRUST_SLOW_RATE_PER_RAD`] of the travel.
+    thrust_fast: T,
+    thrust_slow: T,
+    /// Those two rates (1/rad).
+    thrust_fast_rate: T,
+    thrust_slow_rate: T,
+    /// `1 / (psi_f THRUST_CHANGE_PER_RATED_CURRENT I_rated)` (1/(Wb A)): the FLL's trust
+    /// per unit of `thrust_fast - thrust_slow`.
+    inv_thrust_change: T,
     /// [`EstimatorConfig::resistance_uncertainty_ohm`] over `tan(`[`LOCK_ANGLE_RAD`]`)`
     /// (ohm).
     lock_resistance: T,
@@ -692,6 +737,16 @@ impl<T: Scalar> Estimator<T> {
             offset_level: T::ZERO,
             offset_level_rate: T::from_f32(OFFSET_READING_MEAN_RATE_PER_RAD),
             fll_trust_level_multiple: T::from_f32(FLL_TRUST_LEVEL_MULTIPLE),
+            thrust_fast: T::ZERO,
+            thrust_slow: T::ZERO,
+            thrust_fast_rate: T::from_f32(THRUST_FAST_RATE_PER_RAD),
+            thrust_slow_rate: T::from_f32(THRUST_SLOW_RATE_PER_RAD),
+            inv_thrust_change: T::ONE
+                .checked_div(
+                    base.flux::<T>(motor.psi_f_wb)
+                        * base.current::<T>(THRUST_CHANGE_PER_RATED_CURRENT * motor.rated_current_a),
+                )
+                .unwrap_or(T::ZERO),
             lock_resistance: base.resistance(config.resistance_uncertainty_ohm / LOCK_ANGLE_TAN),
             lock_angle_sin: T::from_f32(LOCK_ANGLE_SIN),
             lock_error_decay_per_rad: T::from_f32(LOCK_ERROR_DECAY_PER_RAD),
@@ -748,6 +803,10 @@ impl<T: Scalar> Estimator<T> {
         } else {
             self.advance_ramp_model(dt);
         }
+        // Electrical travel over the sample at the notch frequency (rad): the rate of the
+        // filters below, which run in travel so that they have one shape at every speed.
+        let travel = notch.abs().max(self.agreement_floor) * dt;
+        let thrust_change = self.thrust_change(flux.psi_ab, i, travel);
         let (Some(fll), Some(increment)) = (&mut self.fll, flux.flux_increment_ab) else {
             let out = self.pll.update(flux.psi_ab, dt).map_err(EstimatorFault::Pll)?;
             let locked = out.locked && self.resistance_allows_lock(i, flux.psi_ab, out.omega_e, dt);
@@ -833,13 +892,19 @@ impl<T: Scalar> Estimator<T> {
             // while the flux amplitude is disturbed (a DC step being removed: the FLL
             // then reads the offset as a ripple at `w`), and only as far as the FLL is
             // trusted (the DC offset's angle reading, module docs).
-            let offset = self.offset_phase(flux.psi_ab, psi_prev, along - along_prev, notch, dt);
-            let fll_trust = self.fll_trust(notch, dt);
+            let offset = self.offset_phase(flux.psi_ab, psi_prev, along - along_prev, notch, travel, dt);
+            // The PLL's frequency (its integrator plus the lag on a commanded ramp, as the
+            // notch uses it) less the FLL's: what the band bounds.
+            let excess = self.pll.omega_integral() + self.ramp_lag - f.omega_e;
+            // A thrust change the way the FLL departs (excess < 0: a speed-up in the
+            // positive direction, a thrust change > 0) restores the trust.
+            let thrust_share =
+                (if excess > T::ZERO { -thrust_change } else { thrust_change }).clamp_to(T::ZERO, T::ONE);
+            let fll_trust = self.fll_trust(travel).max(thrust_share);
             if f.frequency_settled && f.flux_undisturbed {
                 let reference = f.omega_e.abs().max(self.agreement_floor);
                 let tolerance = if f.settled { self.notch_band } else { self.agreement_tolerance };
                 let band = tolerance * reference;
-                let excess = self.pll.omega_integral() + self.ramp_lag - f.omega_e;
                 if excess.abs() > band {
                     // The excess is taken out at the FLL's own tracking rate, 4 w (a time
                     // constant of a quarter radian of travel), not in one step: the
@@ -857,13 +922,13 @@ impl<T: Scalar> Estimator<T> {
                 <= self.agreement_tolerance * reference;
             let mut out = out;
             if out.locked && agree {
-                self.compensate_notch_phase(&mut out, notch, f.omega_e, fll_trust, dt);
+                self.compensate_notch_phase(&mut out, notch, f.omega_e, fll_trust, travel);
             } else {
                 // Not tracking: nothing new to compensate. What was applied fades out over
                 // a quarter period rather than at once (a flag that flips for a sample in
                 // one arithmetic and not the other must not move the angle by the whole
                 // compensation), and fades in again once tracking.
-                self.fade_out_compensation(&mut out, notch, dt);
+                self.fade_out_compensation(&mut out, travel);
             }
             // The DC offset's angle, armed with the notch's phase compensation but kept
             // while not tracking: a DC step is what makes the loops disagree.
@@ -918,14 +983,15 @@ impl<T: Scalar> Estimator<T> {
     /// (module docs, "Phase compensation"): `(notch - omega_hat) / (zeta |notch|)` while
     /// the FLL's frequency says the notch is off the same way (as far as the FLL is
     /// trusted, `fll_trust` in 0..1), its fundamental notched out, less a dead band,
-    /// limited, faded in and armed in proportion.
+    /// limited, faded in and armed in proportion. `travel` is the sample's electrical
+    /// travel at the notch frequency (rad, `max(|notch|, floor) dt`).
     fn compensate_notch_phase(
         &mut self,
         out: &mut PllOutput<T>,
         notch: T,
         fll_omega: T,
         fll_trust: T,
-        dt: T,
+        travel: T,
     ) {
         let w = notch.abs().max(self.agreement_floor);
         let phase = |omega: T| match (notch - omega).checked_div(w) {
@@ -945,7 +1011,7 @@ impl<T: Scalar> Estimator<T> {
         };
         // Notch at the fundamental (a SOGI, semi-implicit Euler, stable for w dt < 2; w dt
         // is at most 0.13 at the PLL's speed limit and 10 kHz). It runs while tracking.
-        let h = w * dt;
+        let h = travel;
         (self.compensation_bp, self.compensation_q) = band_pass_step(
             (self.compensation_bp, self.compensation_q),
             raw,
@@ -986,7 +1052,15 @@ impl<T: Scalar> Estimator<T> {
     /// magnitude (module docs, "The DC offset's angle"): `(d|psi| / dt) / (w |psi|)` for
     /// the flux `psi` after `psi_prev` one sample of `dt` earlier at the signed notch
     /// frequency `notch`, less a dead band, limited, times the share and the arming.
-    fn offset_phase(&mut self, psi: AlphaBeta<T>, psi_prev: AlphaBeta<T>, d_along: T, notch: T, dt: T) -> T {
+    fn offset_phase(
+        &mut self,
+        psi: AlphaBeta<T>,
+        psi_prev: AlphaBeta<T>,
+        d_along: T,
+        notch: T,
+        travel: T,
+        dt: T,
+    ) -> T {
         if self.compensation_armed <= T::ZERO {
             return T::ZERO;
         }
@@ -1005,13 +1079,30 @@ impl<T: Scalar> Estimator<T> {
             None => T::ZERO,
         };
         // Band-pass at the fundamental.
-        let h = notch.abs().max(self.agreement_floor) * dt;
         (self.offset_bp, self.offset_q) =
-            band_pass_step((self.offset_bp, self.offset_q), rate, self.offset_bandpass_k, h, T::ONE);
+            band_pass_step((self.offset_bp, self.offset_q), rate, self.offset_bandpass_k, travel, T::ONE);
         let phase = self.offset_bp;
         let excess = phase - phase.clamp_to(-self.offset_deadband, self.offset_deadband);
         // OFFSET_PHASE_SHARE and the arming are in [0, 1].
         excess.mul_unit(self.offset_share.mul_unit(self.compensation_armed))
+    }
+
+    /// The thrust current's change over about a period, in units of
+    /// [`THRUST_CHANGE_PER_RATED_CURRENT`] of the rated current (dimensionless, signed:
+    /// positive towards positive rotation), from the flux `psi` (Wb) and the current `i`
+    /// (A) over a sample of electrical `travel` (rad); module docs, "The DC offset's
+    /// angle". The filters' rates are in [0, 1]: products without a saturation check.
+    ///
+    /// Not inlined: the estimator's update is inlined at more than one call site of the
+    /// drive's control step, and a copy each costs the ESC1 image 150 B of its flash.
+    #[inline(never)]
+    fn thrust_change(&mut self, psi: AlphaBeta<T>, i: AlphaBeta<T>, travel: T) -> T {
+        let thrust = psi.alpha * i.beta - psi.beta * i.alpha;
+        let fast = (self.thrust_fast_rate * travel).min(T::ONE);
+        let slow = (self.thrust_slow_rate * travel).min(T::ONE);
+        self.thrust_fast = self.thrust_fast + (thrust - self.thrust_fast).mul_unit(fast);
+        self.thrust_slow = self.thrust_slow + (thrust - self.thrust_slow).mul_unit(slow);
+        (self.thrust_fast - self.thrust_slow) * self.inv_thrust_change
     }
 
     /// How far the FLL's frequency is trusted (0..1) while a DC offset is read in the flux
@@ -1020,10 +1111,8 @@ impl<T: Scalar> Estimator<T> {
     /// [`FLL_TRUST_LEVEL_MULTIPLE`] times the reading's own mean magnitude, whichever is
     /// larger, falling linearly to none over [`FLL_TRUST_OFFSET_RAD`] beyond. The peak
     /// decays at [`OFFSET_PEAK_DECAY_PER_RAD`] and the mean follows at
-    /// [`OFFSET_READING_MEAN_RATE_PER_RAD`] of the travel at the notch frequency `notch`
-    /// (rad/s) over `dt` (s).
-    fn fll_trust(&mut self, notch: T, dt: T) -> T {
-        let travel = notch.abs().max(self.agreement_floor) * dt;
+    /// [`OFFSET_READING_MEAN_RATE_PER_RAD`] of the sample's electrical `travel` (rad).
+    fn fll_trust(&mut self, travel: T) -> T {
         let magnitude = self.offset_bp.abs();
         let decay = (self.offset_peak_decay * travel).min(T::ONE);
         // decay and rate in [0, 1]: products without a saturation check.
@@ -1036,8 +1125,9 @@ impl<T: Scalar> Estimator<T> {
 
     /// While not tracking: the last compensation, its weight falling to zero over
     /// [`COMPENSATION_FADE_OUT_RAD`] of electrical angle.
-    fn fade_out_compensation(&mut self, out: &mut PllOutput<T>, notch: T, dt: T) {
-        let h = notch.abs().max(self.agreement_floor) * dt;
+    /// `travel` is the sample's electrical travel at the notch frequency (rad).
+    fn fade_out_compensation(&mut self, out: &mut PllOutput<T>, travel: T) {
+        let h = travel;
         // Both what fades since this loss of tracking and what still faded from the last.
         let (fading_weight, fading_phase) = self.compensation_fading;
         let fading_weight = (fading_weight - h * self.compensation_fade_out).max(T::ZERO);
@@ -1273,7 +1363,7 @@ mod tests {
                 for n in 1..4 * period {
                     let th = w * n as f64 * DT;
                     let psi = AlphaBeta::new(psi_f * th.cos() + delta.0, psi_f * th.sin() + delta.1);
-                    let read = e.offset_phase(psi, prev, 0.0, w, DT);
+                    let read = e.offset_phase(psi, prev, 0.0, w, w.abs().max(e.agreement_floor) * DT, DT);
                     prev = psi;
                     // Angle of the estimate less the true angle.
                     let err = f64::atan2(
@@ -1317,7 +1407,10 @@ mod tests {
                 let psi = AlphaBeta::new(m * th.cos(), m * th.sin());
                 let i = AlphaBeta::new(i_d * th.cos(), i_d * th.sin());
                 let along = i.alpha * psi.alpha + i.beta * psi.beta;
-                worst = worst.max(e.offset_phase(psi, prev, along - along_prev, w, DT).abs());
+                worst = worst.max(
+                    e.offset_phase(psi, prev, along - along_prev, w, w.abs().max(e.agreement_floor) * DT, DT)
+                        .abs(),
+                );
                 prev = psi;
                 along_prev = along;
             }
@@ -1349,8 +1442,8 @@ mod tests {
                 let w = w0 * (1.0 - drop * (1.0 - (-t / 0.03).exp()));
                 th += w * DT;
                 let psi = AlphaBeta::new(psi_f * th.cos() + offset, psi_f * th.sin());
-                e.offset_phase(psi, prev, 0.0, w, DT);
-                last = e.fll_trust(w, DT);
+                e.offset_phase(psi, prev, 0.0, w, w.abs().max(e.agreement_floor) * DT, DT);
+                last = e.fll_trust(w.abs().max(e.agreement_floor) * DT);
                 prev = psi;
                 if t > from {
                     range = (range.0.min(last), range.1.max(last));
