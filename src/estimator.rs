@@ -135,11 +135,18 @@
 //!     flux: the flag is down while a large current lies along the flux at low speed (an
 //!     I/f start, a low-speed mode), where the other checks pass with the angle far off.
 //!
+//!   The observers without an FLL (the pure integrator, the CFO, the paper's plain
+//!   DCFO) have only the PLL's lock and this check, and one more: the flux estimate's
+//!   magnitude within `psi_f sin(`[`LOCK_ANGLE_RAD`]`)` of the magnet flux (plus a
+//!   salient motor's `|Ld - Lq| |i|`), as an offset that turns the angle further must
+//!   move the magnitude that far (a drifting integrator's flux, which the PLL locks to).
+//!
 //! ## Accuracy and cost
 //! The figures are the tools' own and are not restated here: `dcfo paper` (the paper's
 //! scenarios), `dcfo acquire` (cold starts), `dcfo track` (reversals and sharp speed
-//! steps, with the known limit: a speed step through a 20 ms prefilter still costs more
-//! than the 8 degrees asked) and `bench_qemu` (instructions per period, `results/cost.md`).
+//! steps, with the known limit: on a low-resistance motor a wide speed step through a
+//! 20 ms prefilter still costs more than the 8 degrees asked) and `bench_qemu`
+//! (instructions per period, `results/cost.md`).
 //! Q8.24 follows f32 on the same inputs within the bounds `tests/` assert.
 
 use crate::algorithms::arc_fit::{ArcFit, ArcFitOutcome};
@@ -809,7 +816,7 @@ impl<T: Scalar> Estimator<T> {
         let thrust_change = self.thrust_change(flux.psi_ab, i, travel);
         let (Some(fll), Some(increment)) = (&mut self.fll, flux.flux_increment_ab) else {
             let out = self.pll.update(flux.psi_ab, dt).map_err(EstimatorFault::Pll)?;
-            let locked = out.locked && self.resistance_allows_lock(i, flux.psi_ab, out.omega_e, dt);
+            let locked = out.locked && self.flux_allows_lock(i, flux.psi_ab, out.omega_e, dt, true);
             return Ok(Estimate::from_parts(&out, flux, locked, out.locked, false));
         };
         fll.set_steering(self.fll_steers);
@@ -956,27 +963,51 @@ impl<T: Scalar> Estimator<T> {
             }
             (out, locked, out.locked && agree)
         };
-        let locked = locked && self.resistance_allows_lock(i, flux.psi_ab, out.omega_e, dt);
+        let locked = locked && self.flux_allows_lock(i, flux.psi_ab, out.omega_e, dt, false);
         Ok(Estimate::from_parts(&out, flux, locked, tracking, acquiring))
     }
 
-    /// Whether a resistance error within [`EstimatorConfig::resistance_uncertainty_ohm`]
-    /// leaves the angle within [`LOCK_ANGLE_RAD`] at current `i`, flux `psi` and
-    /// frequency `omega_e`, updating the held error. Multiplied through by `|psi|` (no
-    /// division): the current along the flux is `i . psi / |psi|`; `|i|` and `|psi|` come
-    /// from [`approx_norm`] (at most 12 % high: `|i|` on the safe side, `|psi|` on both
-    /// sides of the inequality).
+    /// Whether the flux estimate `psi` (Wb) allows [`Estimate::locked`] at current `i`
+    /// (A) and frequency `omega_e` (rad/s) over `dt` (s):
+    /// - a resistance error within [`EstimatorConfig::resistance_uncertainty_ohm`]
+    ///   leaves the angle within [`LOCK_ANGLE_RAD`], updating the held error. Multiplied
+    ///   through by `|psi|` (no division): the current along the flux is
+    ///   `i . psi / |psi|`; `|i|` and `|psi|` come from [`approx_norm`] (at most 12 %
+    ///   high: `|i|` on the safe side, `|psi|` on both sides of the inequality);
+    /// - with `check_magnitude` (the observers without the FLL's checks), `|psi|` is the
+    ///   mover's within what an error of [`LOCK_ANGLE_RAD`] allows: an estimate
+    ///   `psi + delta` is off by at most `asin(|delta| / psi_f)` and `| |psi_hat| - psi_f |`
+    ///   is at most `|delta|`, so a magnitude further from the magnet flux than
+    ///   `psi_f sin(LOCK_ANGLE_RAD)` (plus a salient motor's `|Ld - Lq| |i|`, the active
+    ///   flux's share of the current) allows an angle beyond it. The pure integrator's
+    ///   drifting flux, which the PLL may lock to, fails it. Compared in squares.
     ///
     /// Not inlined: one copy for its two callers.
     #[inline(never)]
-    fn resistance_allows_lock(&mut self, i: AlphaBeta<T>, psi: AlphaBeta<T>, omega_e: T, dt: T) -> bool {
+    fn flux_allows_lock(
+        &mut self,
+        i: AlphaBeta<T>,
+        psi: AlphaBeta<T>,
+        omega_e: T,
+        dt: T,
+        check_magnitude: bool,
+    ) -> bool {
+        let i_norm = approx_norm(i);
         let psi_norm = approx_norm(psi);
+        // `psi_norm` is within 12 %: the magnitude is compared exactly, in squares.
+        let magnitude_ok = !check_magnitude || {
+            let allowance = self.psi_f * self.lock_angle_sin + self.saliency.abs() * i_norm;
+            let low = self.psi_f - allowance;
+            let high = self.psi_f + allowance;
+            let square = psi.alpha * psi.alpha + psi.beta * psi.beta;
+            (low <= T::ZERO || square >= low * low) && square <= high * high
+        };
         let along = (i.alpha * psi.alpha + i.beta * psi.beta).abs();
-        let error = self.lock_resistance * (along + self.lock_angle_sin * approx_norm(i) * psi_norm);
+        let error = self.lock_resistance * (along + self.lock_angle_sin * i_norm * psi_norm);
         let w = omega_e.abs();
         let decay = (self.lock_error_decay_per_rad * w * dt).min(T::ONE);
         self.lock_error = error.max(self.lock_error - self.lock_error.mul_unit(decay));
-        self.lock_error <= w * self.psi_f * psi_norm
+        magnitude_ok && self.lock_error <= w * self.psi_f * psi_norm
     }
 
     /// Turns the output angle back by the phase the notch's mistuning gives the flux
@@ -1333,6 +1364,69 @@ mod tests {
     }
 
     /// An estimator of `motor` with its compensations armed, as after a period of lock.
+    #[test]
+    fn a_flux_magnitude_off_the_magnet_flux_by_more_than_the_lock_angle_allows_no_lock() {
+        let motor = MotorParams::paper();
+        let config = EstimatorConfig::for_motor(&motor, ObserverKind::PureIntegrator);
+        let psi_f = f64::from(motor.psi_f_wb);
+        let allows = |scale: f64, check: bool| {
+            let mut e = Estimator::<f64>::new(&motor, &config, &Base::SI).unwrap();
+            // 10 Hz, no current: the resistance check passes, the magnitude decides.
+            let w = 2.0 * core::f64::consts::PI * 10.0;
+            let psi = AlphaBeta::new(scale * psi_f * 0.6, scale * psi_f * 0.8);
+            e.flux_allows_lock(AlphaBeta::default(), psi, w, DT, check)
+        };
+        let sin = f64::from(LOCK_ANGLE_SIN);
+        for (scale, expected) in [(1.0, true), (1.0 - 0.9 * sin, true), (1.0 + 0.9 * sin, true)] {
+            assert_eq!(allows(scale, true), expected, "{scale}");
+        }
+        for scale in [1.0 - 1.1 * sin, 1.0 + 1.1 * sin, 2.0, 0.2] {
+            assert!(!allows(scale, true), "{scale}");
+            // Without the check (the DCFO with its FLL) the magnitude does not decide.
+            assert!(allows(scale, false), "{scale}");
+        }
+    }
+
+    #[test]
+    fn the_thrust_change_reads_a_step_of_thrust_current_and_not_a_dc_current_offset() {
+        let motor = MotorParams::paper();
+        let mut e = armed(&motor);
+        let psi_f = f64::from(motor.psi_f_wb);
+        let rated = f64::from(motor.rated_current_a);
+        let w = 2.0 * core::f64::consts::PI * 10.0;
+        let travel = w * DT;
+        let run = |e: &mut Estimator<f64>, i_q: f64, offset: f64, n: usize| {
+            let mut extreme = 0.0f64;
+            for k in 0..n {
+                let th = w * DT * k as f64;
+                let psi = AlphaBeta::new(psi_f * th.cos(), psi_f * th.sin());
+                // i_q along the flux's quadrature, plus a DC offset on i_beta.
+                let i = AlphaBeta::new(-i_q * th.sin(), i_q * th.cos() + offset);
+                let c = e.thrust_change(psi, i, travel);
+                extreme = if c.abs() > extreme.abs() { c } else { extreme };
+            }
+            extreme
+        };
+        // Settled at no thrust, then a step of half the rated current.
+        run(&mut e, 0.0, 0.0, 10_000);
+        let step = run(&mut e, 0.5 * rated, 0.0, 2_000);
+        // The two low-passes' step responses differ by exp(-b x) - exp(-a x) over the
+        // travel x, at most r^(b / (a - b)) - r^(a / (a - b)) with r = b / a (0.472).
+        let (a, b) = (f64::from(THRUST_FAST_RATE_PER_RAD), f64::from(THRUST_SLOW_RATE_PER_RAD));
+        let r = b / a;
+        let peak = r.powf(b / (a - b)) - r.powf(a / (a - b));
+        let share = 0.5 / f64::from(THRUST_CHANGE_PER_RATED_CURRENT);
+        assert!((step / (share * peak) - 1.0).abs() < 0.02, "{step} against {}", share * peak);
+        // A DC offset of a tenth of the rated current on i_beta ripples the thrust at `w`
+        // (one rad per rad of travel), through |a / (a + j) - b / (b + j)| (0.333).
+        let mut e = armed(&motor);
+        run(&mut e, 0.0, 0.1 * rated, 10_000);
+        let ripple = run(&mut e, 0.0, 0.1 * rated, 2_000).abs();
+        let gain = (a / (a * a + 1.0) - b / (b * b + 1.0)).hypot(1.0 / (a * a + 1.0) - 1.0 / (b * b + 1.0));
+        let expected = 0.1 / f64::from(THRUST_CHANGE_PER_RATED_CURRENT) * gain;
+        assert!((ripple / expected - 1.0).abs() < 0.03, "{ripple} against {expected}");
+    }
+
     fn armed(motor: &MotorParams) -> Estimator<f64> {
         let config = EstimatorConfig::for_motor(motor, ObserverKind::Dcfo);
         let mut e = Estimator::<f64>::new(motor, &config, &Base::SI).unwrap();

@@ -2,8 +2,9 @@
 //! their profiles command, the estimator claims no lock on a wrong angle on any of them,
 //! finds the mover again within 2 electrical periods of every passage through zero speed
 //! (issue 35's floor), and Q8.24 follows f32 within a degree. The other issue-35 floor, 8
-//! degrees through a sharp step, is a figure `dcfo track` prints that the estimator does
-//! not meet yet (`docs/estimator-design.md`).
+//! degrees through a sharp step, is asserted where the estimator meets it (the paper
+//! motor's sharp and wide steps, measured 7.2 and 7.0; the salient motor's sharp step,
+//! 7.3); elsewhere it is a figure `dcfo track` prints (`docs/estimator-design.md`).
 
 use dcfo::motor::MotorParams;
 use dcfo_host::commands::track::{Figures, profiles, run_all, setup_for};
@@ -12,7 +13,12 @@ use dcfo_host::commands::track::{Figures, profiles, run_all, setup_for};
 /// reaches the back-EMF floor after a reversal.
 const RELOCK_FLOOR_PERIODS: f64 = 2.0;
 
-fn check(motor: &MotorParams, label: &str) {
+/// The issue's floor: the largest angle error through a speed step, electrical degrees.
+const STEP_FLOOR_DEG: f64 = 8.0;
+
+/// Checks every profile on `motor`; the profiles named in `within_step_floor` must also
+/// keep their transient error within [`STEP_FLOOR_DEG`].
+fn check(motor: &MotorParams, label: &str, within_step_floor: &[&str]) {
     let all: Vec<Figures> = run_all(&setup_for(motor)).expect("recorded and replayed");
     for profile in profiles() {
         // A reversal is a sign change between successive speed targets.
@@ -26,6 +32,14 @@ fn check(motor: &MotorParams, label: &str) {
         for f in [a, b] {
             assert_eq!(f.reversals, reversals, "{label} {}: {f:?}", profile.name);
             assert_eq!(f.false_lock_samples, 0, "{label} {}: {f:?}", profile.name);
+            if within_step_floor.contains(&profile.name) {
+                assert!(
+                    f.transient_err_max_deg <= STEP_FLOOR_DEG,
+                    "{label} {}: {} deg through the step: {f:?}",
+                    profile.name,
+                    f.transient_err_max_deg
+                );
+            }
             if reversals > 0 {
                 let periods = f.relock_periods_max.unwrap_or(f64::INFINITY);
                 assert!(
@@ -45,19 +59,19 @@ fn check(motor: &MotorParams, label: &str) {
 
 #[test]
 fn the_paper_motor_reverses_without_a_false_lock() {
-    check(&MotorParams::paper(), "paper");
+    check(&MotorParams::paper(), "paper", &["step", "step-wide"]);
 }
 
 #[test]
 fn a_salient_motor_reverses_without_a_false_lock() {
     let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../motors/salient.toml");
     let motor = dcfo_host::motor_file::load_motor(path).expect("motor file").params;
-    check(&motor, "salient");
+    check(&motor, "salient", &["step"]);
 }
 
 #[test]
 fn a_low_resistance_motor_reverses_without_a_false_lock() {
     let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../motors/low_r.toml");
     let motor = dcfo_host::motor_file::load_motor(path).expect("motor file").params;
-    check(&motor, "low_r");
+    check(&motor, "low_r", &[]);
 }
