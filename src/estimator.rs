@@ -84,7 +84,6 @@
 //!   confirmation of the compensation, because a DC step ripples the FLL's reading at
 //!   `w` by about the offset's share of the flux, which would drag the notch and
 //!   confirm a wrong compensation.
-
 //!
 //! A speed change the drive did not command (a replayed recording, a load) also swings
 //! the flux magnitude: the notch lags the mover and the band-pass passes it off its
@@ -298,8 +297,9 @@ pub const FLL_TRUST_LEVEL_MULTIPLE: f32 = 2.0;
 /// event phases): 0.2 gave 7.1 / 7.0 and 8.7 / 23.6 deg, +0.2 A 4.7 / **7.0**; 0.3 gave
 /// 7.2 / 7.0 and 10.1 / 23.6, +2 V 9.5 / 10.5, +0.2 A 4.7 / 5.3; 0.4 gave 7.6 / 7.0 and
 /// 11.1 / 23.6 (as without: 11.6 / 21.0 and 26.2 / 36.3, +2 V 9.5 / 10.5, +0.2 A
-/// 4.8 / 5.8). Counted in either direction instead, 0.3 gave the +2 V step 9.6 / 11.0:
-/// the speed loop's answer to the offset's ripple is a thrust change too.
+/// 4.8 / 5.8). Counted in either direction instead, 0.2 gave the +2 V step 10.4 / 12.0
+/// and 0.4 9.7 / 11.0: the speed loop's answer to the offset's ripple is a thrust change
+/// too.
 pub const THRUST_CHANGE_PER_RATED_CURRENT: f32 = 0.3;
 
 /// Rate of the thrust current's fast low-pass per radian of electrical travel (1/rad):
@@ -812,6 +812,8 @@ impl<T: Scalar> Estimator<T> {
         }
         // Electrical travel over the sample at the notch frequency (rad): the rate of the
         // filters below, which run in travel so that they have one shape at every speed.
+        // The thrust's filters run on every sample, the FLL steering or not, so that they
+        // have settled when the PLL takes the notch.
         let travel = notch.abs().max(self.agreement_floor) * dt;
         let thrust_change = self.thrust_change(flux.psi_ab, i, travel);
         let (Some(fll), Some(increment)) = (&mut self.fll, flux.flux_increment_ab) else {
