@@ -215,6 +215,10 @@ pub struct ArcFit<T> {
     /// A chord fit held back while the back-EMF fit runs: its angle, frequency and
     /// `elapsed_rad` then; taken, advanced to the present, if the back-EMF fit gives up.
     deferred: Option<(Angle, T, T)>,
+    /// The back-EMF fit's result of the last sample (angle, frequency, DC error), to be
+    /// checked against the chord at this one: the check, and the seed that follows it,
+    /// do not share the sample of the circle's solve, the fit's costliest.
+    emf_found: Option<(Angle, T, AlphaBeta<T>)>,
 }
 
 impl<T: Scalar> ArcFit<T> {
@@ -245,6 +249,7 @@ impl<T: Scalar> ArcFit<T> {
             running: true,
             emf: EmfFit::new(psi_f_wb, floor_rad_s, base),
             deferred: None,
+            emf_found: None,
         }
     }
 
@@ -260,6 +265,7 @@ impl<T: Scalar> ArcFit<T> {
         self.elapsed_rad = T::ZERO;
         self.running = true;
         self.deferred = None;
+        self.emf_found = None;
         self.emf.restart(T::ZERO);
     }
 
@@ -268,17 +274,24 @@ impl<T: Scalar> ArcFit<T> {
     /// commanded acceleration (an open-loop start dragging the mover up to speed).
     pub fn stop_dc_fit(&mut self) {
         self.emf.running = false;
+        self.emf_found = None;
     }
 
     /// Stops the fit (the estimator was told where the mover is).
     pub fn stop(&mut self) {
         self.running = false;
         self.emf.running = false;
+        self.emf_found = None;
     }
 
     /// The fit is running (either of its two circles).
     pub fn is_running(&self) -> bool {
-        self.running || self.emf.running
+        self.running || self.emf_busy()
+    }
+
+    /// The back-EMF fit runs, or its circle awaits the chord's check.
+    fn emf_busy(&self) -> bool {
+        self.emf.running || self.emf_found.is_some()
     }
 
     /// One sample: `emf_increment` is the increment of the model flux over the sample
@@ -288,9 +301,10 @@ impl<T: Scalar> ArcFit<T> {
     /// arctangents; the back-EMF's every sample from its spread test until its mean is
     /// taken ([`EMF_CONFIRM_SHARE`]): a division, six reciprocals (four of them the
     /// noise's Newton steps, [`NOISE_NEWTON_STEPS`]), four arctangents and an `f32`
-    /// reciprocal for the mean; once, at its end, the chord's check
-    /// `ArcFit::chord_frequency` (four divisions, an arctangent, a cosine, two square
-    /// roots) and one division more).
+    /// reciprocal for the mean; once, in the sample after its circle's (so that the
+    /// solve, the check and the estimator's seed on its result do not add up in one
+    /// sample), the chord's check `ArcFit::chord_frequency` (four divisions, an
+    /// arctangent, a cosine, two square roots) and one division more).
     pub fn update(&mut self, emf_increment: AlphaBeta<T>, dt: T) -> ArcFitOutcome<T> {
         if !self.is_running() && self.deferred.is_none() {
             return ArcFitOutcome::Pending;
@@ -298,8 +312,9 @@ impl<T: Scalar> ArcFit<T> {
         self.elapsed_rad = self.elapsed_rad + self.floor * dt;
         self.chord =
             AlphaBeta::new(self.chord.alpha + emf_increment.alpha, self.chord.beta + emf_increment.beta);
-        let emf = self.emf.update(emf_increment, dt, self.elapsed_rad, self.max_elapsed_rad);
-        if let ArcFitOutcome::Found { theta_e, omega_e, dc_voltage } = emf {
+        if let Some((theta_e, omega_e, dc_voltage)) = self.emf_found.take() {
+            // The circle of the last sample, turned on to this one.
+            let theta_e = theta_e + (omega_e * dt).radians_to_angle();
             match self.chord_frequency(theta_e, omega_e, dc_voltage) {
                 Some(omega_e) => {
                     self.running = false;
@@ -326,21 +341,26 @@ impl<T: Scalar> ArcFit<T> {
                 None => {}
             }
         }
+        let emf = self.emf.update(emf_increment, dt, self.elapsed_rad, self.max_elapsed_rad);
+        if let ArcFitOutcome::Found { theta_e, omega_e, dc_voltage } = emf {
+            self.emf_found = Some((theta_e, omega_e, dc_voltage));
+        }
         match self.chord_update() {
             // Below the back-EMF fit's highest frequency a DC error bends the chord's arc
             // and the back-EMF fit tells it: wait for that one while it runs.
             // Its own frequency is bent too: held back up to twice the range.
             ArcFitOutcome::Found { theta_e, omega_e, .. }
-                if self.emf.running && omega_e.abs() < self.emf.max_omega + self.emf.max_omega =>
+                if self.emf_busy() && omega_e.abs() < self.emf.max_omega + self.emf.max_omega =>
             {
                 self.deferred = Some((theta_e, omega_e, self.elapsed_rad));
                 ArcFitOutcome::Pending
             }
             found @ ArcFitOutcome::Found { .. } => {
                 self.emf.running = false;
+                self.emf_found = None;
                 found
             }
-            _ if self.emf.running || self.running => ArcFitOutcome::Pending,
+            _ if self.emf_busy() || self.running => ArcFitOutcome::Pending,
             // Both have stopped: a chord fit held back is taken, turned on to now
             // (w t = w (floor t) / floor).
             _ => match self.deferred.take() {
