@@ -202,8 +202,8 @@ pub struct ArcFit<T> {
     min_chord_sq: T,
     /// Magnet flux (Wb), for the back-EMF fit's check against the chord.
     psi_f: T,
-    /// `(EMF_CHORD_TOLERANCE psi_f)^2` (Wb^2).
-    chord_tolerance_sq: T,
+    /// `EMF_CHORD_TOLERANCE psi_f` (Wb).
+    chord_tolerance: T,
     /// `(MAX_CHORD_SHARE psi_f)^2` (Wb^2).
     max_chord_sq: T,
     /// Radius bounds squared (Wb^2).
@@ -217,7 +217,8 @@ pub struct ArcFit<T> {
     deferred: Option<(Angle, T, T)>,
     /// The back-EMF fit's result of the last sample (angle, frequency, DC error), to be
     /// checked against the chord at this one: the check, and the seed that follows it,
-    /// do not share the sample of the circle's solve, the fit's costliest.
+    /// do not share the sample of the circle's solve, the fit's costliest. A check that
+    /// fails sends the fit on in the same sample (its retries as often as before).
     emf_found: Option<(Angle, T, AlphaBeta<T>)>,
 }
 
@@ -242,7 +243,7 @@ impl<T: Scalar> ArcFit<T> {
             spread_factor: T::from_f32(q / ((1.0 + q) * (1.0 + q))),
             min_chord_sq: psi * psi * T::from_f32(MIN_CHORD_SHARE),
             psi_f: psi,
-            chord_tolerance_sq: psi * psi * T::from_f32(EMF_CHORD_TOLERANCE * EMF_CHORD_TOLERANCE),
+            chord_tolerance: psi * T::from_f32(EMF_CHORD_TOLERANCE),
             max_chord_sq: psi * psi * T::from_f32(MAX_CHORD_SHARE * MAX_CHORD_SHARE),
             min_radius_sq: psi * psi * T::from_f32(r_min * r_min),
             max_radius_sq: psi * psi * T::from_f32(r_max * r_max),
@@ -302,9 +303,10 @@ impl<T: Scalar> ArcFit<T> {
     /// taken ([`EMF_CONFIRM_SHARE`]): a division, six reciprocals (four of them the
     /// noise's Newton steps, [`NOISE_NEWTON_STEPS`]), four arctangents and an `f32`
     /// reciprocal for the mean; once, in the sample after its circle's (so that the
-    /// solve, the check and the estimator's seed on its result do not add up in one
-    /// sample), the chord's check `ArcFit::chord_frequency` (four divisions, an
-    /// arctangent, a cosine, two square roots) and one division more).
+    /// solve does not share a sample with the check and the estimator's seed on its
+    /// result; a check that fails lets the fit solve again in its sample), the chord's
+    /// check `ArcFit::chord_frequency` (three divisions, an arctangent, a sine, no root)
+    /// and one division more).
     pub fn update(&mut self, emf_increment: AlphaBeta<T>, dt: T) -> ArcFitOutcome<T> {
         if !self.is_running() && self.deferred.is_none() {
             return ArcFitOutcome::Pending;
@@ -400,32 +402,32 @@ impl<T: Scalar> ArcFit<T> {
         let drift_x = dc_voltage.alpha.checked_div(self.floor)? * self.elapsed_rad;
         let drift_y = dc_voltage.beta.checked_div(self.floor)? * self.elapsed_rad;
         let p = AlphaBeta::new(self.chord.alpha - drift_x, self.chord.beta - drift_y);
-        let quarter = Angle::from_radians(T::from_f32(core::f32::consts::FRAC_PI_2));
-        let half_turn = quarter + quarter;
+        let quarter = Angle::QUARTER_TURN;
         let forward = omega_e >= T::ZERO;
         // (th_now + th_start) / 2 = angle(p) -+ pi / 2 (mod pi); doubled, mod a turn.
         let bisector = T::atan2(p.beta, p.alpha) - if forward { quarter } else { -quarter };
         let theta_start = bisector + bisector - theta_e;
         let mut turned: T = (theta_e - theta_start).to_radians();
         // The turn has the fit's direction: within (0, 2 pi) forward, (-2 pi, 0) back.
-        let full = T::angle_to_radians(half_turn).abs() * T::TWO;
+        let full = T::angle_to_radians(Angle::HALF_TURN).abs() * T::TWO;
         if forward && turned < T::ZERO {
             turned = turned + full;
         } else if !forward && turned > T::ZERO {
             turned = turned - full;
         }
         let omega_chord = (turned * self.floor).checked_div(self.elapsed_rad)?;
-        let ratio = omega_chord.checked_div(omega_e)?;
-        if (ratio - T::ONE).abs() > T::from_f32(EMF_CHORD_TOLERANCE) {
+        // Within the tolerance of the fit's frequency, |w_chord / w - 1| <= tol, without
+        // the division (|w| is at least the floor here).
+        if (omega_chord - omega_e).abs() > T::from_f32(EMF_CHORD_TOLERANCE) * omega_e.abs() {
             return None;
         }
-        // The chord's length against the arc's: |p|^2 against 4 psi_f^2 sin^2(w t / 2)
-        // = 2 psi_f^2 (1 - cos(w t)).
-        let (cos_turned, _) = T::cos_sin(turned.radians_to_angle());
-        let arc_sq = self.psi_f * self.psi_f * T::TWO * (T::ONE - cos_turned);
+        // The chord's length against the arc's, 2 psi_f |sin(w t / 2)|, within the
+        // tolerance: |p|^2 between the squares of the arc less and plus it (no root).
+        let (_, sin_half) = T::cos_sin(turned.mul_unit(T::HALF).radians_to_angle());
+        let arc = (self.psi_f + self.psi_f) * sin_half.abs();
+        let (short, long) = (arc - self.chord_tolerance, arc + self.chord_tolerance);
         let p_sq = p.alpha * p.alpha + p.beta * p.beta;
-        let length_error = p_sq.sqrt() - arc_sq.sqrt();
-        (length_error * length_error <= self.chord_tolerance_sq).then_some(omega_chord)
+        (p_sq <= long * long && (short <= T::ZERO || p_sq >= short * short)).then_some(omega_chord)
     }
 
     /// One sample of the chord's arc fit (module docs, "The fit"); `elapsed_rad` and the
