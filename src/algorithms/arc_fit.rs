@@ -80,8 +80,9 @@
 //! ## Accuracy and cost
 //! The tests in this file check both fits on exact and noisy arcs, in f32 and Q8.24, and
 //! `dcfo acquire` measures what they give a cold start. Each sample is bounded
-//! ([`ArcFit::update`]); the fit's last sample is the estimator's worst step, printed by
-//! `bench_qemu` (`docs/cost-budget.md`).
+//! ([`ArcFit::update`]); the back-EMF circle's solve is the estimator's worst step (the
+//! chord's check and the seed come a sample later), printed by `bench_qemu`
+//! (`docs/cost-budget.md`).
 #![forbid(unsafe_code)]
 
 use crate::algorithms::transforms::AlphaBeta;
