@@ -135,10 +135,13 @@
 //!     I/f start, a low-speed mode), where the other checks pass with the angle far off.
 //!
 //!   The observers without an FLL (the pure integrator, the CFO, the paper's plain
-//!   DCFO) have only the PLL's lock and this check, and one more: the flux estimate's
-//!   magnitude within `psi_f sin(`[`LOCK_ANGLE_RAD`]`)` of the magnet flux (plus a
-//!   salient motor's `|Ld - Lq| |i|`), as an offset that turns the angle further must
-//!   move the magnitude that far (a drifting integrator's flux, which the PLL locks to).
+//!   DCFO) have only the PLL's lock and this check, and one more, for a quarter period:
+//!   the errors the estimator can bound add up to less than [`LOCK_ANGLE_RAD`]. They are
+//!   an offset in the flux estimate (a DC error the observer integrated, a drift), read
+//!   from the swing of `|psi|^2` about its mean as the flux turns; the CFO's own phase
+//!   lead `atan(w_c / w)`; the PLL's phase error; and the resistance's, as above. On the
+//!   paper's 10 Hz the CFO's lead alone is 14 deg, so it is vouched for at higher speeds
+//!   only.
 //!
 //! ## Accuracy and cost
 //! The figures are the tools' own and are not restated here: `dcfo paper` (the paper's
@@ -398,6 +401,20 @@ pub const RESISTANCE_UNCERTAINTY_SHARE: f32 = 1.0;
 /// `0.26 w` ([`Dcfo`]), rounded down.
 pub const LOCK_ERROR_DECAY_PER_RAD: f32 = 0.25;
 
+/// Rate of the mean of `|psi|^2` that the lock flag of the observers without an FLL
+/// measures the flux's steadiness against, and decay of the held peak of the deviation
+/// from it, per radian of electrical travel (dimensionless; an eighth, formed exactly
+/// from halves in every arithmetic). The mean follows over about 1.3 periods, so that an
+/// offset's ripple at the fundamental leaks into it by an eighth. An offset's deviation
+/// peaks where the offset lies along the flux and vanishes where it lies across, where it
+/// turns the angle most, a quarter period later: by then the hold keeps `exp(-pi / 16)`,
+/// 0.82, of the peak, which the check allows for.
+pub const FLUX_SQ_RATE_PER_RAD: f32 = 0.125;
+
+/// `exp(-FLUX_SQ_RATE_PER_RAD pi / 2)` (dimensionless): the share of a peak of `|psi|^2`'s
+/// deviation the hold keeps a quarter period on ([`FLUX_SQ_RATE_PER_RAD`]).
+pub const FLUX_SQ_HOLD_AT_QUARTER: f32 = 0.821_725;
+
 /// What tunes the DCFO's notch frequency (and feeds the PLL forward).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -653,13 +670,22 @@ pub struct Estimator<T> {
     /// [`EstimatorConfig::resistance_uncertainty_ohm`] over `tan(`[`LOCK_ANGLE_RAD`]`)`
     /// (ohm).
     lock_resistance: T,
-    /// [`LOCK_ANGLE_SIN`] (formed once: a conversion is a routine in fixed point).
+    /// [`LOCK_ANGLE_SIN`] and [`LOCK_ANGLE_TAN`] (formed once: a conversion is a routine
+    /// in fixed point).
     lock_angle_sin: T,
+    lock_angle_tan: T,
     /// [`LOCK_ERROR_DECAY_PER_RAD`].
     lock_error_decay_per_rad: T,
     /// The held voltage error of the lock check over `tan(`[`LOCK_ANGLE_RAD`]`)`, times
     /// `|psi|` (V Wb).
     lock_error: T,
+    /// The observers without an FLL: the mean of `|psi|^2` (Wb^2, from `psi_f^2`), the
+    /// held peak of the deviation from it (Wb^2), and `2 psi_f^2 exp(-FLUX_SQ_RATE_PER_RAD
+    /// pi / 2)` (Wb^2): the held peak an offset of `psi_f` leaves a quarter period on
+    /// (`Estimator::flux_steady`).
+    flux_sq_mean: T,
+    flux_sq_peak: T,
+    flux_sq_peak_per_offset: T,
 }
 
 impl<T: Scalar> Estimator<T> {
@@ -689,6 +715,7 @@ impl<T: Scalar> Estimator<T> {
         };
         let fll_steers = fll.is_some();
         let arc_fit = fll.as_ref().map(|_| ArcFit::new(motor.psi_f_wb, config.fll.floor_rad_s, base));
+        let psi_f: T = base.flux(motor.psi_f_wb);
         Ok(Estimator {
             observer,
             pll,
@@ -717,7 +744,7 @@ impl<T: Scalar> Estimator<T> {
             compensation_phase: T::ZERO,
             compensation_fading: (T::ZERO, T::ZERO),
             compensation_tracking: false,
-            psi_f: base.flux(motor.psi_f_wb),
+            psi_f,
             commanded_accel: T::ZERO,
             ramp_phase: T::ZERO,
             ramp_lag: T::ZERO,
@@ -756,8 +783,12 @@ impl<T: Scalar> Estimator<T> {
                 .unwrap_or(T::ZERO),
             lock_resistance: base.resistance(config.resistance_uncertainty_ohm / LOCK_ANGLE_TAN),
             lock_angle_sin: T::from_f32(LOCK_ANGLE_SIN),
+            lock_angle_tan: T::from_f32(LOCK_ANGLE_TAN),
             lock_error_decay_per_rad: T::from_f32(LOCK_ERROR_DECAY_PER_RAD),
             lock_error: T::ZERO,
+            flux_sq_mean: psi_f * psi_f,
+            flux_sq_peak: T::ZERO,
+            flux_sq_peak_per_offset: psi_f * psi_f * T::from_f32(2.0 * FLUX_SQ_HOLD_AT_QUARTER),
         })
     }
 
@@ -818,7 +849,8 @@ impl<T: Scalar> Estimator<T> {
         let thrust_change = self.thrust_change(flux.psi_ab, i, travel);
         let (Some(fll), Some(increment)) = (&mut self.fll, flux.flux_increment_ab) else {
             let out = self.pll.update(flux.psi_ab, dt).map_err(EstimatorFault::Pll)?;
-            let locked = out.locked && self.flux_allows_lock(i, flux.psi_ab, out.omega_e, dt, true);
+            let locked =
+                out.locked && self.flux_allows_lock(i, flux.psi_ab, out.omega_e, dt, Some(out.error));
             return Ok(Estimate::from_parts(&out, flux, locked, out.locked, false));
         };
         fll.set_steering(self.fll_steers);
@@ -943,7 +975,7 @@ impl<T: Scalar> Estimator<T> {
             // while not tracking: a DC step is what makes the loops disagree.
             if offset != T::ZERO {
                 out.theta_e = out.theta_e - offset.radians_to_angle();
-                out.cos_sin = CosSin::new(out.theta_e);
+                out.cos_sin = CosSin::inline(out.theta_e);
             }
             let locked = out.locked && agree && f.settled && calm;
             // Armed in proportion to the travel while locked: a flag set for a sample in
@@ -965,7 +997,7 @@ impl<T: Scalar> Estimator<T> {
             }
             (out, locked, out.locked && agree)
         };
-        let locked = locked && self.flux_allows_lock(i, flux.psi_ab, out.omega_e, dt, false);
+        let locked = locked && self.flux_allows_lock(i, flux.psi_ab, out.omega_e, dt, None);
         Ok(Estimate::from_parts(&out, flux, locked, tracking, acquiring))
     }
 
@@ -976,13 +1008,11 @@ impl<T: Scalar> Estimator<T> {
     ///   through by `|psi|` (no division): the current along the flux is
     ///   `i . psi / |psi|`; `|i|` and `|psi|` come from [`approx_norm`] (at most 12 %
     ///   high: `|i|` on the safe side, `|psi|` on both sides of the inequality);
-    /// - with `check_magnitude` (the observers without the FLL's checks), `|psi|` is the
-    ///   mover's within what an error of [`LOCK_ANGLE_RAD`] allows: an estimate
-    ///   `psi + delta` is off by at most `asin(|delta| / psi_f)` and `| |psi_hat| - psi_f |`
-    ///   is at most `|delta|`, so a magnitude further from the magnet flux than
-    ///   `psi_f sin(LOCK_ANGLE_RAD)` (plus a salient motor's `|Ld - Lq| |i|`, the active
-    ///   flux's share of the current) allows an angle beyond it. The pure integrator's
-    ///   drifting flux, which the PLL may lock to, fails it. Compared in squares.
+    /// - `without_fll` (the observers without the FLL's checks) carries the PLL's phase
+    ///   error (the sine, dimensionless), and the errors that add to the angle's are
+    ///   bounded together within the lock angle ([`Estimator::flux_steady`]: an offset
+    ///   read from the swing of the estimate's magnitude, the CFO's phase lead, the
+    ///   PLL's error).
     ///
     /// Not inlined: one copy for its two callers.
     #[inline(never)]
@@ -992,24 +1022,77 @@ impl<T: Scalar> Estimator<T> {
         psi: AlphaBeta<T>,
         omega_e: T,
         dt: T,
-        check_magnitude: bool,
+        without_fll: Option<T>,
     ) -> bool {
         let i_norm = approx_norm(i);
         let psi_norm = approx_norm(psi);
-        // `psi_norm` is within 12 %: the magnitude is compared exactly, in squares.
-        let magnitude_ok = !check_magnitude || {
-            let allowance = self.psi_f * self.lock_angle_sin + self.saliency.abs() * i_norm;
-            let low = self.psi_f - allowance;
-            let high = self.psi_f + allowance;
-            let square = psi.alpha * psi.alpha + psi.beta * psi.beta;
-            (low <= T::ZERO || square >= low * low) && square <= high * high
-        };
         let along = (i.alpha * psi.alpha + i.beta * psi.beta).abs();
         let error = self.lock_resistance * (along + self.lock_angle_sin * i_norm * psi_norm);
         let w = omega_e.abs();
         let decay = (self.lock_error_decay_per_rad * w * dt).min(T::ONE);
         self.lock_error = error.max(self.lock_error - self.lock_error.mul_unit(decay));
-        magnitude_ok && self.lock_error <= w * self.psi_f * psi_norm
+        let resistance_ok = self.lock_error <= w * self.psi_f * psi_norm;
+        let Some(pll_error) = without_fll else {
+            return resistance_ok;
+        };
+        let square = psi.alpha * psi.alpha + psi.beta * psi.beta;
+        resistance_ok && self.flux_steady(square, w, dt, pll_error, psi_norm)
+    }
+
+    /// For the observers without the FLL's checks: whether the angle is within
+    /// [`LOCK_ANGLE_RAD`] by the four errors this estimator can bound, together, and has
+    /// been for [`CALM_ANGLE_RAD`]. With `square` the estimate's `|psi|^2` (Wb^2), `w` the
+    /// PLL's `|w|` (rad/s), `dt` the period (s), `pll_error` the PLL's phase error (the
+    /// sine of its angle from the estimate's, dimensionless) and `psi_norm` the estimate's
+    /// magnitude within 12 % (Wb):
+    /// - an offset `delta` in the estimate (a DC error the observer integrated, a drift)
+    ///   swings `|psi|^2` about its mean by `2 psi_f |delta| cos(phi)` as the flux turns,
+    ///   and turns the angle by up to `asin(|delta| / psi_f)`: `|delta| / psi_f <= p / P`,
+    ///   `p` the swing's held peak and `P` the held peak an offset of `psi_f` leaves (the
+    ///   `flux_sq_peak_per_offset` field). A flux estimate of the wrong magnitude that
+    ///   does not swing is not an angle error;
+    /// - the CFO's low-pass leads by `atan(w_c / w)`
+    ///   ([`AnyObserver::steady_lead_cutoff`]);
+    /// - the PLL lags the estimate by `asin(pll_error)`;
+    /// - a resistance error within the allowance turns it by `atan(t_r)`, with `t_r = tan(
+    ///   LOCK_ANGLE) lock_error / (w psi_f |psi|)` from the resistance check's held error.
+    ///
+    /// Each angle is at most its sine or tangent times `LOCK_ANGLE / sin(LOCK_ANGLE)`
+    /// while that is at most `sin(LOCK_ANGLE)` (`asin(x) / x` grows with `x`, and
+    /// `atan(x) <= x`), so the four sum to at most the lock angle where
+    /// `p / P + w_c / w + |pll_error| + t_r <= sin(LOCK_ANGLE)`; multiplied through by
+    /// `w P psi_f |psi|` (no division): `p w psi_f |psi| + tan(LOCK_ANGLE) lock_error P <=
+    /// (sin(LOCK_ANGLE) w - w_c - |pll_error| w) P psi_f |psi|`. Where a product saturates
+    /// (a swing of several `psi_f^2`), the left side does and the check fails. Without the
+    /// resistance's share, the CFO's closed loop on the paper axis still had 111 to 305
+    /// false-lock samples in its load step, lock loss and reversal.
+    fn flux_steady(&mut self, square: T, w: T, dt: T, pll_error: T, psi_norm: T) -> bool {
+        let travel = w * dt;
+        // FLUX_SQ_RATE_PER_RAD of the travel, in [0, 1]: products without a saturation
+        // check.
+        let rate = travel.mul_unit(T::HALF).mul_unit(T::HALF).mul_unit(T::HALF).min(T::ONE);
+        self.flux_sq_mean = self.flux_sq_mean + (square - self.flux_sq_mean).mul_unit(rate);
+        let deviation = (square - self.flux_sq_mean).abs();
+        self.flux_sq_peak = deviation.max(self.flux_sq_peak - self.flux_sq_peak.mul_unit(rate));
+        // |pll_error| <= 1 (the PLL clamps it).
+        let room = self.lock_angle_sin * w - self.observer.steady_lead_cutoff() - w.mul_unit(pll_error.abs());
+        let per_offset = self.flux_sq_peak_per_offset;
+        let flux_sq = self.psi_f * psi_norm;
+        let used = self.flux_sq_peak * w * flux_sq + self.lock_angle_tan * self.lock_error * per_offset;
+        let steady = used <= room * per_offset * flux_sq;
+        self.calm_angle = if steady { (self.calm_angle + travel).min(self.calm_needed) } else { T::ZERO };
+        self.calm_angle >= self.calm_needed
+    }
+
+    /// Restarts [`Estimator::flux_steady`]'s mean at the magnet's flux and its peak and
+    /// calm at zero. The calm is the steadiness check's without an FLL; with one it is
+    /// the disturbance checks' (`track`), which keep their own.
+    fn clear_flux_steadiness(&mut self) {
+        self.flux_sq_mean = self.psi_f * self.psi_f;
+        self.flux_sq_peak = T::ZERO;
+        if self.fll.is_none() {
+            self.calm_angle = T::ZERO;
+        }
     }
 
     /// Turns the output angle back by the phase the notch's mistuning gives the flux
@@ -1070,7 +1153,7 @@ impl<T: Scalar> Estimator<T> {
         self.compensation_phase = excess.clamp_to(-self.phase_limit, self.phase_limit);
         let phi = self.weighted_compensation(fading_weight, fading_phase);
         out.theta_e = out.theta_e - phi.radians_to_angle();
-        out.cos_sin = CosSin::new(out.theta_e);
+        out.cos_sin = CosSin::inline(out.theta_e);
     }
 
     /// The compensation applied (rad): the present one at its arming and weight, plus
@@ -1282,6 +1365,7 @@ impl<T: Scalar> Estimator<T> {
         }
         self.clear_compensation();
         self.lock_error = T::ZERO;
+        self.clear_flux_steadiness();
     }
 
     /// `true` while the circle fit of [`crate::algorithms::arc_fit`] is still looking for the mover
@@ -1357,35 +1441,118 @@ mod tests {
 
     const DT: f64 = 1e-4;
 
-    /// The lock check's constants are the sine and tangent of its angle, to f32.
+    /// The lock check's constants are the sine and tangent of its angle, and the steadiness
+    /// check's hold is the exponential of its rate, to f32.
     #[test]
     fn lock_angle_constants_are_its_sine_and_tangent() {
         let a = f64::from(LOCK_ANGLE_RAD);
         assert!((f64::from(LOCK_ANGLE_SIN) - a.sin()).abs() < 1e-7);
         assert!((f64::from(LOCK_ANGLE_TAN) - a.tan()).abs() < 1e-7);
+        let hold = (-f64::from(FLUX_SQ_RATE_PER_RAD) * core::f64::consts::FRAC_PI_2).exp();
+        assert!((f64::from(FLUX_SQ_HOLD_AT_QUARTER) - hold).abs() < 1e-7);
     }
 
-    /// An estimator of `motor` with its compensations armed, as after a period of lock.
+    /// The steadiness check of the observers without an FLL against the geometry of an
+    /// offset `delta` on a flux turning at `hz`: `(allowed at the end, allowed on a
+    /// sample whose angle is off by more than LOCK_ANGLE_RAD)` over four periods, the
+    /// offset's angle to the flux at the start `phase` (rad).
+    fn steadiness(kind: ObserverKind, hz: f64, offset_angle_deg: f64, phase: f64) -> (bool, bool) {
+        let motor = MotorParams::paper();
+        let config = EstimatorConfig::for_motor(&motor, kind);
+        let mut e = Estimator::<f64>::new(&motor, &config, &Base::SI).unwrap();
+        let psi_f = f64::from(motor.psi_f_wb);
+        let delta = psi_f * offset_angle_deg.to_radians().sin();
+        let w = 2.0 * core::f64::consts::PI * hz;
+        // The CFO's low-pass leads by atan(w_c / w): the flux it reports is the mover's
+        // turned by that (the check is told of the lead, not shown it).
+        let lead =
+            if kind == ObserverKind::Cfo { (f64::from(config.cfo_cutoff_rad_s) / w).atan() } else { 0.0 };
+        let (mut allowed, mut false_lock) = (false, false);
+        let periods = 4.0;
+        for n in 0..(periods / (hz * DT)) as usize {
+            let th = w * DT * n as f64;
+            let psi = AlphaBeta::new(
+                psi_f * (th + lead).cos() + delta * phase.cos(),
+                psi_f * (th + lead).sin() + delta * phase.sin(),
+            );
+            allowed = e.flux_allows_lock(AlphaBeta::default(), psi, w, DT, Some(0.0));
+            let error = (psi.beta.atan2(psi.alpha) - th + core::f64::consts::PI)
+                .rem_euclid(2.0 * core::f64::consts::PI)
+                - core::f64::consts::PI;
+            false_lock |= allowed && error.abs() > f64::from(LOCK_ANGLE_RAD);
+        }
+        (allowed, false_lock)
+    }
+
     #[test]
-    fn a_flux_magnitude_off_the_magnet_flux_by_more_than_the_lock_angle_allows_no_lock() {
+    fn an_offset_that_turns_the_angle_beyond_the_lock_angle_withdraws_the_lock() {
+        for phase in [0.0, 1.0, 2.0, 3.0, 4.0, 5.0] {
+            // Within the lock angle's budget: vouched for once steady.
+            let (end, false_lock) = steadiness(ObserverKind::PureIntegrator, 10.0, 5.0, phase);
+            assert!(end && !false_lock, "5 deg offset, phase {phase}");
+            // Beyond it (the angle off by up to 20 and 30 deg): never locked while off
+            // by more than 15 deg, nor at the end.
+            for offset in [20.0, 30.0] {
+                let (end, false_lock) = steadiness(ObserverKind::PureIntegrator, 10.0, offset, phase);
+                assert!(!end && !false_lock, "{offset} deg offset, phase {phase}");
+            }
+        }
+    }
+
+    /// A pure integrator's drift: an offset growing from zero to 0.6 `psi_f` over eight
+    /// periods at 10 Hz (the angle off by up to 37 deg at the end). The flag is up while
+    /// the drift is small, never while the angle is off by more than the lock angle, and
+    /// down at the end. A steady flux of the wrong magnitude (1.3 `psi_f`, at the right
+    /// angle) is vouched for: the magnitude is not the angle.
+    #[test]
+    fn a_drifting_flux_is_vouched_for_only_while_its_angle_is_within_the_lock_angle() {
         let motor = MotorParams::paper();
         let config = EstimatorConfig::for_motor(&motor, ObserverKind::PureIntegrator);
         let psi_f = f64::from(motor.psi_f_wb);
-        let allows = |scale: f64, check: bool| {
+        let w = 2.0 * core::f64::consts::PI * 10.0;
+        let samples = (8.0 / (10.0 * DT)) as usize;
+        let run = |scale: f64, drift: f64| {
             let mut e = Estimator::<f64>::new(&motor, &config, &Base::SI).unwrap();
-            // 10 Hz, no current: the resistance check passes, the magnitude decides.
-            let w = 2.0 * core::f64::consts::PI * 10.0;
-            let psi = AlphaBeta::new(scale * psi_f * 0.6, scale * psi_f * 0.8);
-            e.flux_allows_lock(AlphaBeta::default(), psi, w, DT, check)
+            let (mut first_allowed, mut last, mut false_lock) = (None, false, false);
+            for n in 0..samples {
+                let th = w * DT * n as f64;
+                let delta = drift * psi_f * n as f64 / samples as f64;
+                let psi = AlphaBeta::new(
+                    scale * psi_f * th.cos() + delta * 0.7f64.cos(),
+                    scale * psi_f * th.sin() + delta * 0.7f64.sin(),
+                );
+                last = e.flux_allows_lock(AlphaBeta::default(), psi, w, DT, Some(0.0));
+                let error = (psi.beta.atan2(psi.alpha) - th + core::f64::consts::PI)
+                    .rem_euclid(2.0 * core::f64::consts::PI)
+                    - core::f64::consts::PI;
+                false_lock |= last && error.abs() > f64::from(LOCK_ANGLE_RAD);
+                if last && first_allowed.is_none() {
+                    first_allowed = Some(n);
+                }
+            }
+            (first_allowed, last, false_lock)
         };
-        let sin = f64::from(LOCK_ANGLE_SIN);
-        for (scale, expected) in [(1.0, true), (1.0 - 0.9 * sin, true), (1.0 + 0.9 * sin, true)] {
-            assert_eq!(allows(scale, true), expected, "{scale}");
-        }
-        for scale in [1.0 - 1.1 * sin, 1.0 + 1.1 * sin, 2.0, 0.2] {
-            assert!(!allows(scale, true), "{scale}");
-            // Without the check (the DCFO with its FLL) the magnitude does not decide.
-            assert!(allows(scale, false), "{scale}");
+        let (first, end, false_lock) = run(1.0, 0.6);
+        assert!(first.is_some_and(|n| n < samples / 4), "first allowed at {first:?}");
+        assert!(!end && !false_lock);
+        let (first, end, false_lock) = run(1.3, 0.0);
+        assert!(first.is_some() && end && !false_lock);
+    }
+
+    #[test]
+    fn the_cfos_phase_lead_counts_against_the_lock_angle() {
+        // The CFO's 2.5 Hz cut-off leads by 14.0 deg at 10 Hz, 26.6 at 5 Hz, 7.1 at 20 Hz.
+        let (end, false_lock) = steadiness(ObserverKind::Cfo, 5.0, 0.0, 0.0);
+        assert!(!end && !false_lock);
+        let (end, false_lock) = steadiness(ObserverKind::Cfo, 10.0, 0.0, 0.0);
+        assert!(end && !false_lock);
+        // At 20 Hz an offset worth 5 deg fits the 7.9 deg the lead leaves; one of 10 does
+        // not, and is never locked where the two add beyond 15 deg.
+        let (end, false_lock) = steadiness(ObserverKind::Cfo, 20.0, 5.0, 1.0);
+        assert!(end && !false_lock);
+        for phase in [0.0, 1.0, 2.0, 3.0, 4.0, 5.0] {
+            let (end, false_lock) = steadiness(ObserverKind::Cfo, 20.0, 10.0, phase);
+            assert!(!end && !false_lock, "phase {phase}");
         }
     }
 

@@ -1,8 +1,9 @@
 //! The estimator's `locked` flag is honest: on every `dcfo sim` scenario (the paper's
 //! experiments and every file in `scenarios/`) and every motor (the paper axis and every
 //! file in `motors/`), I/f start included, no sample is flagged locked while the angle is
-//! more than 15 deg off (`false_lock_samples`, docs/trace-format.md). The closed loop is
-//! the command's own ([`setup_for`]), so what this counts is what `dcfo sim` reports.
+//! more than 15 deg off (`false_lock_samples`, docs/trace-format.md), with the DCFO and
+//! with the CFO. The closed loop is the command's own ([`setup_for`]), so what this
+//! counts is what `dcfo sim` reports.
 
 use dcfo::algorithms::observer::ObserverKind;
 use dcfo::drive::DriveState;
@@ -28,8 +29,8 @@ fn files(dir: &str) -> Vec<String> {
 
 /// (false-lock samples, samples of the sensorless loop within 5 deg, those of them
 /// flagged locked) of one run.
-fn count(scenario: &str, motor: Option<&str>) -> (usize, usize, usize) {
-    let (setup, sc) = setup_for(scenario, motor, ObserverKind::Dcfo).unwrap();
+fn count(scenario: &str, motor: Option<&str>, observer: ObserverKind) -> (usize, usize, usize) {
+    let (setup, sc) = setup_for(scenario, motor, observer).unwrap();
     let r = run(&setup, &sc, |_| {}).unwrap();
     let locked = |s: &&Sample| s.locked == Some(true);
     let false_locks =
@@ -45,8 +46,9 @@ fn count(scenario: &str, motor: Option<&str>) -> (usize, usize, usize) {
     (false_locks, running.len(), running_locked)
 }
 
-#[test]
-fn no_sample_is_locked_more_than_15_deg_off_on_any_scenario_or_motor() {
+/// Every scenario on every motor with `observer`: (scenario, motor, the three counts of
+/// [`count`]) per run; the runs failing the false-lock criterion are printed and failed.
+fn every_run(observer: ObserverKind) -> Vec<(String, Option<String>, usize, usize, usize)> {
     let mut scenarios: Vec<String> = paper_scenarios().into_iter().map(|s| s.name).collect();
     scenarios.extend(files("scenarios"));
     let mut motors: Vec<Option<String>> = vec![None];
@@ -63,7 +65,7 @@ fn no_sample_is_locked_more_than_15_deg_off_on_any_scenario_or_motor() {
                     chunk
                         .iter()
                         .map(|(s, m)| {
-                            let (f, n, l) = count(s, m.as_deref());
+                            let (f, n, l) = count(s, m.as_deref(), observer);
                             (s.clone(), m.clone(), f, n, l)
                         })
                         .collect::<Vec<_>>()
@@ -76,14 +78,20 @@ fn no_sample_is_locked_more_than_15_deg_off_on_any_scenario_or_motor() {
     for (s, m, false_locks, running, running_locked) in &results {
         let motor = m.as_deref().unwrap_or("paper axis");
         eprintln!(
-            "{s} on {motor}: {false_locks} false-lock samples; {running_locked} of {running} sensorless \
-             samples within 5 deg flagged locked"
+            "{observer:?}: {s} on {motor}: {false_locks} false-lock samples; {running_locked} of \
+             {running} sensorless samples within 5 deg flagged locked"
         );
         if *false_locks > 0 {
             failures.push(format!("{s} on {motor}: {false_locks}"));
         }
     }
-    assert!(failures.is_empty(), "false-lock samples: {failures:?}");
+    assert!(failures.is_empty(), "{observer:?}: false-lock samples: {failures:?}");
+    results
+}
+
+#[test]
+fn no_sample_is_locked_more_than_15_deg_off_on_any_scenario_or_motor() {
+    let results = every_run(ObserverKind::Dcfo);
     // The flag is not simply off: over the runs, while the drive runs its sensorless loop
     // with the estimate within 5 deg, the flag is set for most of it (the rest: the
     // hand-over's first samples and the resistance allowance at the motors' low-speed
@@ -92,4 +100,19 @@ fn no_sample_is_locked_more_than_15_deg_off_on_any_scenario_or_motor() {
     let running_locked: usize = results.iter().map(|r| r.4).sum();
     eprintln!("all runs: {running_locked} of {running} sensorless samples within 5 deg flagged locked");
     assert!(running > 0 && running_locked * 100 >= running * 85, "{running_locked} of {running}");
+}
+
+/// The CFO, whose flag has only the PLL's lock, the resistance check and the errors
+/// bounded together (`Estimator::flux_steady`: its phase lead `atan(w_c / w)`, an offset
+/// read from the magnitude's swing, the PLL's error), is as honest. Its lead is 14 deg at
+/// the paper's 10 Hz, so it vouches for its angle mostly at the scenarios' higher speeds;
+/// the flag is not simply off (measured: 13,314 of the 51,809 samples of its sensorless
+/// loop within 5 deg over these runs).
+#[test]
+fn the_cfo_is_never_locked_more_than_15_deg_off_either() {
+    let results = every_run(ObserverKind::Cfo);
+    let running_locked: usize = results.iter().map(|r| r.4).sum();
+    let running: usize = results.iter().map(|r| r.3).sum();
+    eprintln!("CFO, all runs: {running_locked} of {running} sensorless samples within 5 deg flagged locked");
+    assert!(running_locked > 0);
 }

@@ -265,7 +265,7 @@ impl<T: Scalar> Pll<T> {
             return Err(PllFault::InvalidInput);
         }
         let theta = self.theta;
-        let cos_sin = CosSin::new(theta);
+        let cos_sin = CosSin::inline(theta);
         let eps = psi_ab.beta.mul_unit(cos_sin.cos) - psi_ab.alpha.mul_unit(cos_sin.sin);
         // eps / |psi| as eps * (|psi|^2)^-1/2: no square root and no division (both are
         // software routines in fixed point on an FPU-less core).

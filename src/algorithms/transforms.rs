@@ -93,8 +93,19 @@ pub struct CosSin<T> {
 }
 
 impl<T: Scalar> CosSin<T> {
-    /// Evaluates cos and sin of `theta` (accuracy: [`Scalar::cos_sin`]).
+    /// Evaluates cos and sin of `theta` (accuracy: [`Scalar::cos_sin`]). Not inlined:
+    /// one copy of the table look-up for every path that does not run every control
+    /// period ([`CosSin::inline`] is for those that do).
+    #[inline(never)]
     pub fn new(theta: Angle) -> Self {
+        Self::inline(theta)
+    }
+
+    /// [`CosSin::new`], inlined: for the control step's every-period path (the PLL, the
+    /// modulator's frame, the estimator's corrected angle), where a call would cost
+    /// instructions every period.
+    #[inline(always)]
+    pub fn inline(theta: Angle) -> Self {
         let (cos, sin) = T::cos_sin(theta);
         CosSin { cos, sin }
     }

@@ -1147,7 +1147,7 @@ impl<T: Scalar> Drive<T> {
         // The command is applied from the next period on: rotate it to the middle of
         // its application window.
         let theta_apply = theta + (omega * k.dt * k.delay_periods).radians_to_angle();
-        let cs_apply = CosSin::new(theta_apply);
+        let cs_apply = CosSin::inline(theta_apply);
         let u_ab = inverse_park(Dq::new(u_d, u_q), &cs_apply);
         // The bus and its reciprocal once, for the compensation and the modulator.
         let bus = match DcBus::new(m.vdc) {

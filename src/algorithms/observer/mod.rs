@@ -147,6 +147,16 @@ impl<T: Scalar> AnyObserver<T> {
 }
 
 impl<T: Scalar> AnyObserver<T> {
+    /// The frequency `w_l` (rad/s) by which the observer's estimate leads the flux in the
+    /// steady state, by `atan(w_l / |w|)`: the CFO's low-pass cut-off; zero for the pure
+    /// integrator and the DCFO, which have no such lead.
+    pub fn steady_lead_cutoff(&self) -> T {
+        match self {
+            AnyObserver::Cfo(o) => o.cutoff(),
+            AnyObserver::PureIntegrator(_) | AnyObserver::Dcfo(_) => T::ZERO,
+        }
+    }
+
     /// Arms the DCFO's radial feedback in the share `weight` (dimensionless, 0 to 1;
     /// [`Dcfo::set_magnitude_feedback`]); the other observers have none.
     pub fn set_magnitude_feedback(&mut self, weight: T) {
