@@ -1450,6 +1450,8 @@ mod tests {
         assert!((f64::from(LOCK_ANGLE_TAN) - a.tan()).abs() < 1e-7);
         let hold = (-f64::from(FLUX_SQ_RATE_PER_RAD) * core::f64::consts::FRAC_PI_2).exp();
         assert!((f64::from(FLUX_SQ_HOLD_AT_QUARTER) - hold).abs() < 1e-7);
+        // `Estimator::flux_steady` forms the rate as three halves, exactly.
+        assert_eq!(FLUX_SQ_RATE_PER_RAD.to_bits(), (0.5f32 * 0.5 * 0.5).to_bits());
     }
 
     /// The steadiness check of the observers without an FLL against the geometry of an
