@@ -78,6 +78,30 @@ impl QemuCpu {
         }
     }
 
+    /// The real core this one stands for: its clock (Hz) and the cycles per instruction
+    /// assumed for it (dimensionless), from which `bench_qemu`'s instruction counts give a
+    /// PWM rate ([`QemuCpu::pwm_max_hz`]).
+    /// - Cortex-M4F (STM32G4 at 170 MHz): single-cycle ALU, FPU and MAC, but loads take
+    ///   two cycles, taken branches refill the 3-stage pipeline (1 to 3 cycles) and the
+    ///   flash has 4 wait states behind the ART cache, whose misses cost more: 1.5.
+    /// - Cortex-M3 (72 MHz, e.g. STM32F103): as the M4 for the ALU, branches and loads,
+    ///   but a 32 x 32 -> 64 multiply (`SMULL`, the Q8.24 product) takes 3 to 5 cycles,
+    ///   the flash has 2 wait states behind a small prefetch buffer and there is no
+    ///   cache: 2.0 (issue 36's 3,600 instructions in a 10 kHz period of 7,200 cycles).
+    pub fn clock_and_cpi(self) -> (f64, f64) {
+        match self {
+            QemuCpu::M4f => (170e6, 1.5),
+            QemuCpu::M3 => (72e6, 2.0),
+        }
+    }
+
+    /// The highest PWM rate (Hz, rounded down) at which a control step of `instructions`
+    /// fits one period on the real core ([`QemuCpu::clock_and_cpi`]).
+    pub fn pwm_max_hz(self, instructions: u64) -> f64 {
+        let (clock, cpi) = self.clock_and_cpi();
+        (clock / (cpi * instructions.max(1) as f64)).floor()
+    }
+
     /// The in-process drive the firmware's results must equal: same code, same numeric
     /// type, same units.
     pub fn local_drive(self, setup: &crate::simulation::Setup) -> Result<Box<dyn Controller>, SimError> {

@@ -31,7 +31,8 @@
 //! The `empty` region (a call of an empty function and the two timer reads) is
 //! subtracted from every region. QEMU's single-stepped exec log would count the same
 //! instructions line by line, but a log of the whole run would be billions of lines.
-//! Instructions are not cycles: the PWM rates below assume [`CPI_M4F`] and [`CPI_M3`].
+//! Instructions are not cycles: the PWM rates below assume the cycles per instruction
+//! of [`QemuCpu::clock_and_cpi`].
 //!
 //! # The budget
 //! `--check` compares against the figures recorded in [`RECORDED`]
@@ -130,20 +131,6 @@ fn size_verdict(now: u64, limit: u64, recorded: Option<u64>) -> SizeVerdict {
 
 /// The largest initialised object the ESC1 drive image may keep in `.data`, bytes.
 const DATA_OBJECT_LIMIT_B: u64 = 256;
-
-/// Cycles per instruction assumed for the PWM rate a core sustains at its worst step.
-/// Cortex-M4F (STM32G4 at 170 MHz): single-cycle ALU, FPU and MAC, but loads take two
-/// cycles, taken branches refill the 3-stage pipeline (1 to 3 cycles) and the flash
-/// has 4 wait states behind the ART cache, whose misses cost more: 1.5.
-const CPI_M4F: f64 = 1.5;
-/// Cortex-M3 (72 MHz, e.g. STM32F103): as the M4 for the ALU, branches and loads, but a
-/// 32 x 32 -> 64 multiply (`SMULL`, the Q8.24 product) takes 3 to 5 cycles, the flash
-/// has 2 wait states behind a small prefetch buffer and there is no cache: 2.0 (the
-/// issue's 3,600 instructions in a 10 kHz period of 7,200 cycles).
-const CPI_M3: f64 = 2.0;
-/// Core clocks, Hz.
-const CLOCK_M4F_HZ: f64 = 170e6;
-const CLOCK_M3_HZ: f64 = 72e6;
 
 /// `bench_qemu`: the cost of the control step on QEMU, the images' sizes, the budget.
 #[derive(Parser, Debug)]
@@ -267,11 +254,7 @@ fn run(args: &Args) -> Result<bool> {
         figures.insert(format!("worst_estimator_{k}"), json!(results.worst_estimator));
         figures.insert(format!("stack_step_{}_b", k.split('_').next().unwrap_or(k)), json!(run.stack));
         figures.insert(format!("stack_hil_{}_b", k.split('_').next().unwrap_or(k)), json!(run.stack_hil));
-        let (clock, cpi) = match board.qemu {
-            QemuCpu::M4f => (CLOCK_M4F_HZ, CPI_M4F),
-            QemuCpu::M3 => (CLOCK_M3_HZ, CPI_M3),
-        };
-        let pwm = (clock / (cpi * results.worst_step as f64)).floor();
+        let pwm = board.qemu.pwm_max_hz(results.worst_step);
         figures.insert(format!("pwm_max_hz_{k}"), json!(pwm));
         by_state.insert(k.to_owned(), Value::Object(results.by_state));
         for (name, n) in &results.stages {
@@ -317,16 +300,15 @@ fn run(args: &Args) -> Result<bool> {
         "stages".into(),
         Value::Object(stages.into_iter().map(|(k, v)| (k, Value::Object(v))).collect()),
     );
-    all.insert("cpi".into(), json!({ "m4f": CPI_M4F, "m3": CPI_M3 }));
-    all.insert("clock_hz".into(), json!({ "m4f": CLOCK_M4F_HZ, "m3": CLOCK_M3_HZ }));
+    let ((clock_m4f, cpi_m4f), (clock_m3, cpi_m3)) =
+        (QemuCpu::M4f.clock_and_cpi(), QemuCpu::M3.clock_and_cpi());
+    all.insert("cpi".into(), json!({ "m4f": cpi_m4f, "m3": cpi_m3 }));
+    all.insert("clock_hz".into(), json!({ "m4f": clock_m4f, "m3": clock_m3 }));
 
     println!();
     for board in &BOARDS {
         let k = board.key;
-        let (clock, cpi) = match board.qemu {
-            QemuCpu::M4f => (CLOCK_M4F_HZ, CPI_M4F),
-            QemuCpu::M3 => (CLOCK_M3_HZ, CPI_M3),
-        };
+        let (clock, cpi) = board.qemu.clock_and_cpi();
         println!(
             "{}: worst step {} instructions = {:.0} cycles at {cpi} CPI: {:.1} kHz PWM at {:.0} MHz",
             board.label,

@@ -27,6 +27,7 @@
 //! for reading (degrees to two decimals below 10 and one above), so a last-bit
 //! difference of another machine's maths library does not change a table.
 
+use crate::qemu::QemuCpu;
 use anyhow::{Context, Result, anyhow, bail};
 use serde_json::Value;
 use std::fmt::Write as _;
@@ -746,6 +747,22 @@ fn cost(input: &Input) -> Result<String> {
     for (row, m4f, m3) in &steps {
         writeln!(s, "| {} | {} | {} |", cost_row(row), cell(*m4f, ""), cell(*m3, ""))?;
     }
+    // The PWM rate the worst step allows on the real cores (QemuCpu::clock_and_cpi).
+    if let Some((_, m4f, m3)) = steps.iter().find(|(r, _, _)| r == "worst_step") {
+        let pwm = |cpu: QemuCpu, n: Option<u64>| {
+            let (clock, cpi) = cpu.clock_and_cpi();
+            n.map_or_else(
+                || "—".to_owned(),
+                |n| format!("{:.1} kHz ({:.0} MHz, CPI {cpi})", cpu.pwm_max_hz(n) / 1e3, clock / 1e6),
+            )
+        };
+        writeln!(
+            s,
+            "| the PWM rate the worst step allows | {} | {} |",
+            pwm(QemuCpu::M4f, *m4f),
+            pwm(QemuCpu::M3, *m3)
+        )?;
+    }
     if !images.is_empty() {
         s.push_str("\n| image | flash | static RAM |\n|---|--:|--:|\n");
         for (image, flash, ram) in &images {
@@ -996,6 +1013,7 @@ mod tests {
             None,
             "recorded.json",
             json!({"estimator_m3_q24": 3132, "step_m4f_f32": 2789, "step_m3_q24": 10219,
+                   "worst_step_m4f_f32": 3400, "worst_step_m3_q24": 7200,
                    "flash_esc1_drive_b": 75260, "ram_esc1_drive_b": 8112, "flash_qemu_hil_m3_b": 95128}),
         );
         let t = Table::Cost.render(&[input]).unwrap();
@@ -1003,6 +1021,11 @@ mod tests {
         assert!(t.contains("| the estimator, mean in `Running` | — | 3,132 |"), "{t}");
         assert!(t.contains("| `b_g431b_esc1` (the ESC1 drive image) | 75,260 B | 8,112 B |"), "{t}");
         assert!(t.contains("| `qemu_hil`, Cortex-M3 | 95,128 B | — |"), "{t}");
+        // 170 MHz / (1.5 x 3,400) = 33.3 kHz; 72 MHz / (2 x 7,200) = 5 kHz.
+        assert!(
+            t.contains("| the PWM rate the worst step allows | 33.3 kHz (170 MHz, CPI 1.5) | 5.0 kHz (72 MHz, CPI 2) |"),
+            "{t}"
+        );
         let step = t.find("`Drive::step`, mean").unwrap();
         assert!(step < t.find("the estimator").unwrap(), "{t}");
         let unknown = Input::from_value(None, "recorded.json", json!({"pwm_hz": 1}));
