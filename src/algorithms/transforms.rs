@@ -94,8 +94,9 @@ pub struct CosSin<T> {
 
 impl<T: Scalar> CosSin<T> {
     /// Evaluates cos and sin of `theta` (accuracy: [`Scalar::cos_sin`]). Not inlined:
-    /// one copy of the table look-up for every path that does not run every control
-    /// period ([`CosSin::inline`] is for those that do).
+    /// one copy of the table look-up for every path that does not run every period of
+    /// the sensorless `Running` state (hand-overs, seeds, the low-speed modes' frames);
+    /// [`CosSin::inline`] is for those that do.
     #[inline(never)]
     pub fn new(theta: Angle) -> Self {
         Self::inline(theta)
