@@ -483,16 +483,20 @@ fn f32_inv_sqrt(x: f32) -> f32 {
 }
 
 /// `(a * b) >> 24` of two Q24 bit patterns, rounded down and saturated to `i32`: one
-/// `SMULL` (32 x 32 -> 64 bits), the shift, and a check that bits 55 to 63 of the product
-/// (those the shift leaves above bit 31) are all copies of its sign.
+/// `SMULL` (32 x 32 -> 64 bits) and a check that the high word lies in `[-2^23, 2^23)`
+/// (bits 55 to 63 of the product, those the shift leaves above bit 31, all copies of its
+/// sign), then the shift. The saturated value is formed on a cold path
+/// (`core::hint::cold_path`): on the Cortex-M3 an in-range product is six instructions
+/// (`SMULL`, the check's add, compare and branch, the shift's two), where forming both
+/// results and selecting one takes nine. The same value for every pair of operands.
 #[inline(always)]
 fn q24_mul_saturating(a: i32, b: i32) -> i32 {
     let product = i64::from(a) * i64::from(b);
     let high = (product >> 32) as i32;
-    let shifted = (product >> 24) as i32;
-    if high >> 23 == shifted >> 31 {
-        shifted
+    if (high.wrapping_add(1 << 23) as u32) < 1 << 24 {
+        (product >> 24) as i32
     } else {
+        core::hint::cold_path();
         // The product's sign: i32::MAX when positive, i32::MIN when negative.
         (high >> 31) ^ i32::MAX
     }
