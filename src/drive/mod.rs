@@ -608,7 +608,7 @@ impl<T: Scalar> Drive<T> {
             None => None,
         };
         let phase_loss = PhaseLoss::new(
-            T::from_f32(ts / config.faults.phase_loss_filter_s),
+            T::from_f32(phase_loss::CHECK_PERIODS as f32 * ts / config.faults.phase_loss_filter_s),
             k.current_error,
             k.current_error_samples,
         );
@@ -1135,6 +1135,7 @@ impl<T: Scalar> Drive<T> {
         // the voltage saturates, which at light load comes after the wrong currents have
         // corrupted the flux estimate (FaultConfig::phase_loss_filter_s).
         if loops_run
+            && self.phase_loss.due()
             && self
                 .phase_loss
                 .update(inverse_clarke(i_loop), inverse_clarke(inverse_park(self.i_dq_ref, &cs)))

@@ -40,38 +40,56 @@
 //!
 //! The drive runs it wherever its current loops run (not while HFI aligns, when the
 //! loops are held), on the currents its loops see (with HFI the fundamental).
-//! Bounded time: about twenty multiplications and comparisons per period, no division.
+//!
+//! ## In every fourth period
+//! The check runs in one period of [`CHECK_PERIODS`] (4), its filters at the rate
+//! `4 Ts / tau` and its persistence counted in checks. The measured and the reference
+//! magnitudes are sampled at the same instants, so a healthy phase's ratio stays near 1
+//! whatever the speed (no aliasing can part the two), and the filter's passband, a few
+//! hertz for `tau` = 10 ms, is far below the 2.5 kHz it is sampled at. The trip comes
+//! within a check (0.4 ms at 10 kHz) of where it would every period. In every period
+//! it cost the M3's running step about 250 instructions and the M4F's 70 (`bench_qemu`,
+//! the check switched off): about twenty multiplications and comparisons, no division.
+//! The periods between pay only the count.
 
 #![forbid(unsafe_code)]
 
 use crate::algorithms::transforms::Abc;
 use crate::num::Scalar;
 
+/// Periods per check: the check runs in one of every `CHECK_PERIODS` (module docs).
+pub(crate) const CHECK_PERIODS: u32 = 4;
+
 /// The phase-loss check's state (see the module docs). Working units throughout.
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct PhaseLoss<T> {
-    /// Per-period rate of the low-pass, `Ts / tau` (dimensionless, at most 1).
+    /// Rate of the low-pass per check, `CHECK_PERIODS Ts / tau` (dimensionless, at most
+    /// 1).
     rate: T,
     /// Reference magnitude a phase must average to be judged (A).
     threshold: T,
-    /// Periods a lost phase must persist before it trips.
-    samples: u32,
+    /// Checks a lost phase must persist for before it trips.
+    checks: u32,
+    /// Periods since the last check, `0..CHECK_PERIODS`.
+    since_check: u32,
     /// Measured current magnitudes, low-passed (A; a, b, c).
     current_mean: [T; 3],
     /// Reference current magnitudes, low-passed alike (A; a, b, c).
     reference_mean: [T; 3],
-    /// Consecutive periods with a lost phase.
+    /// Consecutive checks with a lost phase.
     count: u32,
 }
 
 impl<T: Scalar> PhaseLoss<T> {
-    /// A check with the low-pass rate `rate` (`Ts / tau`, clamped to 1), the reference
-    /// `threshold` (A) and the persistence `samples` (periods).
+    /// A check with the low-pass rate per check `rate` ([`CHECK_PERIODS`] `Ts / tau`,
+    /// clamped to 1), the reference `threshold` (A) and the persistence `samples`
+    /// (periods, counted in whole checks: `samples / CHECK_PERIODS`).
     pub(crate) fn new(rate: T, threshold: T, samples: u32) -> Self {
         PhaseLoss {
             rate: rate.clamp_to(T::ZERO, T::ONE),
             threshold,
-            samples,
+            checks: samples / CHECK_PERIODS,
+            since_check: 0,
             current_mean: [T::ZERO; 3],
             reference_mean: [T::ZERO; 3],
             count: 0,
@@ -83,9 +101,21 @@ impl<T: Scalar> PhaseLoss<T> {
         self.current_mean = [T::ZERO; 3];
         self.reference_mean = [T::ZERO; 3];
         self.count = 0;
+        self.since_check = 0;
     }
 
-    /// One period: the measured phase currents and the reference phase currents (A).
+    /// Counts one period: `true` in the period the check runs in (one of every
+    /// [`CHECK_PERIODS`]), which starts the count again.
+    pub(crate) fn due(&mut self) -> bool {
+        self.since_check += 1;
+        let due = self.since_check >= CHECK_PERIODS;
+        if due {
+            self.since_check = 0;
+        }
+        due
+    }
+
+    /// One check: the measured phase currents and the reference phase currents (A).
     /// `true` once a phase has been lost for longer than the persistence.
     pub(crate) fn update(&mut self, measured: Abc<T>, reference: Abc<T>) -> bool {
         let rate = self.rate;
@@ -107,7 +137,7 @@ impl<T: Scalar> PhaseLoss<T> {
             || (starved(mb, rb) && (carries(ma, ra) || carries(mc, rc)))
             || (starved(mc, rc) && (carries(ma, ra) || carries(mb, rb)));
         self.count = if lost { self.count.saturating_add(1) } else { 0 };
-        self.count > self.samples
+        self.count > self.checks
     }
 }
 
@@ -123,7 +153,8 @@ mod tests {
     const SAMPLES: u32 = 50;
 
     fn check<T: Scalar>() -> PhaseLoss<T> {
-        PhaseLoss::new(T::from_f32((TS / TAU) as f32), T::from_f32(THRESHOLD as f32), SAMPLES)
+        let rate = f64::from(CHECK_PERIODS) * TS / TAU;
+        PhaseLoss::new(T::from_f32(rate as f32), T::from_f32(THRESHOLD as f32), SAMPLES)
     }
 
     /// Balanced phase currents of amplitude `amp` (A) at `hz`, at sample `n`.
@@ -146,7 +177,7 @@ mod tests {
         let mut c = check::<T>();
         (0..(seconds / TS) as usize).find(|&n| {
             let r = reference(n);
-            c.update(abc(measured(n, r)), abc(r))
+            c.due() && c.update(abc(measured(n, r)), abc(r))
         })
     }
 
@@ -188,19 +219,22 @@ mod tests {
     }
 
     /// The window of trip samples the module docs predict for a phase lost at sample 0
-    /// of a steady state at `hz`. The phase's mean decays as `(1 - Ts/tau)^n` from where
-    /// it was, which is its reference's mean (measured = reference before), and must fall
-    /// below a quarter of the reference's mean, then persist for `SAMPLES + 1` more. Both
+    /// of a steady state at `hz`. The phase's mean decays as `(1 - 4 Ts/tau)^(n/4)` from
+    /// where it was, which is its reference's mean (measured = reference before), read
+    /// at the checks (up to a check later), and must fall below a quarter of the
+    /// reference's mean, then persist for `SAMPLES / 4 + 1` more checks. Both
     /// means ripple about `M = (2/pi) amp`: `|cos|` has `2/3 M` at `2 f` and `2/15 M` at
     /// `4 f`, through the low-pass `1 / |1 + j w tau|`, so each is within `M (1 +- e)`
     /// and the ratio crossed at `(1 - e)/(4 (1 + e))` to `(1 + e)/(4 (1 - e))`.
     fn predicted_trip_window(hz: f64) -> (f64, f64) {
         let lp = |f: f64| 1.0 / (1.0 + (2.0 * PI * f * TAU).powi(2)).sqrt();
         let e = 2.0 / 3.0 * lp(2.0 * hz) + 2.0 / 15.0 * lp(4.0 * hz);
-        let per_sample = -(1.0 - TS / TAU).ln();
+        let periods = f64::from(CHECK_PERIODS);
+        let per_sample = -(1.0 - periods * TS / TAU).ln() / periods;
         let spread = ((1.0 + e) / (1.0 - e)).ln();
-        let at = |x: f64| x / per_sample + f64::from(SAMPLES);
-        (at(4f64.ln() - spread), at(4f64.ln() + spread))
+        let persist = f64::from(SAMPLES / CHECK_PERIODS) * periods;
+        let at = |x: f64| x / per_sample + persist;
+        (at(4f64.ln() - spread), at(4f64.ln() + spread) + periods)
     }
 
     fn open_phase_trips_when_predicted<T: Scalar>() {
@@ -247,11 +281,11 @@ mod tests {
         let mut c = check::<f32>();
         let tripped = (0..5000).find(|&n| {
             let r = phases(2.0, 40.0, n);
-            c.update(abc([0.0, r[1], r[2]]), abc(r))
+            c.due() && c.update(abc([0.0, r[1], r[2]]), abc(r))
         });
         assert!(tripped.is_some(), "phase a never carried: trips");
         c.reset();
-        assert_eq!((c.current_mean, c.reference_mean, c.count), ([0.0; 3], [0.0; 3], 0));
+        assert_eq!((c.current_mean, c.reference_mean, c.count, c.since_check), ([0.0; 3], [0.0; 3], 0, 0));
         let r = phases(2.0, 40.0, 0);
         assert!(!c.update(abc(r), abc(r)));
     }
