@@ -1133,7 +1133,8 @@ impl<T: Scalar> Drive<T> {
         // far less than its reference while another carries its own: an open phase, whose
         // current is zero whatever the bridge applies. The check above sees it only once
         // the voltage saturates, which at light load comes after the wrong currents have
-        // corrupted the flux estimate (FaultConfig::phase_loss_filter_s).
+        // corrupted the flux estimate (FaultConfig::phase_loss_filter_s). Checked in
+        // every fourth period (module `phase_loss`).
         if loops_run
             && self.phase_loss.due()
             && self

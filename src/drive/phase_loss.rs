@@ -32,7 +32,8 @@
 //!   would exclude, a current vector across two phases that the loops deliver short at
 //!   standstill, has the loops' voltage on its limit: the saturation check names it the
 //!   same.
-//! - After a phase opens, `m_k` decays from about `r_k` as `(1 - Ts/tau)^n`: it is below
+//! - After a phase opens, `m_k` decays from about `r_k` as `exp(-n Ts / tau)` (n
+//!   periods; checked in every fourth, below): it is below
 //!   a quarter after `tau ln 4` (13.9 ms for `tau` = 10 ms), and the trip follows
 //!   `current_error_s` later, provided the reference averages above the threshold (an
 //!   open phase at light load waits for the reference to grow above 10 % of rated peak).
@@ -47,10 +48,9 @@
 //! magnitudes are sampled at the same instants, so a healthy phase's ratio stays near 1
 //! whatever the speed (no aliasing can part the two), and the filter's passband, a few
 //! hertz for `tau` = 10 ms, is far below the 2.5 kHz it is sampled at. The trip comes
-//! within a check (0.4 ms at 10 kHz) of where it would every period. In every period
-//! it cost the M3's running step about 250 instructions and the M4F's 70 (`bench_qemu`,
-//! the check switched off): about twenty multiplications and comparisons, no division.
-//! The periods between pay only the count.
+//! within a check (0.4 ms at 10 kHz) of where it would every period. A check is about
+//! twenty multiplications and comparisons, no division; the periods between pay only
+//! the count (`docs/cost-budget.md` has what that saves the step).
 
 #![forbid(unsafe_code)]
 
