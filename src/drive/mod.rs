@@ -607,11 +607,8 @@ impl<T: Scalar> Drive<T> {
             Some(p) => Some(p?),
             None => None,
         };
-        let phase_loss = PhaseLoss::new(
-            T::from_f32(phase_loss::CHECK_PERIODS as f32 * ts / config.faults.phase_loss_filter_s),
-            k.current_error,
-            k.current_error_samples,
-        );
+        let phase_loss =
+            PhaseLoss::new(ts / config.faults.phase_loss_filter_s, k.current_error, k.current_error_samples);
         Ok(Drive {
             k,
             estimator,

@@ -58,7 +58,7 @@ use crate::algorithms::transforms::Abc;
 use crate::num::Scalar;
 
 /// Periods per check: the check runs in one of every `CHECK_PERIODS` (module docs).
-pub(crate) const CHECK_PERIODS: u32 = 4;
+const CHECK_PERIODS: u32 = 4;
 
 /// The phase-loss check's state (see the module docs). Working units throughout.
 #[derive(Clone, Copy, Debug)]
@@ -81,10 +81,12 @@ pub(crate) struct PhaseLoss<T> {
 }
 
 impl<T: Scalar> PhaseLoss<T> {
-    /// A check with the low-pass rate per check `rate` ([`CHECK_PERIODS`] `Ts / tau`,
+    /// A check for the control period over the filter's time constant `period_per_tau`
+    /// (`Ts / tau`, dimensionless; the rate per check is [`CHECK_PERIODS`] times it,
     /// clamped to 1), the reference `threshold` (A) and the persistence `samples`
     /// (periods, counted in whole checks: `samples / CHECK_PERIODS`).
-    pub(crate) fn new(rate: T, threshold: T, samples: u32) -> Self {
+    pub(crate) fn new(period_per_tau: f32, threshold: T, samples: u32) -> Self {
+        let rate = T::from_f32(CHECK_PERIODS as f32 * period_per_tau);
         PhaseLoss {
             rate: rate.clamp_to(T::ZERO, T::ONE),
             threshold,
@@ -153,8 +155,7 @@ mod tests {
     const SAMPLES: u32 = 50;
 
     fn check<T: Scalar>() -> PhaseLoss<T> {
-        let rate = f64::from(CHECK_PERIODS) * TS / TAU;
-        PhaseLoss::new(T::from_f32(rate as f32), T::from_f32(THRESHOLD as f32), SAMPLES)
+        PhaseLoss::new((TS / TAU) as f32, T::from_f32(THRESHOLD as f32), SAMPLES)
     }
 
     /// Balanced phase currents of amplitude `amp` (A) at `hz`, at sample `n`.
