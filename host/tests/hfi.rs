@@ -70,7 +70,7 @@ fn standstill<T: dcfo::num::Scalar>(
     }
     let (oa, ob) = (oa / f64::from(n_cal), ob / f64::from(n_cal));
     let bus = plant_for(m).inverter.dc_bus_v as f32;
-    let cfg = HfiConfig::for_motor(m, pl.pwm_period_s() as f32, bus).expect("salient");
+    let cfg = HfiConfig::for_motor(m, pl.pwm_period_s() as f32, bus, 0.0).expect("salient");
     let mut hfi = Hfi::<T>::new(&cfg, base).expect("config");
     let late_from = periods - (0.05 / pl.pwm_period_s()) as usize;
     // The bridge switches from the start (50 % duty until the first injection acts).

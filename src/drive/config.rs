@@ -247,7 +247,8 @@ impl MotionConfig {
     /// - current slew: rated peak current in 5 ms (2 % of rated a period).
     /// - position loop: a quarter of the speed loop's crossover.
     /// - HFI ([`HfiConfig::for_motor`]) for a salient motor (`L_q / L_d >= 1.15`),
-    ///   tuned for the control period and the nominal bus; none otherwise.
+    ///   tuned for the control period and the nominal bus, and to follow the mover up to
+    ///   the band's exit speed; none otherwise.
     ///
     /// Not inlined: a drive image calls it from `DriveConfig::for_image` and from
     /// `Drive::new` (a speed drive's low-speed mode), one copy for both.
@@ -258,15 +259,18 @@ impl MotionConfig {
         let accel_current =
             drive.moving_mass_kg * limits.max_accel_m_per_s2 / motor.thrust_constant_n_per_a();
         let low_speed_current_a = drive.current_limit_a;
+        let low_speed_m_per_s = back_emf_floor_m_per_s(motor, drive);
+        // HFI runs up to the low-speed band's exit speed.
+        let exit_omega_rad_s = low_speed_m_per_s * LOW_SPEED_EXIT_RATIO * motor.rad_per_m();
         MotionConfig {
             limits,
-            low_speed_m_per_s: back_emf_floor_m_per_s(motor, drive),
+            low_speed_m_per_s,
             low_speed_exit_ratio: LOW_SPEED_EXIT_RATIO,
             low_speed_current_a,
             exit_current_a: (2.0 * accel_current).max(0.5 * rated_peak).min(low_speed_current_a),
             current_slew_a_per_s: rated_peak / 0.005,
             position_bandwidth_rad_s: 0.25 * drive.speed_bandwidth_rad_s,
-            hfi: HfiConfig::for_motor(motor, drive.control_period_s, bus_v).ok(),
+            hfi: HfiConfig::for_motor(motor, drive.control_period_s, bus_v, exit_omega_rad_s).ok(),
         }
     }
 }
