@@ -573,7 +573,10 @@ impl<T: Scalar> Drive<T> {
                     }
                     None => None,
                 },
-                hfi_speed_filter_rate: T::from_f32((ts / config.speed_filter_s).min(1.0)),
+                observer_speed_to_omega: match m.hfi {
+                    Some(h) => base.omega(HOLD_OBSERVER_SHARE * h.bandwidth_rad_s * omega_per_speed),
+                    None => T::ZERO,
+                },
                 holding: false,
                 hold_observer: match m.hfi {
                     Some(h) => Some(
@@ -582,7 +585,10 @@ impl<T: Scalar> Drive<T> {
                             bandwidth_rad_s: HOLD_OBSERVER_SHARE * h.bandwidth_rad_s,
                             dt_s: ts,
                             load_limit_n: config.current_limit_a * motor.thrust_constant_n_per_a(),
-                            speed_limit_m_per_s: 2.0 * m.low_speed_m_per_s.max(0.01),
+                            // The speed loop moves on the observer's speed on HFI, up
+                            // to the profile's top speed when the hand-over waits.
+                            speed_limit_m_per_s: 2.0
+                                * m.low_speed_m_per_s.max(m.limits.max_speed_m_per_s).max(0.01),
                             // The thrust current in working units.
                             thrust_unit_n: motor.thrust_constant_n_per_a() * base.current_a,
                             hold_ratio: HOLD_BANDWIDTH_SHARE,
@@ -1057,8 +1063,8 @@ impl<T: Scalar> Drive<T> {
         };
         out.estimate = Some(estimate);
         // A salient motor's low-speed mode runs on HFI (`positioning` docs), its speed loop
-        // on HFI's speed alone (filtered there): the back-EMF estimate, below its floor
-        // and not yet seeded, is no speed to mix in.
+        // on the hold observer's speed alone (set there): the back-EMF estimate, below its
+        // floor and not yet seeded, is no speed to mix in.
         let hfi_steers =
             self.state == DriveState::LowSpeed && self.positioning.as_ref().is_some_and(|p| p.hfi.is_some());
         if !hfi_steers {

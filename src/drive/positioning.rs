@@ -56,8 +56,8 @@
 //!   vector. On enable the current loops are held and the bridge applies the injection
 //!   alone while HFI converges and tests the magnet's polarity (0.13 s, the mover does
 //!   not move); the position estimate then starts from the HFI angle (zero at electrical
-//!   angle 0, as without HFI). From then on the position loop, the speed loop on HFI's
-//!   speed (its tracking loop's integrator) and `i_d = 0` run as in `Running`, on the
+//!   angle 0, as without HFI). From then on the position loop, the speed loop (on the
+//!   hold observer's speed, below) and `i_d = 0` run as in `Running`, on the
 //!   fundamental current (the mean of two samples), with the injection added to the
 //!   command; the q reference is slewed (a step reads as an HF response) and the
 //!   friction learned while running is fed forward. At rest (reference speed zero) the
@@ -69,7 +69,10 @@
 //!   of an integrator, which would wind up against static friction (a speed PI hunts by
 //!   ±5 mm in stick-slip, and a 50 % load step deflects the mover 12.9 mm; the hold 2.8 mm).
 //!   Moving, the running drive's loops (stiff ones disturb the hand-overs: lock is lost
-//!   after reversals); the speed loop takes over from the hold's output. Moving or holding,
+//!   after reversals); the speed loop takes over from the hold's output and reads the
+//!   observer's speed too, which a commanded acceleration does not make lag as it makes
+//!   HFI's tracking-loop integrator lag (`docs/low-speed-operation.md`, "Moving on HFI").
+//!   Moving or holding,
 //!   the overload supervision of `Running` applies (thrust on the current limit, the
 //!   speed off its command). Leaving the band, the
 //!   estimator is seeded from the HFI angle; entering
@@ -218,8 +221,10 @@ pub(super) struct Positioning<T> {
     pub(super) aligned: bool,
     /// High-frequency injection (salient motors): the low-speed mode's estimator.
     pub(super) hfi: Option<Hfi<T>>,
-    /// Rate per period of the filter on HFI's speed estimate (the drive's speed filter).
-    pub(super) hfi_speed_filter_rate: T,
+    /// The hold observer's [`LoadObserver::speed_over_bandwidth_m`] to the working
+    /// electrical speed: its bandwidth times the motor's rad/m, in working units of
+    /// speed per m (0 without HFI).
+    pub(super) observer_speed_to_omega: T,
     /// With HFI, the hold at rest is the thrust law running (the speed loop takes over
     /// from its output when the reference moves again).
     pub(super) holding: bool,
@@ -766,7 +771,8 @@ impl<T: Scalar> Drive<T> {
     /// angle. On enable, the current loops are held while HFI converges and tests the
     /// polarity with the mover at rest (no alignment move); then the position estimate
     /// starts from the HFI angle (the zero is electrical angle 0, as without HFI), and the
-    /// position loop, the speed loop on HFI's speed and `i_d = 0` run as in `Running`.
+    /// position loop, the speed loop on the hold observer's speed and `i_d = 0` run as in
+    /// `Running`.
     /// Leaving the band, the estimator is seeded from the HFI angle and the drive hands
     /// over to it as from the current vector.
     pub(super) fn hfi_low_speed(
@@ -824,10 +830,6 @@ impl<T: Scalar> Drive<T> {
         let Some(p) = &mut self.positioning else {
             return Some((theta, T::ZERO, step));
         };
-        // The speed loop's measure: HFI's integrator, free of the proportional path's share
-        // of the noise, filtered.
-        self.omega_filtered =
-            self.omega_filtered + p.hfi_speed_filter_rate * (o.omega_integral_e - self.omega_filtered);
         if let Some(v) = speed_target {
             p.profile.set_speed_target(v);
         }
@@ -855,7 +857,6 @@ impl<T: Scalar> Drive<T> {
             let v_cmd = sp.speed_m_per_s + p.position_gain * (sp.position_m - x_hat);
             self.omega_ref = Self::electrical_speed(&self.k, v_cmd);
         }
-        let error = self.omega_ref - self.omega_filtered;
         let limit = self.k.current_limit;
         let iq_applied = self.i_dq_ref.q;
         let Some(p) = &mut self.positioning else {
@@ -867,14 +868,24 @@ impl<T: Scalar> Drive<T> {
         // the estimated load, no integrator to wind up against static friction.
         // The observer runs every period; the hold's thrust law only at rest, where it
         // holds (moving, the speed loop has the thrust).
+        // The speed loop's measure (and the speed filter's state at the hand-over to
+        // `Running`): the observer's speed. Driven by the commanded thrust, it does not lag
+        // a commanded acceleration as HFI's tracking-loop integrator does (the mover then
+        // led its reference and overshot the profile's speed as it reached it); without an
+        // observer, that integrator.
         let hold = match &mut p.hold_observer {
             Some(o) => {
                 o.update(T::from_f32(x_hat), iq_applied);
+                self.omega_filtered = o.speed_over_bandwidth_m() * p.observer_speed_to_omega;
                 at_rest.then(|| o.hold_thrust(&o.target(sp.position_m, sp.speed_m_per_s, sp.accel_m_per_s2)))
             }
-            None => None,
+            None => {
+                self.omega_filtered = o.omega_integral_e;
+                None
+            }
         };
         let holding = at_rest && hold.is_some();
+        let error = self.omega_ref - self.omega_filtered;
         if holding {
             p.holding = true;
         } else if speed_loop_due {
