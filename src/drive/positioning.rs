@@ -874,10 +874,12 @@ impl<T: Scalar> Drive<T> {
         // led its reference and overshot the profile's speed as it reached it); without an
         // observer, that integrator.
         let hold = match &mut p.hold_observer {
-            Some(o) => {
-                o.update(T::from_f32(x_hat), iq_applied);
-                self.omega_filtered = o.speed_over_bandwidth_m() * p.observer_speed_to_omega;
-                at_rest.then(|| o.hold_thrust(&o.target(sp.position_m, sp.speed_m_per_s, sp.accel_m_per_s2)))
+            Some(observer) => {
+                observer.update(T::from_f32(x_hat), iq_applied);
+                self.omega_filtered = observer.speed_over_bandwidth_m() * p.observer_speed_to_omega;
+                at_rest.then(|| {
+                    observer.hold_thrust(&observer.target(sp.position_m, sp.speed_m_per_s, sp.accel_m_per_s2))
+                })
             }
             None => {
                 self.omega_filtered = o.omega_integral_e;
