@@ -13,6 +13,8 @@ use dcfo::num::units::Base;
 use dcfo_host::simulation::{LocalDrive, Setup, figures, run, run_with, scenarios};
 use dcfo_host::trace::wrap_angle;
 
+mod common;
+
 #[test]
 fn q24_estimator_follows_the_f32_estimator_within_one_degree_on_the_same_inputs() {
     let setup = Setup::paper(ObserverKind::Dcfo);
@@ -84,14 +86,18 @@ fn q24_drive_runs_the_paper_scenarios_like_the_f32_drive() {
     // Q24 speed-step run reached 8.6 deg, 0.5 s after the ramp, at 0.45 m/s).
     for name in ["steady", "speed-step", "load-step"] {
         let base = scenarios::scenario(name).expect("scenario");
-        let (mut f_max, mut q_max, mut f_rms, mut q_rms) = (vec![], vec![], vec![], vec![]);
-        for k in 0..8 {
-            let sc = shifted(&base, 0.018 * k as f64);
+        let shifts: Vec<f64> = (0..8).map(|k| 0.018 * k as f64).collect();
+        let pairs = common::map_on_every_core(&shifts, |&shift_s| {
+            let sc = shifted(&base, shift_s);
             let f32_run = run(&setup, &sc, |_| {}).expect("f32 run");
             let q24_run = run_with(&setup, &sc, &mut LocalDrive::fixed_point(&setup).expect("drive"), |_| {})
                 .expect("q24 run");
             let (a, b) = (figures::figures(&f32_run, &sc), figures::figures(&q24_run, &sc));
             assert!(b.healthy, "{name}: the Q24 drive faulted ({:?})", q24_run.faults);
+            (a, b)
+        });
+        let (mut f_max, mut q_max, mut f_rms, mut q_rms) = (vec![], vec![], vec![], vec![]);
+        for (a, b) in &pairs {
             f_max.push(a.theta_err_max_deg);
             q_max.push(b.theta_err_max_deg);
             f_rms.push(a.theta_err_rms_deg);

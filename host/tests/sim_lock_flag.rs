@@ -12,6 +12,8 @@ use dcfo_host::simulation::scenarios::paper_scenarios;
 use dcfo_host::simulation::{Sample, run, theta_err_deg};
 use std::path::PathBuf;
 
+mod common;
+
 const ROOT: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/..");
 
 /// The false-lock criterion of the trace format, electrical degrees.
@@ -57,24 +59,12 @@ fn every_run(observer: ObserverKind) -> (usize, usize) {
     assert!(scenarios.len() >= 10 && motors.len() >= 5);
     let cases: Vec<(String, Option<String>)> =
         scenarios.iter().flat_map(|s| motors.iter().map(move |m| (s.clone(), m.clone()))).collect();
-    // Two workers: the runs are independent.
-    let results: Vec<(String, Option<String>, usize, usize, usize)> = std::thread::scope(|scope| {
-        let halves: Vec<_> = cases
-            .chunks(cases.len().div_ceil(2))
-            .map(|chunk| {
-                scope.spawn(move || {
-                    chunk
-                        .iter()
-                        .map(|(s, m)| {
-                            let (f, n, l) = count(s, m.as_deref(), observer);
-                            (s.clone(), m.clone(), f, n, l)
-                        })
-                        .collect::<Vec<_>>()
-                })
-            })
-            .collect();
-        halves.into_iter().flat_map(|h| h.join().unwrap()).collect()
-    });
+    // The runs are independent.
+    let results: Vec<(String, Option<String>, usize, usize, usize)> =
+        common::map_on_every_core(&cases, |(s, m)| {
+            let (f, n, l) = count(s, m.as_deref(), observer);
+            (s.clone(), m.clone(), f, n, l)
+        });
     let mut failures = Vec::new();
     for (s, m, false_locks, running, running_locked) in &results {
         let motor = m.as_deref().unwrap_or("paper axis");

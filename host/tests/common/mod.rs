@@ -1,6 +1,6 @@
-//! What the QEMU tests share: whether they run (the tools are here, or
+//! What the tests share: whether the QEMU tests run (the tools are here, or
 //! `DCFO_REQUIRE_QEMU=1` makes a missing tool a failure, as CI sets it), the workspace
-//! root, and the HIL image they build.
+//! root, the HIL image they build, and a map over independent runs on every core.
 // Each test crate uses part of it.
 #![allow(dead_code)]
 
@@ -29,4 +29,20 @@ pub fn qemu_runs(cpu: QemuCpu) -> bool {
 pub fn hil_firmware(cpu: QemuCpu) -> Option<PathBuf> {
     qemu_runs(cpu)
         .then(|| dcfo_host::hil_link::build_qemu_firmware(&workspace(), cpu).expect("firmware builds"))
+}
+
+/// `f` of every item, in order, the items split over as many scoped threads as the
+/// machine has cores: for a test made of independent closed-loop runs, which would
+/// otherwise leave the other cores idle while it runs alone.
+pub fn map_on_every_core<T: Sync, R: Send>(items: &[T], f: impl Fn(&T) -> R + Sync) -> Vec<R> {
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let chunk = items.len().div_ceil(cores).max(1);
+    let f = &f;
+    std::thread::scope(|scope| {
+        let workers: Vec<_> = items
+            .chunks(chunk)
+            .map(|part| scope.spawn(move || part.iter().map(f).collect::<Vec<R>>()))
+            .collect();
+        workers.into_iter().flat_map(|w| w.join().expect("a worker panicked")).collect()
+    })
 }
