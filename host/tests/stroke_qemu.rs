@@ -5,12 +5,16 @@
 //! through zero speed, back) must run without a fault and refused move, and every
 //! period's θ̂ and x̂ must equal the in-process run of the same numeric type bit for
 //! bit: `Drive<f32>` for the Cortex-M4F image, `Drive<Q24>` for the Cortex-M3 one.
-//! About a minute per target at QEMU's 500 round trips a second.
+//! Each stroke is over 30,000 lock-step round trips (asserted), about a minute of QEMU.
 //!
-//! The salient motor (`motors/salient.toml`, Lq/Ld = 1.5) runs the same short stroke on
-//! the Cortex-M3: its low-speed mode and the hold at rest are high-frequency injection
-//! and the load observer, so this is the Q8.24 drive with HFI on the target, bit for bit
-//! with the host's `Drive<Q24>`.
+//! The paper motor runs on the Cortex-M4F, where float code generation could differ from
+//! the host's. The Cortex-M3 runs the salient motor (`motors/salient.toml`, Lq/Ld = 1.5):
+//! its low-speed mode and the hold at rest are high-frequency injection and the load
+//! observer, handing over to the back-EMF estimator on the way, so this one stroke is the
+//! Q8.24 positioning drive with HFI on the target, bit for bit with the host's
+//! `Drive<Q24>`. Q8.24 is integer arithmetic, the same on every target, so the paper
+//! motor's Q8.24 stroke on the M3 would add a minute of CI and no coverage; the paper
+//! motor's Q8.24 drive on the M3 is `qemu_hil`'s.
 //!
 //! Skips with a message when `qemu-system-arm` or a thumb target is missing, unless
 //! `DCFO_REQUIRE_QEMU=1` (CI sets it), which turns a skip into a failure.
@@ -68,11 +72,6 @@ fn short_stroke_equals_the_host_bit_for_bit(cpu: QemuCpu, motor_name: &str) {
 #[test]
 fn m4f_f32_short_stroke_through_qemu() {
     short_stroke_equals_the_host_bit_for_bit(QemuCpu::M4f, "paper");
-}
-
-#[test]
-fn m3_fixed_point_short_stroke_through_qemu() {
-    short_stroke_equals_the_host_bit_for_bit(QemuCpu::M3, "paper");
 }
 
 #[test]
