@@ -14,13 +14,11 @@ use std::path::PathBuf;
 
 mod common;
 
-const ROOT: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/..");
-
 /// The false-lock criterion of the trace format, electrical degrees.
 const FALSE_LOCK_DEG: f64 = 15.0;
 
 fn files(dir: &str) -> Vec<String> {
-    let mut out: Vec<PathBuf> = std::fs::read_dir(format!("{ROOT}/{dir}"))
+    let mut out: Vec<PathBuf> = std::fs::read_dir(common::workspace().join(dir))
         .unwrap()
         .map(|e| e.unwrap().path())
         .filter(|p| p.extension().is_some_and(|x| x == "toml"))
