@@ -393,6 +393,11 @@ pub struct TrackArgs {
     /// the axis).
     #[arg(long, value_name = "FILE|PRESET")]
     pub motor: Option<String>,
+    /// Instead of the figures, print one profile's f32 replay sample by sample as CSV
+    /// (time, speed, true and estimated frequencies, the notch's tuning, the FLL's
+    /// reading, the angle error, the flags).
+    #[arg(long, value_name = "PROFILE")]
+    pub dump: Option<String>,
 }
 
 /// Arguments of `dcfo motor-image`.
@@ -708,6 +713,7 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             crate::commands::track::run_command(&crate::commands::track::Params {
                 motor: a.motor,
                 json: a.json,
+                dump: a.dump,
             })?;
             Ok(ExitCode::SUCCESS)
         }

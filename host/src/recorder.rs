@@ -16,7 +16,7 @@ use dcfo::algorithms::pi::Pi;
 use dcfo::algorithms::svpwm::{DcBus, svpwm_on};
 use dcfo::algorithms::transforms::{AlphaBeta, CosSin, Dq, inverse_clarke, inverse_park, park};
 use dcfo::drive::{COMPENSATION_REFERENCE_FROM_BANDS, CompensationSigns};
-use dcfo::estimator::Estimator;
+use dcfo::estimator::{Estimate, Estimator};
 use dcfo::motor::MotorParams;
 use dcfo::num::Scalar;
 use dcfo::num::units::Base;
@@ -227,6 +227,24 @@ pub fn replay<T: Scalar>(
     du: [f64; 2],
     di: [f64; 2],
 ) -> Result<(Vec<(f64, bool)>, usize), String> {
+    replay_observed::<T>(setup, base, rows, ts, du, di, |_, _| {})
+}
+
+/// [`replay`], with `observe` called after every sample with the estimator (after its
+/// update) and the sample's estimate: what a diagnostic reads of its inner loops (the
+/// notch, the FLL). `observe` only reads, so the estimates are [`replay`]'s.
+///
+/// # Errors
+/// The estimator refused its settings or a sample.
+pub fn replay_observed<T: Scalar>(
+    setup: &Setup,
+    base: &Base,
+    rows: &[Row],
+    ts: f64,
+    du: [f64; 2],
+    di: [f64; 2],
+    mut observe: impl FnMut(&Estimator<T>, &Estimate<T>),
+) -> Result<(Vec<(f64, bool)>, usize), String> {
     let mut est: Estimator<T> = Estimator::new(&setup.motor, &setup.drive.estimator, base)
         .map_err(|e| format!("estimator: {e:?}"))?;
     let dt = base.time(ts as f32);
@@ -241,6 +259,7 @@ pub fn replay<T: Scalar>(
         u_prev = r.u;
         let i = AlphaBeta::new(base.current((r.i[0] + di[0]) as f32), base.current((r.i[1] + di[1]) as f32));
         let e = est.update(u, i, dt).map_err(|e| format!("estimator fault at sample {k}: {e:?}"))?;
+        observe(&est, &e);
         out.push((e.theta_e.to_radians::<f64>(), e.locked));
         if fit_end.is_none() && !est.fitting() {
             fit_end = Some(k + 1);

@@ -75,3 +75,34 @@ fn a_low_resistance_motor_reverses_without_a_false_lock() {
     let motor = dcfo_host::motor_file::load_motor(path).expect("motor file").params;
     check(&motor, "low_r", &[]);
 }
+
+/// `dcfo track --dump`: the sample-by-sample replay is the one the figures summarise. Read
+/// back from its CSV, the largest error above the back-EMF floor once locked is the f32
+/// step's largest figure (transient or steady; the step has no reversal to leave out),
+/// and the locked column holds no false lock; an unknown profile is refused by name.
+#[test]
+fn the_dump_is_the_replay_the_figures_score() {
+    let setup = setup_for(&MotorParams::paper());
+    let step = profiles().into_iter().find(|p| p.name == "step").expect("the step profile");
+    let figures = dcfo_host::commands::track::run_profile(&setup, &step).expect("scored");
+    let f32_figures = figures.iter().find(|f| f.numeric == "f32").expect("f32 figures");
+    let csv = dcfo_host::commands::track::dump(&setup, "step").expect("dumped");
+    let mut lines = csv.lines();
+    assert_eq!(lines.next(), Some(dcfo_host::commands::track::DUMP_HEADER));
+    let rows: Vec<Vec<&str>> = lines.map(|l| l.split(',').collect()).collect();
+    let ts = setup.plant.inverter.pwm_period_s;
+    assert_eq!(rows.len(), (step.duration_s / ts).round() as usize, "one row per sample");
+    let num = |r: &[&str], c: usize| r[c].parse::<f64>().expect("a number");
+    let first_lock = rows.iter().position(|r| r[7] == "1").expect("locks");
+    let worst = rows[first_lock..]
+        .iter()
+        .filter(|r| num(r, 1).abs() >= f32_figures.floor_m_per_s)
+        .map(|r| num(r, 6).abs())
+        .fold(0.0, f64::max);
+    let scored = f32_figures.transient_err_max_deg.max(f32_figures.steady_err_max_deg);
+    assert!((worst - scored).abs() < 2e-3, "dump {worst} deg, figures {scored} deg");
+    let false_locks = rows.iter().filter(|r| r[7] == "1" && num(r, 6).abs() > 15.0).count();
+    assert_eq!(false_locks, f32_figures.false_lock_samples);
+    let refused = dcfo_host::commands::track::dump(&setup, "no-such-profile").expect_err("refused");
+    assert!(refused.contains("no-such-profile") && refused.contains("step-wide"), "{refused}");
+}

@@ -26,6 +26,11 @@
 //!   the estimator has locked the first time (issue floor: 8 deg).
 //! - **false-lock samples**: the `locked` flag set with the angle more than
 //!   [`crate::commands::acquire::FALSE_LOCK_DEG`] off (floor: 0).
+//!
+//! `dcfo track --dump PROFILE` prints, instead of the figures, that profile's f32 replay
+//! sample by sample ([`dump`]): the truth beside the estimator's frequency, its notch's
+//! tuning, its FLL's reading, the angle error and the flags, which is where a figure is
+//! traced to its cause (`docs/estimator-design.md` reads such replays).
 
 use serde::Serialize;
 
@@ -34,7 +39,7 @@ use dcfo::num::Q24;
 use dcfo::num::units::Base;
 
 use crate::commands::acquire::{FALSE_LOCK_DEG, recording_load_n};
-use crate::recorder::{PrefilteredSteps, Row, SampledProfile, record, replay};
+use crate::recorder::{PrefilteredSteps, Row, SampledProfile, record, replay, replay_observed};
 use crate::simulation::Setup;
 use crate::simulation::scenarios::PaperScale;
 use crate::trace::wrap_angle;
@@ -203,8 +208,16 @@ fn score(
     (reversals, relock_max, transient_max, steady_max, first_lock.map(|k| k as f64 * ts), false_locks)
 }
 
-/// Records `profile` on `setup`'s axis and scores the estimator on it, f32 and Q8.24.
-pub fn run_profile(setup: &Setup, profile: &Profile) -> Result<Vec<Figures>, String> {
+/// One profile recorded on `setup`'s axis: the rows, the load machine's `(speed m/s,
+/// acceleration m/s^2)` per sample, and the motor's back-EMF floor (m/s).
+struct Recording {
+    rows: Vec<Row>,
+    accel: Vec<(f64, f64)>,
+    floor: f64,
+}
+
+/// Records `profile` on `setup`'s axis (module docs: scaled to the motor).
+fn record_profile(setup: &Setup, profile: &Profile) -> Result<Recording, String> {
     let motor = &setup.motor;
     let scale = PaperScale::for_motor(motor);
     let ts = setup.plant.inverter.pwm_period_s;
@@ -220,13 +233,21 @@ pub fn run_profile(setup: &Setup, profile: &Profile) -> Result<Vec<Figures>, Str
     let sampled = SampledProfile { samples: steps.sampled(ts, profile.duration_s), dt_s: ts };
     let rows = record(setup, &sampled, 0.0, recording_load_n(motor), profile.duration_s)?;
     let floor = f64::from(dcfo::drive::back_emf_floor_m_per_s(motor, &setup.drive));
+    Ok(Recording { rows, accel: sampled.samples, floor })
+}
+
+/// Records `profile` on `setup`'s axis and scores the estimator on it, f32 and Q8.24.
+pub fn run_profile(setup: &Setup, profile: &Profile) -> Result<Vec<Figures>, String> {
+    let motor = &setup.motor;
+    let ts = setup.plant.inverter.pwm_period_s;
+    let Recording { rows, accel, floor } = record_profile(setup, profile)?;
     let mut out = Vec::new();
     for (numeric, est) in [
         ("f32", replay::<f32>(setup, &Base::SI, &rows, ts, [0.0; 2], [0.0; 2])?.0),
         ("q24", replay::<Q24>(setup, &Base::for_motor(motor), &rows, ts, [0.0; 2], [0.0; 2])?.0),
     ] {
         let (reversals, relock, transient, steady, first_lock, false_locks) =
-            score(motor, &rows, &sampled.samples, &est, ts, floor);
+            score(motor, &rows, &accel, &est, ts, floor);
         out.push(Figures {
             profile: profile.name.to_string(),
             numeric,
@@ -240,6 +261,51 @@ pub fn run_profile(setup: &Setup, profile: &Profile) -> Result<Vec<Figures>, Str
         });
     }
     Ok(out)
+}
+
+/// The header of [`dump`]'s CSV.
+pub const DUMP_HEADER: &str =
+    "t_s,v_m_per_s,omega_e_rad_s,omega_hat_rad_s,notch_rad_s,fll_rad_s,err_deg,locked,tracking";
+
+/// The profile named `name` recorded on `setup`'s axis and replayed in f32, sample by
+/// sample, as CSV ([`DUMP_HEADER`]): time (s), the mover's speed (m/s) and electrical
+/// frequency (rad/s), the estimator's frequency, its notch's tuning and its FLL's reading
+/// (rad/s; empty for an estimator without an FLL), the angle error (electrical degrees,
+/// truth less estimate) and the two flags (0 or 1). The same replay as [`run_profile`]'s
+/// f32 figures: what they summarise, for finding where an error comes from.
+///
+/// # Errors
+/// No profile has that name (the error lists the names), or the recording or the
+/// replay failed.
+pub fn dump(setup: &Setup, name: &str) -> Result<String, String> {
+    let all = profiles();
+    let Some(profile) = all.iter().find(|p| p.name == name) else {
+        let names: Vec<&str> = all.iter().map(|p| p.name).collect();
+        return Err(format!("no track profile named {name:?}; the profiles are {}", names.join(", ")));
+    };
+    let ts = setup.plant.inverter.pwm_period_s;
+    let Recording { rows, .. } = record_profile(setup, profile)?;
+    let w_per_v = crate::plant::rad_per_m(&setup.motor);
+    let mut csv = String::from(DUMP_HEADER);
+    csv.push('\n');
+    let mut k = 0;
+    replay_observed::<f32>(setup, &Base::SI, &rows, ts, [0.0; 2], [0.0; 2], |est, e| {
+        let r = &rows[k];
+        let err = wrap_angle(r.theta - e.theta_e.to_radians::<f64>()).to_degrees();
+        let fll = est.fll_omega().map_or(String::new(), |w| format!("{w:.3}"));
+        csv += &format!(
+            "{:.6},{:.5},{:.3},{:.3},{:.3},{fll},{err:.3},{},{}\n",
+            k as f64 * ts,
+            r.v,
+            r.v * w_per_v,
+            e.omega_e,
+            est.notch_omega(),
+            u8::from(e.locked),
+            u8::from(e.tracking)
+        );
+        k += 1;
+    })?;
+    Ok(csv)
 }
 
 /// The axis a profile is recorded on: `motor` on the realistic inverter and sensors
@@ -299,6 +365,8 @@ pub struct Params {
     pub motor: Option<String>,
     /// Print one JSON object instead of the table.
     pub json: bool,
+    /// Print this profile's f32 replay sample by sample ([`dump`]) instead.
+    pub dump: Option<String>,
 }
 
 /// `dcfo track`: every profile on the motor, the table (or one JSON object) on stdout.
@@ -314,6 +382,10 @@ pub fn run_command(p: &Params) -> anyhow::Result<()> {
         }
     };
     let setup = setup_for(&params);
+    if let Some(profile) = p.dump.as_deref() {
+        print!("{}", dump(&setup, profile).map_err(|e| anyhow::anyhow!(e))?);
+        return Ok(());
+    }
     let figures = run_all(&setup).map_err(|e| anyhow::anyhow!(e))?;
     if p.json {
         println!("{}", serde_json::json!({ "motor": name, "profiles": figures }));
