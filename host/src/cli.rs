@@ -396,7 +396,7 @@ pub struct TrackArgs {
     /// Instead of the figures, print one profile's f32 replay sample by sample as CSV
     /// (time, speed, true and estimated frequencies, the notch's tuning, the FLL's
     /// reading, the angle error, the flags).
-    #[arg(long, value_name = "PROFILE")]
+    #[arg(long, value_name = "PROFILE", conflicts_with = "json")]
     pub dump: Option<String>,
 }
 
