@@ -65,6 +65,8 @@
 //! tests: 9-11 % of the response at 38 V). Hence `U_h` many times `V_dt`: 63.6 V against
 //! 5.7 V on the salient motor; it may take up to 40 % of the linear voltage range, as
 //! at standstill and low speed the fundamental needs little (`R I` and a small back-EMF).
+//! The drive's inverter compensation takes the square wave's ramp at the switching edges
+//! into account ([`crate::algorithms::dead_time`], "Under injection").
 //!
 //! ## Tracking loop
 //! A PI on `e` drives the estimate: `omega^ = kp e + ki sum(e T)`, `theta^ += omega^ T`.

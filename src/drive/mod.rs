@@ -417,10 +417,11 @@ impl<T: Scalar> Drive<T> {
                     sqrt_rounded(base.current_a / c.current_band_a),
                     "dead_time_compensation.current_band_a",
                 )?;
-                representable::<T>(
-                    InverterErrorModel::<T>::ripple_per_volt_si(ts, motor) * base.impedance_ohm(),
-                    "control_period_s",
-                )?;
+                // The larger of the edge ripple's Ts / (Ld + Lq) and an injection's
+                // Ts / 2 Ld (the larger where Ld < Lq).
+                let ripple = InverterErrorModel::<T>::ripple_per_volt_si(ts, motor)
+                    .max(InverterErrorModel::<T>::injection_ripple_per_volt_si(ts, motor));
+                representable::<T>(ripple * base.impedance_ohm(), "control_period_s")?;
                 Some(InverterErrorModel::for_drive(&c, ts, motor, base))
             }
             None => None,
@@ -1165,7 +1166,12 @@ impl<T: Scalar> Drive<T> {
         let comp = match &k.inverter {
             Some(model) if loops_run => {
                 let i = inverse_clarke(inverse_park(self.compensation_current(model, i_dq), &cs_apply));
-                model.compensation(u_ab, &bus, i)
+                // HFI's square wave, met by no back-EMF, ramps the current across each
+                // period: the model takes it at the switching edges (`dead_time`, "Under
+                // injection").
+                let inject = hfi.map(|h| h.inject);
+                let u = inject.map_or(u_ab, |v| AlphaBeta::new(u_ab.alpha + v.alpha, u_ab.beta + v.beta));
+                model.compensation_injecting(u, inject, &bus, i)
             }
             _ => AlphaBeta::default(),
         };
@@ -1221,7 +1227,9 @@ impl<T: Scalar> Drive<T> {
     /// instead (at the current loop's bandwidth, in a frame turning with it) puts a lag
     /// inside that 600 V/A path and lost the steady state. `docs/inverter-compensation.md`
     /// has the measurements. The result is carried forward to the application window and
-    /// handed to the inverter model per phase.
+    /// handed to the inverter model per phase. Inlined into its one caller (out of line
+    /// the Cortex-M3 image grew by about 300 B).
+    #[inline(always)]
     fn compensation_current(&self, model: &InverterErrorModel<T>, i_measured: Dq<T>) -> Dq<T> {
         let k = &self.k;
         if !k.signs_from_reference {
