@@ -69,8 +69,9 @@ fn salient_motor_stroke_meets_the_floors() {
 /// A salient motor whose back-EMF floor is above the stroke's top speed stays in the
 /// low-speed mode, on HFI, throughout: its speed loop runs on the hold observer's speed
 /// alone, and cruises without the overshoot issue 35 bounds (10 % of the profile's
-/// speed; measured 7.0 %; 82 % while the back-EMF estimate, unseeded below its floor,
-/// was mixed into that speed).
+/// speed; measured 1.5 %, 7.0 % while the position loop's command could exceed the
+/// axis's top speed; 82 % while the back-EMF estimate, unseeded below its floor, was
+/// mixed into that speed).
 #[test]
 fn a_salient_motor_on_hfi_throughout_cruises_without_overshoot() {
     let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../motors/salient_high_l.toml");
@@ -94,9 +95,12 @@ fn a_salient_motor_on_hfi_throughout_cruises_without_overshoot() {
 /// 25 % current swing asks for): a 10 kg mover, 50 mm pole pitch, 20 / 30 mH on a 424 V
 /// bus, on HFI throughout (its back-EMF floor, 0.80 m/s, is above the stroke's speed).
 /// Its tracking loop's bandwidth follows the injection's share down to twice the band's
-/// exit speed (`HfiConfig::for_motor`, 126 rad/s here): measured 7.1 % overshoot, 3.1 mm
-/// at worst and 0.81 mm at the end. At the full bandwidth (314 rad/s) the angle noise
-/// drives 3.6 A RMS of thrust current at rest and the overshoot is 25 %.
+/// exit speed (`HfiConfig::for_motor`, 126 rad/s here): measured 1.9 % overshoot, 3.4 mm
+/// at worst and 0.85 mm at the end. At the full bandwidth (314 rad/s) the angle noise
+/// drives 3.6 A RMS of thrust current at rest and the overshoot is 25 %. While the
+/// position loop's speed command could exceed the axis's top speed (a mover behind its
+/// reference caught up while cruising) it was 7.1 %: the tighter bound below holds
+/// that limit, with the margin measured.
 #[test]
 fn a_salient_motor_whose_bus_caps_the_injection_holds_the_floors_on_hfi() {
     let m = MotorParams {
@@ -119,17 +123,15 @@ fn a_salient_motor_whose_bus_caps_the_injection_holds_the_floors_on_hfi() {
     assert!(s.x_err_max_m <= tau / 4.0, "max {}", s.x_err_max_m);
     // HFI's standstill budget, as for motors/salient.toml.
     assert!(s.x_err_final_m <= tau / 18.0, "final {}", s.x_err_final_m);
-    assert!(
-        s.speed_overshoot_max_pct <= dcfo_host::commands::stroke::SPEED_OVERSHOOT_FLOOR_PCT,
-        "{} %",
-        s.speed_overshoot_max_pct
-    );
+    // Within the axis's speed limit the position loop adds no overshoot of its own: what
+    // is left is the speed loop's (measured 1.9 %; 7.1 % without the limit).
+    assert!(s.speed_overshoot_max_pct <= 4.0, "{} %", s.speed_overshoot_max_pct);
 }
 
 /// A small salient motor on a 48 V bus (0.8 kg, 15 mm, 2 / 3 mH), handing over from HFI
-/// to the back-EMF estimator on every move: measured 5.7 % overshoot (10.6 % while the
+/// to the back-EMF estimator on every move: measured 5.3 % overshoot (10.6 % while the
 /// speed loop moved on HFI's tracking-loop integrator, which lags the commanded
-/// acceleration), 1.9 mm at worst and 0.25 mm at the end.
+/// acceleration), 1.5 mm at worst and under 0.01 mm at the end.
 #[test]
 fn a_small_salient_motor_on_48_v_meets_the_floors() {
     let m = MotorParams {

@@ -44,8 +44,9 @@
 //!     unannounced runaway. (Not before the mover moves: at rest a non-salient motor
 //!     shows no sign of where it sits on the spring.)
 //! - **Sensorless** ([`DriveState::Running`]) above `low_speed_exit_ratio` times the
-//!   threshold: the position loop `v_cmd = v_ref + k_x (x_ref - x_hat)` feeds the speed
-//!   loop; the profile's acceleration is fed forward as thrust current (`M a_ref / K_f`,
+//!   threshold: the position loop `v_cmd = v_ref + k_x (x_ref - x_hat)`, within the
+//!   profile's speed limit, feeds the speed loop (a mover behind its reference catches up
+//!   on the deceleration, not past the axis's top speed); the profile's acceleration is fed forward as thrust current (`M a_ref / K_f`,
 //!   slewed) and to the estimator's notch. The thrust the axis needs beyond that
 //!   (friction, load) is learned here, along the motion. A lock loss falls back to the
 //!   low-speed mode, its frame starting on the last control angle (the lost estimate's
@@ -243,6 +244,23 @@ impl<T: Scalar> Positioning<T> {
         let v = sp.speed_m_per_s.abs();
         v > self.exit_m_per_s
             || self.profile.speed_target().is_some_and(|t| t.abs() >= self.enter_m_per_s && v >= t.abs())
+    }
+
+    /// The position loop's speed command, m/s: the setpoint's speed plus the gain times
+    /// the setpoint's lead on the position `x_m` (m), within the profile's speed limit.
+    /// A mover behind its reference (one that left HFI a few mm behind, or whose position
+    /// estimate moved at a hand-over) catches up where the profile runs below the
+    /// limit, on its deceleration, rather than past the axis's top speed while cruising.
+    fn speed_command_m_per_s(&self, sp: &Setpoint, x_m: f32) -> f32 {
+        let v_max = self.profile.limits().max_speed_m_per_s;
+        let v = sp.speed_m_per_s + self.position_gain * (sp.position_m - x_m);
+        if v > v_max {
+            v_max
+        } else if v < -v_max {
+            -v_max
+        } else {
+            v
+        }
     }
 }
 
@@ -620,8 +638,7 @@ impl<T: Scalar> Drive<T> {
             return T::ZERO;
         };
         let sp = p.profile.setpoint();
-        let v_cmd = sp.speed_m_per_s + p.position_gain * (sp.position_m - self.position_m());
-        Self::electrical_speed(&self.k, v_cmd)
+        Self::electrical_speed(&self.k, p.speed_command_m_per_s(&sp, self.position_m()))
     }
 
     /// The acceleration feed-forward (thrust current, working units) of the setpoint `sp`.
@@ -854,8 +871,7 @@ impl<T: Scalar> Drive<T> {
         if speed_loop_due {
             // The position loop's speed command, for the speed loop (and the overload
             // supervision, which sees the command of the last update).
-            let v_cmd = sp.speed_m_per_s + p.position_gain * (sp.position_m - x_hat);
-            self.omega_ref = Self::electrical_speed(&self.k, v_cmd);
+            self.omega_ref = Self::electrical_speed(&self.k, p.speed_command_m_per_s(&sp, x_hat));
         }
         let limit = self.k.current_limit;
         let iq_applied = self.i_dq_ref.q;
@@ -949,5 +965,76 @@ impl<T: Scalar> Drive<T> {
             return Some((estimate.theta_e, estimate.omega_e, step));
         }
         Some((theta, omega, step))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::drive::{DriveConfig, PAPER_AXIS_BUS_V};
+    use crate::motor::MotorParams;
+    use crate::num::units::Base;
+
+    /// Puts the drive's position estimate at `x_m` (m): `2^32` counts per electrical turn
+    /// of `2 tau`.
+    fn place(drive: &mut Drive<f32>, x_m: f32) {
+        drive.position_counts =
+            (f64::from(x_m) / f64::from(drive.k.metres_per_turn) * 4_294_967_296.0) as i64;
+    }
+
+    /// The position loop's speed command against `v_ref + k_x (x_ref - x_hat)` and the
+    /// axis's speed limit: behind its reference while the profile cruises at the top
+    /// speed it asks for the top speed and no more; ahead, for less by the gain times the
+    /// lead; on the deceleration, below the limit, it catches a lag up at the gain.
+    #[test]
+    fn the_position_loop_catches_up_within_the_axis_speed_limit() {
+        let motor = MotorParams::paper();
+        let config = DriveConfig::stroke_axis(&motor, PAPER_AXIS_BUS_V);
+        let mut drive = Drive::<f32>::new(&motor, &config, &Base::SI).expect("stroke axis");
+        drive.push_move(Move { target_m: 0.3, dwell_s: 0.0 }).expect("move within the stroke");
+        let (v_max, gain) = {
+            let p = drive.positioning.as_ref().expect("a positioning drive");
+            (p.profile.limits().max_speed_m_per_s, p.position_gain)
+        };
+        let command_m_per_s = |drive: &Drive<f32>| drive.position_command() / drive.k.omega_per_speed;
+        let step = |drive: &mut Drive<f32>| {
+            let p = drive.positioning.as_mut().expect("a positioning drive");
+            let sp = p.profile.step(&p.speed_loop_period);
+            (sp, p.profile.setpoint())
+        };
+        // Cruising.
+        let mut sp = Setpoint::default();
+        for _ in 0..100_000 {
+            sp = step(&mut drive).1;
+            if sp.speed_m_per_s == v_max {
+                break;
+            }
+        }
+        assert_eq!(sp.speed_m_per_s, v_max, "the profile reaches its top speed");
+        let lag_m = 0.005;
+        place(&mut drive, sp.position_m - lag_m);
+        let behind = command_m_per_s(&drive);
+        assert!((behind - v_max).abs() <= 1e-6 * v_max, "behind: {behind} m/s, limit {v_max}");
+        place(&mut drive, sp.position_m + lag_m);
+        let ahead = command_m_per_s(&drive);
+        let expected = v_max - gain * lag_m;
+        assert!((ahead - expected).abs() <= 1e-3 * expected, "ahead: {ahead} m/s, expected {expected}");
+        // Decelerating, a lag small enough to stay under the limit is caught up in full.
+        let mut decelerating = None;
+        for _ in 0..100_000 {
+            let (sp, now) = step(&mut drive);
+            if sp.accel_m_per_s2 < 0.0 && now.speed_m_per_s + gain * lag_m < 0.9 * v_max {
+                decelerating = Some(now);
+                break;
+            }
+        }
+        let sp = decelerating.expect("the profile decelerates");
+        place(&mut drive, sp.position_m - lag_m);
+        let catching_up = command_m_per_s(&drive);
+        let expected = sp.speed_m_per_s + gain * lag_m;
+        assert!(
+            (catching_up - expected).abs() <= 1e-3 * expected,
+            "decelerating: {catching_up}, expected {expected}"
+        );
     }
 }
