@@ -46,11 +46,11 @@
 //! - **Sensorless** ([`DriveState::Running`]) above `low_speed_exit_ratio` times the
 //!   threshold: the position loop `v_cmd = v_ref + k_x (x_ref - x_hat)`, within the
 //!   profile's speed limit, feeds the speed loop (a mover behind its reference catches up
-//!   on the deceleration, not past the axis's top speed); the profile's acceleration is fed forward as thrust current (`M a_ref / K_f`,
-//!   slewed) and to the estimator's notch. The thrust the axis needs beyond that
-//!   (friction, load) is learned here, along the motion. A lock loss falls back to the
-//!   low-speed mode, its frame starting on the last control angle (the lost estimate's
-//!   angle is no reference).
+//!   on the deceleration, not past the axis's top speed); the profile's acceleration is
+//!   fed forward as thrust current (`M a_ref / K_f`, slewed) and to the estimator's
+//!   notch. The thrust the axis needs beyond that (friction, load) is learned here,
+//!   along the motion. A lock loss falls back to the low-speed mode, its frame starting
+//!   on the last control angle (the lost estimate's angle is no reference).
 //!
 //! - **With HFI** (salient motors, [`MotionConfig::hfi`]): the
 //!   low-speed mode is closed loop on the [`crate::algorithms::hfi`] estimate instead of the current
