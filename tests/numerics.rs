@@ -473,3 +473,93 @@ fn decay_within_5e_6_relative_to_16_and_1e_5_to_87() {
     assert_eq!(dcfo::num::decay(90.0), 0.0);
     assert_eq!(dcfo::num::decay(f32::INFINITY), 0.0);
 }
+
+/// `unit_ratio` against the exact quotient limited to [-1, 1]: floats correctly rounded,
+/// Q24 within the 1e-4 its documentation states, over divisors across Q24's range and
+/// numerators across each (both signs, and beyond the divisor: limited), with 0 for a
+/// divisor that is not positive.
+#[test]
+fn unit_ratio_floats_rounded_q24_within_1e_4() {
+    let mut worst = 0.0f64;
+    for d in q24_sweep().step_by(7) {
+        for k in 0..=64 {
+            // Numerators from -1.25 d to 1.25 d.
+            let n = i64::from(d) * (k - 32) * 5 / 128;
+            let Ok(n) = i32::try_from(n) else { continue };
+            let exact = (f64::from(n) / f64::from(d)).clamp(-1.0, 1.0);
+            let q = Q24::from_bits(n).unit_ratio(Q24::from_bits(d)).to_f32() as f64;
+            worst = worst.max((q - exact).abs());
+            let (nf, df) = (n as f32 * 2f32.powi(-24), d as f32 * 2f32.powi(-24));
+            let expected = ((nf / df) as f64).clamp(-1.0, 1.0) as f32;
+            assert_eq!(nf.unit_ratio(df), expected, "f32 {nf} / {df}");
+        }
+    }
+    println!("unit_ratio: Q24 worst error {worst:.2e}");
+    assert!(worst <= 1e-4, "Q24 unit_ratio off by {worst:.2e}");
+    for d in [0, -1, i32::MIN] {
+        assert_eq!(Q24::ONE.unit_ratio(Q24::from_bits(d)), Q24::ZERO, "divisor {d}");
+    }
+    assert_eq!(1.0f32.unit_ratio(0.0), 0.0);
+    assert_eq!(1.0f32.unit_ratio(f32::NAN), 0.0);
+    assert_eq!(Q24::from_bits(i32::MIN).unit_ratio(Q24::from_bits(1)), -Q24::ONE);
+    assert_eq!(Q24::from_bits(i32::MAX).unit_ratio(Q24::from_bits(i32::MAX)), Q24::ONE);
+}
+
+/// `from_turns` against `(turns + fraction / 2^32) * per_turn` in f64: Q24 within 1 LSB
+/// of the exact product of its operands and saturated beyond the range; f32 the f32
+/// expression bit for bit.
+#[test]
+fn from_turns_q24_within_one_lsb_and_saturating() {
+    let lsb = 2f64.powi(-24);
+    for per_turn in [0.002f32, 0.04, 0.1, -0.04, 3.0] {
+        let p = Q24::from_f32(per_turn);
+        let p_exact = f64::from(p.to_bits()) * lsb;
+        for turns in [-40, -3, -1, 0, 1, 7, 39] {
+            for fraction in [0u32, 1, 1 << 31, 0x1234_5678, u32::MAX] {
+                let exact = (f64::from(turns) + f64::from(fraction) / 4_294_967_296.0) * p_exact;
+                let q = f64::from(Q24::from_turns(turns, fraction, p).to_bits()) * lsb;
+                assert!(
+                    (q - exact).abs() <= lsb,
+                    "{turns} + {fraction}/2^32 turns of {per_turn}: {q} vs {exact}"
+                );
+                let f = (turns as f32 + fraction as f32 * (1.0 / 4_294_967_296.0)) * per_turn;
+                assert_eq!(f32::from_turns(turns, fraction, per_turn).to_bits(), f.to_bits());
+            }
+        }
+    }
+    let p = Q24::from_f32(1.0);
+    assert_eq!(Q24::from_turns(200, 0, p), Q24::from_bits(i32::MAX), "saturated up");
+    assert_eq!(Q24::from_turns(-200, 0, p), Q24::from_bits(i32::MIN), "saturated down");
+}
+
+/// `checked_div_pair`: floats are `checked_div` of each, bit for bit; Q24 within
+/// `(1 + |x|)` LSB of the exact quotient of each numerator `x` where `1 / rhs` is
+/// representable, and `checked_div` of each where it is not (a divisor under 1/128).
+#[test]
+fn checked_div_pair_floats_exact_q24_within_one_plus_x_lsb() {
+    let lsb = 2f64.powi(-24);
+    for d in q24_sweep().step_by(5) {
+        let rhs = Q24::from_bits(d);
+        for (a, b) in [(1, -1), (1 << 24, -(3 << 22)), (123_456_789, -987_654), (i32::MAX, i32::MIN + 1)] {
+            let (x, y) = (Q24::from_bits(a), Q24::from_bits(b));
+            let (qx, qy) = x.checked_div_pair(y, rhs);
+            if rhs.recip().is_none() {
+                assert_eq!((qx, qy), (x.checked_div(rhs), y.checked_div(rhs)), "divisor {d}");
+                continue;
+            }
+            for (n, q) in [(a, qx), (b, qy)] {
+                let exact = f64::from(n) / f64::from(d);
+                if exact.abs() >= 127.0 {
+                    continue;
+                }
+                let q = q.expect("a representable quotient");
+                let bound = (1.0 + (f64::from(n) * lsb).abs()) * lsb;
+                let err = (f64::from(q.to_bits()) * lsb - exact).abs();
+                assert!(err <= bound, "{n} / {d}: error {err:.3e} over {bound:.3e}");
+            }
+        }
+    }
+    for (a, b, d) in [(1.0f32, -3.0f32, 7.0f32), (0.25, 1e6, 1e-3), (1.0, 1.0, 0.0)] {
+        assert_eq!(a.checked_div_pair(b, d), (a.checked_div(d), b.checked_div(d)));
+    }
+}

@@ -96,6 +96,17 @@ pub trait Scalar:
     fn mul_unit(self, k: Self) -> Self {
         self * k
     }
+    /// `(turns + fraction / 2^32) * per_turn`: a whole number of turns and a fraction of
+    /// one (in `2^-32` of a turn, a binary angle's steps) scaled by `per_turn` (a
+    /// position from an unwrapped angle). Accuracy: floats as the `f32` expression
+    /// (`turns` and `fraction` each rounded to 24 bits, then two roundings); [`Q24`]
+    /// exact to within 1 LSB, saturated at the type's range, in integers (one `SMULL`
+    /// and one `UMULL`, where the `f32` expression is two conversions and two products
+    /// in software on Cortex-M3).
+    fn from_turns(turns: i32, fraction: u32, per_turn: Self) -> Self {
+        let turns_f32 = turns as f32 + fraction as f32 * (1.0 / 4_294_967_296.0);
+        Self::from_f32(turns_f32 * per_turn.to_f32())
+    }
     /// `self` limited to `[lo, hi]`; returns `lo` if `lo > hi` would otherwise apply.
     fn clamp_to(self, lo: Self, hi: Self) -> Self {
         self.min(hi).max(lo)
@@ -107,6 +118,27 @@ pub trait Scalar:
     /// (infinite, NaN, or outside the fixed-point range). [`Q24`] rounds towards zero;
     /// on Cortex-M3 two hardware divisions and a few corrections.
     fn checked_div(self, rhs: Self) -> Option<Self>;
+    /// `self / rhs` and `other / rhs` ([`Scalar::checked_div`] each): two quotients by one
+    /// divisor. Floats: two correctly rounded divisions (a division is one instruction on
+    /// an FPU). [`Q24`]: one reciprocal of `rhs` and two products, each within `(1 + |x|)`
+    /// LSB of the quotient of `x` (the reciprocal within 1 LSB, the product rounded
+    /// down), where two exact quotients take four hardware divisions and their
+    /// corrections; the exact quotients where `1 / rhs` is out of range.
+    fn checked_div_pair(self, other: Self, rhs: Self) -> (Option<Self>, Option<Self>) {
+        (self.checked_div(rhs), other.checked_div(rhs))
+    }
+    /// `self / rhs` limited to `[-1, 1]`, for `rhs > 0` (0 otherwise): the share of a
+    /// span, a linear blend's weight. Accuracy: floats correctly rounded (one division);
+    /// [`Q24`] within 1e-4 absolute, by one 32-bit hardware division of the operands
+    /// normalised to the divisor's leading bit (a 16-bit quotient), where
+    /// [`Scalar::checked_div`]'s exact quotient takes two and their corrections.
+    fn unit_ratio(self, rhs: Self) -> Self {
+        // A NaN divisor passes, and its quotient is not representable: 0 too.
+        if rhs <= Self::ZERO {
+            return Self::ZERO;
+        }
+        self.checked_div(rhs).map_or(Self::ZERO, |x| x.clamp_to(-Self::ONE, Self::ONE))
+    }
     /// `1 / self`, or `None` when `self` is zero or the result is not representable.
     /// Accuracy: floats correctly rounded (one division); [`Q24`] within 1 LSB
     /// (the quotient rounded towards zero: [`Scalar::checked_div`] of one by `self`).
@@ -801,6 +833,35 @@ impl Scalar for Q24 {
     }
     fn checked_div(self, rhs: Q24) -> Option<Q24> {
         q24_div(self.to_bits(), rhs.to_bits()).map(Q24::from_bits)
+    }
+    fn checked_div_pair(self, other: Q24, rhs: Q24) -> (Option<Q24>, Option<Q24>) {
+        match rhs.recip() {
+            Some(inverse) => (Some(self * inverse), Some(other * inverse)),
+            None => (self.checked_div(rhs), other.checked_div(rhs)),
+        }
+    }
+    fn unit_ratio(self, rhs: Q24) -> Q24 {
+        let (n, d) = (self.to_bits(), rhs.to_bits());
+        if d <= 0 {
+            return Q24::ZERO;
+        }
+        if n.unsigned_abs() >= d.unsigned_abs() {
+            return if n < 0 { -Q24::ONE } else { Q24::ONE };
+        }
+        // d << shift in [2^30, 2^31), n << shift below it in magnitude (no overflow); the
+        // divisor's top 16 bits (>= 2^14: a relative error below 2^-14) give a quotient
+        // of 2^16 (n / d), truncated (2^-16 absolute), at most 2^16 (1 + 2^-14).
+        let shift = d.leading_zeros() - 1;
+        let divisor = (d << shift) >> 16;
+        let quotient = (n << shift).checked_div(divisor).unwrap_or(0);
+        Q24::from_bits(quotient.clamp(-(1 << 16), 1 << 16) << 8)
+    }
+    fn from_turns(turns: i32, fraction: u32, per_turn: Q24) -> Q24 {
+        let per_turn = per_turn.to_bits();
+        let whole = turns.saturating_mul(per_turn);
+        // fraction / 2^32 < 1 of |per_turn| < 2^31: the high word fits an i32.
+        let part = ((u64::from(fraction) * u64::from(per_turn.unsigned_abs())) >> 32) as i32;
+        Q24::from_bits(whole.saturating_add(if per_turn < 0 { -part } else { part }))
     }
     fn recip(self) -> Option<Q24> {
         q24_recip(self.to_bits()).map(Q24::from_bits)
