@@ -1110,15 +1110,15 @@ impl<T: Scalar> Estimator<T> {
         travel: T,
     ) {
         let w = notch.abs().max(self.agreement_floor);
-        let phase = |omega: T| match (notch - omega).checked_div(w) {
-            Some(x) => (x * self.inv_zeta).clamp_to(-T::ONE, T::ONE),
-            None => T::ZERO,
-        };
+        // Both readings by the one `w` (in Q8.24 one reciprocal and two products).
+        let (pll_share, fll_share) = (notch - out.omega_e).checked_div_pair(notch - fll_omega, w);
+        let phase =
+            |share: Option<T>| share.map_or(T::ZERO, |x| (x * self.inv_zeta).clamp_to(-T::ONE, T::ONE));
         // The PLL's reading, as far as the FLL's confirms it: in full while the FLL shows
         // at least COMPENSATION_FLL_SHARE of it the same way, down to zero (continuously,
         // so f32 and fixed point do not part at a threshold) as the FLL's goes to zero
         // or the other way.
-        let (from_pll, from_fll) = (phase(out.omega_e), phase(fll_omega));
+        let (from_pll, from_fll) = (phase(pll_share), phase(fll_share));
         let confirmed = (from_fll * self.fll_confirmation).mul_unit(fll_trust);
         let raw = if from_pll > T::ZERO {
             from_pll.min(confirmed.max(T::ZERO))

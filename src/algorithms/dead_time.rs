@@ -258,11 +258,7 @@ impl<T: Scalar> InverterErrorModel<T> {
             // beyond the ripple (no division; in fixed point the quotient of a large
             // current over a small ripple would not be representable), `ik / dk` within.
             let drop_sign = if dk > band {
-                if ik.abs() >= dk {
-                    if ik < T::ZERO { -T::ONE } else { T::ONE }
-                } else {
-                    ik.checked_div(dk).map_or(T::ZERO, |x| x.clamp_to(-T::ONE, T::ONE))
-                }
+                if ik.abs() >= dk { if ik < T::ZERO { -T::ONE } else { T::ONE } } else { ik.unit_ratio(dk) }
             } else {
                 sign(ik)
             };

@@ -230,8 +230,18 @@ struct Constants<T> {
     catch_flux_sq: T,
     /// `1 / omega_base` (s/rad): SI rad/s to working units.
     inv_omega_base: f32,
+    /// A mover speed to the working electrical speed (working units per m/s):
+    /// `omega_per_speed * inv_omega_base`, formed once, so that the positioning layer's
+    /// conversion of a speed is one product (soft-float on Cortex-M3) instead of two.
+    speed_to_omega: f32,
+    /// A mover acceleration to the working electrical acceleration (working units per
+    /// m/s^2): `omega_per_speed * inv_omega_base^2`, one product instead of three.
+    accel_to_alpha: f32,
     /// One electrical turn, m (two pole pitches).
     metres_per_turn: f32,
+    /// [`Constants::metres_per_turn`] in the working type (m, within its LSB): the
+    /// position in the working type ([`Drive::position`]).
+    metres_per_turn_working: T,
     /// Winding resistance (ohm, working units) and `1 / psi_f` (1/Wb, working units):
     /// the mover's speed read from the voltage while a current vector drags it (the I/f
     /// start, the low-speed mode).
@@ -478,7 +488,10 @@ impl<T: Scalar> Drive<T> {
             },
             inv_dt: representable(1.0 / base.time::<f32>(ts), "control_period_s")?,
             inv_omega_base: 1.0 / base.omega_rad_s,
+            speed_to_omega: omega_per_speed / base.omega_rad_s,
+            accel_to_alpha: omega_per_speed / base.omega_rad_s / base.omega_rad_s,
             metres_per_turn: 2.0 * motor.pole_pitch_m,
+            metres_per_turn_working: T::from_f32(2.0 * motor.pole_pitch_m),
             rs: base.resistance(motor.rs_ohm),
             inv_psi_f: T::from_f32(1.0 / base.flux::<f32>(motor.psi_f_wb)),
             // A current vector dragging the mover is a spring of stiffness K_f I pi/tau
@@ -555,7 +568,7 @@ impl<T: Scalar> Drive<T> {
                 mass_kg: config.moving_mass_kg,
                 thrust_n_per_a: motor.thrust_constant_n_per_a(),
                 load_force_n: 0.0,
-                friction_ff_a: 0.0,
+                friction_ff: T::ZERO,
                 // 50 ms
                 load_filter_rate: (ts / 0.05).min(1.0),
                 mover_offset_rad: 0.0,

@@ -188,9 +188,9 @@ pub(super) struct Positioning<T> {
     /// and load, along the motion), filtered: the low-speed mode's load-angle estimate.
     pub(super) load_force_n: f32,
     /// With HFI moving in the low-speed mode, the learned load's thrust current as fed
-    /// forward (working current as `f32`, along the motion), formed where the load is
-    /// learned.
-    pub(super) friction_ff_a: f32,
+    /// forward (working current, along the motion), formed where the load is learned
+    /// (converted there, not in every period that feeds it forward).
+    pub(super) friction_ff: T,
     /// Rate of that filter per period (dimensionless).
     pub(super) load_filter_rate: f32,
     /// Settling dither: time at rest (s), angular frequency (rad/s), decay rate (1/s).
@@ -253,14 +253,7 @@ impl<T: Scalar> Positioning<T> {
     /// limit, on its deceleration, rather than past the axis's top speed while cruising.
     fn speed_command_m_per_s(&self, sp: &Setpoint, x_m: f32) -> f32 {
         let v_max = self.profile.limits().max_speed_m_per_s;
-        let v = sp.speed_m_per_s + self.position_gain * (sp.position_m - x_m);
-        if v > v_max {
-            v_max
-        } else if v < -v_max {
-            -v_max
-        } else {
-            v
-        }
+        (sp.speed_m_per_s + self.position_gain * (sp.position_m - x_m)).clamp_to(-v_max, v_max)
     }
 }
 
@@ -357,7 +350,7 @@ impl<T: Scalar> Drive<T> {
             };
             let along = if v < 0.0 { ramp - thrust } else { thrust - ramp };
             if along.is_finite() && p.hfi.is_none() {
-                p.friction_ff_a = along;
+                p.friction_ff = T::from_f32(along);
                 p.load_force_n = along * p.thrust_n_per_a * self.k.base.current_a;
             }
         }
@@ -386,6 +379,13 @@ impl<T: Scalar> Drive<T> {
         let turns = ((counts >> 32) as i32) as f32;
         let frac = (counts as u32) as f32 * (1.0 / ANGLE_STEPS_PER_TURN);
         (turns + frac) * self.k.metres_per_turn
+    }
+
+    /// The estimated mover position of [`Drive::position_m`] in the working type (m):
+    /// [`Scalar::from_turns`] of the count, for the loops that run on it in every period.
+    pub(super) fn position(&self) -> T {
+        let counts = self.position_counts;
+        T::from_turns((counts >> 32) as i32, counts as u32, self.k.metres_per_turn_working)
     }
 
     /// Counts the control angle's change into the position estimate.
@@ -613,9 +613,10 @@ impl<T: Scalar> Drive<T> {
         // is known to need beyond acceleration (the load learned along the motion).
         let start = if p.hfi.is_some() {
             iq - iq_ff
+        } else if sp.speed_m_per_s < 0.0 {
+            -p.friction_ff
         } else {
-            let load_a = if sp.speed_m_per_s < 0.0 { -p.friction_ff_a } else { p.friction_ff_a };
-            T::from_f32(load_a)
+            p.friction_ff
         };
         if !positioning {
             // A speed drive: its speed loop on the speed reference, nothing fed forward.
@@ -649,13 +650,13 @@ impl<T: Scalar> Drive<T> {
     /// The electrical speed (working units) of a mover speed `v_m_per_s` (m/s) on the
     /// drive of constants `k`.
     fn electrical_speed(k: &Constants<T>, v_m_per_s: f32) -> T {
-        T::from_f32(v_m_per_s * k.omega_per_speed * k.inv_omega_base)
+        T::from_f32(v_m_per_s * k.speed_to_omega)
     }
 
     /// The electrical acceleration (working units of speed per working time) of a mover
     /// acceleration `a_m_per_s2` (m/s^2) on the drive of constants `k`.
     fn electrical_acceleration(k: &Constants<T>, a_m_per_s2: f32) -> T {
-        T::from_f32(a_m_per_s2 * k.omega_per_speed * k.inv_omega_base * k.inv_omega_base)
+        T::from_f32(a_m_per_s2 * k.accel_to_alpha)
     }
 
     /// The motion profile at the speed loop's rate: in the period before the speed loop's
@@ -760,7 +761,7 @@ impl<T: Scalar> Drive<T> {
                     let rate = (p.load_filter_rate * f32::from(n)).min(1.0);
                     p.load_force_n += rate * (along - p.load_force_n);
                     // Its thrust current as HFI's low-speed mode feeds it forward.
-                    p.friction_ff_a = p.load_force_n / p.thrust_n_per_a / self.k.base.current_a;
+                    p.friction_ff = T::from_f32(p.load_force_n / p.thrust_n_per_a / self.k.base.current_a);
                 }
             }
         }
@@ -843,7 +844,10 @@ impl<T: Scalar> Drive<T> {
                 }
             }
         }
-        let x_hat = self.position_m();
+        // The position estimate in the working type, for the hold observer in every period
+        // (in integers: no soft-float conversion on Cortex-M3); in m (f32) only in the
+        // speed loop's periods, for the position loop.
+        let x_hat = self.position();
         let Some(p) = &mut self.positioning else {
             return Some((theta, T::ZERO, step));
         };
@@ -871,7 +875,10 @@ impl<T: Scalar> Drive<T> {
         if speed_loop_due {
             // The position loop's speed command, for the speed loop (and the overload
             // supervision, which sees the command of the last update).
-            self.omega_ref = Self::electrical_speed(&self.k, p.speed_command_m_per_s(&sp, x_hat));
+            let x_m = self.position_m();
+            if let Some(p) = &self.positioning {
+                self.omega_ref = Self::electrical_speed(&self.k, p.speed_command_m_per_s(&sp, x_m));
+            }
         }
         let limit = self.k.current_limit;
         let iq_applied = self.i_dq_ref.q;
@@ -891,7 +898,7 @@ impl<T: Scalar> Drive<T> {
         // observer, that integrator.
         let hold = match &mut p.hold_observer {
             Some(observer) => {
-                observer.update(T::from_f32(x_hat), iq_applied);
+                observer.update(x_hat, iq_applied);
                 self.omega_filtered = observer.speed_over_bandwidth_m() * p.observer_speed_to_omega;
                 at_rest.then(|| {
                     observer.hold_thrust(&observer.target(sp.position_m, sp.speed_m_per_s, sp.accel_m_per_s2))
@@ -920,8 +927,7 @@ impl<T: Scalar> Drive<T> {
         let iq_ff = if at_rest {
             iq_ff
         } else {
-            let friction_a = if sp.speed_m_per_s < 0.0 { -p.friction_ff_a } else { p.friction_ff_a };
-            iq_ff + T::from_f32(friction_a)
+            iq_ff + if sp.speed_m_per_s < 0.0 { -p.friction_ff } else { p.friction_ff }
         };
         let slew = p.slew_step;
         p.accel_ff_applied = p.accel_ff_applied + (iq_ff - p.accel_ff_applied).clamp_to(-slew, slew);
