@@ -254,14 +254,11 @@ impl<T: Scalar> InverterErrorModel<T> {
                 return -whole;
             }
             let dead_time = (dead * (sign(ik - dk) + sign(ik + dk))).mul_unit(T::HALF);
-            // The drop's sign, linear over the wider of the band and the ripple: whole
-            // beyond the ripple (no division; in fixed point the quotient of a large
-            // current over a small ripple would not be representable), `ik / dk` within.
-            let drop_sign = if dk > band {
-                if ik.abs() >= dk { if ik < T::ZERO { -T::ONE } else { T::ONE } } else { ik.unit_ratio(dk) }
-            } else {
-                sign(ik)
-            };
+            // The drop's sign, linear over the wider of the band and the ripple: `ik / dk`
+            // within the ripple, whole beyond it (`unit_ratio` limits the share: in fixed
+            // point the quotient of a large current over a small ripple would not be
+            // representable, and is not formed).
+            let drop_sign = if dk > band { ik.unit_ratio(dk) } else { sign(ik) };
             // |drop_sign| <= 1.
             dead_time + self.device_drop.mul_unit(drop_sign)
         };

@@ -373,12 +373,10 @@ impl<T: Scalar> Drive<T> {
     /// Estimated mover position, m: the unwrapped control angle times `tau / pi`, from
     /// the pole position the mover aligned to on enable (see the module docs).
     pub fn position_m(&self) -> f32 {
-        let counts = self.position_counts;
         // Through 32-bit integers (the same values): an i64 to f32 conversion is a library
         // call on Cortex-M.
-        let turns = ((counts >> 32) as i32) as f32;
-        let frac = (counts as u32) as f32 * (1.0 / ANGLE_STEPS_PER_TURN);
-        (turns + frac) * self.k.metres_per_turn
+        let counts = self.position_counts;
+        f32::from_turns((counts >> 32) as i32, counts as u32, self.k.metres_per_turn)
     }
 
     /// The estimated mover position of [`Drive::position_m`] in the working type (m):
