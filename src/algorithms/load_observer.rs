@@ -234,6 +234,20 @@ impl<T: Scalar> LoadObserver<T> {
             + self.two_ratio * (target.v_scaled_m - self.z2)
             + self.ratio_sq * (target.x_m - self.x_hat_m)
             + self.z3;
+        self.thrust_of(scaled)
+    }
+
+    /// The thrust (units of [`LoadObserverConfig::thrust_unit_n`]) that balances the
+    /// estimated load, within the load limit's thrust: [`LoadObserver::hold_thrust`] with
+    /// no acceleration and no state error, what holds the mover where it is on average.
+    pub fn load_thrust(&self) -> T {
+        self.thrust_of(self.z3)
+    }
+
+    /// The thrust of a scaled force `scaled` (m: force over `M w_o^2`), within the load
+    /// limit's thrust. Not inlined: one copy for the hold and its exit (flash).
+    #[inline(never)]
+    fn thrust_of(&self, scaled: T) -> T {
         match scaled.checked_div(self.scaled_per_thrust) {
             Some(f) => f.clamp_to(-self.thrust_limit, self.thrust_limit),
             None if scaled < T::ZERO => -self.thrust_limit,
@@ -396,6 +410,28 @@ mod tests {
         };
         assert!((f64::from(q) - want).abs() < 0.01 * want.abs(), "Q24 {q} N against {want} N");
         assert_eq!(o.hold_thrust(&o.target(10.0, 0.0, 0.0)), 100.0);
+    }
+
+    /// The load's thrust is the estimated load in the thrust unit, whatever the position
+    /// and speed estimates (no feedback term), in f64 and Q8.24; it saturates at the load
+    /// limit as the hold does.
+    #[test]
+    fn load_thrust_is_the_estimated_load_in_the_thrust_unit() {
+        let c = LoadObserverConfig { thrust_unit_n: 12.5, ..config(80.0) };
+        let unit = f64::from(c.thrust_unit_n);
+        let mut o = LoadObserver::<f64>::new(&c).unwrap();
+        o.preset(0.010, 0.3, -7.0);
+        let want = -7.0 / unit;
+        // Within the f32 the preset takes its load in.
+        let got = o.load_thrust();
+        assert!((got - want).abs() < 1e-6 * want.abs(), "{got} against {want}");
+        let mut q = LoadObserver::<Q24>::new(&c).unwrap();
+        q.preset(0.010, 0.3, -7.0);
+        let got = f64::from(q.load_thrust().to_f32());
+        assert!((got - want).abs() < 1e-3 * want.abs(), "Q24 {got} against {want}");
+        // The limit: 100 N, at most 8 units of 12.5 N.
+        o.preset(0.0, 0.0, 1e6);
+        assert!((o.load_thrust() - 100.0 / unit).abs() < 1e-6 * 100.0 / unit);
     }
 
     /// Driven by the thrust that accelerates the mass, the speed estimate follows an

@@ -913,8 +913,16 @@ impl<T: Scalar> Drive<T> {
             p.holding = true;
         } else if speed_loop_due {
             if p.holding {
-                // Leaving the hold: the speed loop continues from the hold's thrust current.
-                self.pi_speed.preset(p.speed_loop_out, error);
+                // Leaving the hold: the speed loop continues from the thrust that balances
+                // the load the observer estimates. The hold's own thrust at this instant
+                // also carries its correction of HFI's position noise (about ±1 A on the
+                // salient test motor), which, continued, drove the mover up to 9 % over
+                // the profile's speed at the end of the acceleration.
+                let start = match &p.hold_observer {
+                    Some(o) => o.load_thrust(),
+                    None => p.speed_loop_out,
+                };
+                self.pi_speed.preset(start, error);
                 p.holding = false;
             }
             p.speed_loop_out = self.pi_speed.update(error);
