@@ -76,7 +76,7 @@ pub use config::{
 pub use faults::Faults;
 use phase_loss::PhaseLoss;
 pub use positioning::MOVE_QUEUE;
-use positioning::Positioning;
+use positioning::{HANDOVER_SPEED_AGREEMENT, Positioning};
 
 /// The inverter compensation's settings, a part of [`DriveConfig`].
 pub use crate::algorithms::dead_time::DeadTimeCompensation;
@@ -620,6 +620,10 @@ impl<T: Scalar> Drive<T> {
                 anchor_x_m: 0.0,
                 anchor_pending_m: 0.0,
                 seeded: false,
+                exit_agreement: T::from_f32(HANDOVER_SPEED_AGREEMENT),
+                exit_agreement_periods: samples(config.estimator.pll.lock_filter_s).max(1),
+                exit_disagreement: T::ZERO,
+                exit_filter_rate: T::from_f32((ts / config.estimator.pll.lock_filter_s).min(1.0)),
                 aligned: false,
             })
         });

@@ -98,9 +98,10 @@
 //!   estimator is seeded ([`crate::estimator::Estimator::seed`]: observer in the steady
 //!   state of the magnet flux at the expected mover angle, PLL on it, FLL on the
 //!   reference speed). The drive stays in the low-speed mode until the estimate tracks
-//!   and agrees with the reference speed within 20 %, then hands over as from I/f
-//!   start-up (current vector rotated into the estimated frame, d current ramped out, the
-//!   speed loop's output continuing from the q current it takes over).
+//!   and agrees with the reference speed within 20 % (from the current vector) or, on
+//!   HFI, with HFI's speed on average within `HANDOVER_SPEED_AGREEMENT`, then hands over
+//!   as from I/f start-up (current vector rotated into the estimated frame, d current
+//!   ramped out, the speed loop's output continuing from the q current it takes over).
 //!
 //! ## Position estimate
 //! `x_hat` is an unwrapped electrical angle, `tau / pi` metres per radian, counted in
@@ -128,6 +129,15 @@ pub const MOVE_QUEUE: usize = 8;
 
 /// Steps of the binary [`Angle`] in one electrical turn (`2^32`).
 const ANGLE_STEPS_PER_TURN: f32 = 4_294_967_296.0;
+
+/// Leaving HFI for the back-EMF estimator, how far the just-seeded estimate's speed may
+/// be from HFI's on average (share of the reference speed, dimensionless) for the
+/// hand-over. The speed loop continues from HFI's thrust with the estimate as its measure,
+/// so an estimate off by `e` of the speed loads `k_p e w` into the loop's integrator, a
+/// thrust nobody asked for once the estimate settles on the mover: the speed overshoots
+/// by about `e` of the profile's speed. Half the 10 % overshoot budget of a move, the rest
+/// left to the speed loop's own (`docs/low-speed-operation.md`, "Moving on HFI").
+pub(super) const HANDOVER_SPEED_AGREEMENT: f32 = 0.05;
 
 /// Positioning state and constants (working units unless named in SI).
 #[derive(Clone, Debug)]
@@ -165,6 +175,17 @@ pub(super) struct Positioning<T> {
     pub(super) anchor_pending_m: f32,
     /// The estimator has been seeded for the exit from the low-speed mode.
     pub(super) seeded: bool,
+    /// `HANDOVER_SPEED_AGREEMENT` in working units (dimensionless).
+    pub(super) exit_agreement: T,
+    /// Control periods the hand-over from HFI lets the disagreement filter run from the
+    /// estimate's first tracking period: the PLL's lock-filter time, over which the
+    /// estimator declares its own lock.
+    pub(super) exit_agreement_periods: u32,
+    /// The estimate's speed less HFI's since the seed, low-passed at the PLL's lock-filter
+    /// time (electrical, working units).
+    pub(super) exit_disagreement: T,
+    /// The rate of that filter per control period (dimensionless, <= 1).
+    pub(super) exit_filter_rate: T,
     /// Rate of the speed-error filter per period (dimensionless, <= 1).
     pub(super) speed_filter_rate: f32,
     /// Filtered electrical speed error of the mover against the reference (rad/s, SI).
@@ -966,10 +987,32 @@ impl<T: Scalar> Drive<T> {
         if !p.seeded {
             self.estimator.seed(theta, omega_ref, i_ab);
             p.seeded = true;
+            self.counter = 0;
             return Some((theta, omega, step));
         }
-        let close = (estimate.omega_e - omega_ref).abs() < omega_ref.abs() * self.k.handover_tolerance;
-        if estimate.tracking && close {
+        // The hand-over waits until the just-seeded estimate agrees with HFI's speed (the
+        // speed loop's measure, `omega_filtered`) on average: their difference, low-passed
+        // from the first tracking period at the PLL's lock-filter time, within
+        // `HANDOVER_SPEED_AGREEMENT` of the reference speed once the filter has run for
+        // that time. The speed loop continues from the thrust with the estimate as its
+        // measure, so an estimate off by a share of the speed loads that error into the
+        // loop's integrator. The average, not each period's difference: the estimate's
+        // speed carries its PLL's noise (±8 % at 0.4 m/s on the salient test motor), and
+        // waiting for each period to agree kept a speed drive on HFI for seconds.
+        // The state's period count (`counter`) counts the tracking periods since the seed.
+        let difference = estimate.omega_e - self.omega_filtered;
+        if !estimate.tracking {
+            self.counter = 0;
+        } else if self.counter == 0 {
+            p.exit_disagreement = difference;
+            self.counter = 1;
+        } else {
+            p.exit_disagreement =
+                p.exit_disagreement + (difference - p.exit_disagreement).mul_unit(p.exit_filter_rate);
+            self.counter = self.counter.saturating_add(1);
+        }
+        let agrees = p.exit_disagreement.abs() < omega_ref.abs().mul_unit(p.exit_agreement);
+        if self.counter >= p.exit_agreement_periods && agrees {
             // As from the current vector: the frames differ by the two estimates'
             // disagreement only; the speed loop continues from the q current.
             self.hand_over_to_position_loop(theta, estimate);
