@@ -530,6 +530,40 @@ fn from_turns_q24_within_one_lsb_and_saturating() {
     let p = Q24::from_f32(1.0);
     assert_eq!(Q24::from_turns(200, 0, p), Q24::from_bits(i32::MAX), "saturated up");
     assert_eq!(Q24::from_turns(-200, 0, p), Q24::from_bits(i32::MIN), "saturated down");
+    assert_eq!(Q24::from_turns(-200, u32::MAX, p), Q24::from_bits(i32::MIN), "saturated down, a fraction on");
+}
+
+/// `lead_turns` against `(reference - counts / 2^32) * per_turn` in f64: Q24 within 1 LSB
+/// of the exact lead of the reference rounded towards zero to 2^-16 of a turn, and
+/// saturated beyond the range; f32 the f32 expression bit for bit.
+#[test]
+fn lead_turns_q24_within_one_lsb_of_the_rounded_reference_and_saturating() {
+    let lsb = 2f64.powi(-24);
+    let count = |turns: f64| (turns * 4_294_967_296.0).floor() as i64;
+    for per_turn in [0.002f32, 0.14, 3.0, -0.5] {
+        let p = Q24::from_f32(per_turn);
+        let p_exact = f64::from(p.to_bits()) * lsb;
+        for reference in [-37.3f32, -1.0, -0.2, 0.0, 1e-4, 0.75, 12.5, 300.1] {
+            for estimate in [-36.9f64, -0.21, 0.0, 0.7512, 12.0, 299.9] {
+                let counts = count(estimate);
+                let rounded = (f64::from(reference) * 65_536.0).trunc() / 65_536.0;
+                let exact = (rounded - counts as f64 / 4_294_967_296.0) * p_exact;
+                let q = f64::from(Q24::lead_turns(reference, counts, p).to_bits()) * lsb;
+                let expected = exact.clamp(-128.0, 128.0 - lsb);
+                assert!(
+                    (q - expected).abs() <= lsb,
+                    "{reference} turns over {estimate} at {per_turn}: {q} vs {expected}"
+                );
+                let c = (counts >> 32) as i32 as f32 + (counts as u32) as f32 * (1.0 / 4_294_967_296.0);
+                let f = (reference - c) * per_turn;
+                assert_eq!(f32::lead_turns(reference, counts, per_turn).to_bits(), f.to_bits());
+            }
+        }
+    }
+    let p = Q24::from_f32(1.0);
+    assert_eq!(Q24::lead_turns(1e9, 0, p), Q24::from_bits(i32::MAX), "saturated up");
+    assert_eq!(Q24::lead_turns(0.0, i64::MAX, p), Q24::from_bits(i32::MIN), "saturated down");
+    assert_eq!(Q24::lead_turns(f32::NAN, count(2.0), p), Q24::from_f32(-2.0), "NaN reads as 0");
 }
 
 /// `checked_div_pair`: floats are `checked_div` of each, bit for bit; Q24 within

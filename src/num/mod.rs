@@ -107,6 +107,20 @@ pub trait Scalar:
         let turns_f32 = turns as f32 + fraction as f32 * (1.0 / 4_294_967_296.0);
         Self::from_f32(turns_f32 * per_turn.to_f32())
     }
+    /// `(reference_turns - counts / 2^32) * per_turn`: the lead of a position given in
+    /// turns over one counted in `2^-32` of a turn (an unwrapped binary angle), scaled by
+    /// `per_turn` (a position loop's command from its reference and its estimate).
+    /// Accuracy: floats as the `f32` expression (the count rounded to 24 bits, as
+    /// [`Scalar::from_turns`]); [`Q24`] the reference rounded towards zero to `2^-16` of
+    /// a turn and limited to `2^15` turns, the difference in integers and
+    /// [`Scalar::from_turns`] of it: within 1 LSB of the lead of the rounded reference,
+    /// saturated at the type's range, with one soft-float product and one conversion on
+    /// Cortex-M3 where the `f32` expression takes three conversions, two products and two
+    /// sums.
+    fn lead_turns(reference_turns: f32, counts: i64, per_turn: Self) -> Self {
+        let counts_f32 = (counts >> 32) as i32 as f32 + (counts as u32) as f32 * (1.0 / 4_294_967_296.0);
+        Self::from_f32((reference_turns - counts_f32) * per_turn.to_f32())
+    }
     /// `self` limited to `[lo, hi]`; returns `lo` if `lo > hi` would otherwise apply.
     fn clamp_to(self, lo: Self, hi: Self) -> Self {
         self.min(hi).max(lo)
@@ -858,10 +872,21 @@ impl Scalar for Q24 {
     }
     fn from_turns(turns: i32, fraction: u32, per_turn: Q24) -> Q24 {
         let per_turn = per_turn.to_bits();
-        let whole = turns.saturating_mul(per_turn);
+        // In 64 bits (|turns per_turn| < 2^62), saturated once at the end: a whole part
+        // saturated first would be pulled back inside the range by the fraction's part.
+        let whole = i64::from(turns) * i64::from(per_turn);
         // fraction / 2^32 < 1 of |per_turn| < 2^31: the high word fits an i32.
-        let part = ((u64::from(fraction) * u64::from(per_turn.unsigned_abs())) >> 32) as i32;
-        Q24::from_bits(whole.saturating_add(if per_turn < 0 { -part } else { part }))
+        let part = ((u64::from(fraction) * u64::from(per_turn.unsigned_abs())) >> 32) as i64;
+        let sum = whole + if per_turn < 0 { -part } else { part };
+        Q24::from_bits(sum.clamp(i64::from(i32::MIN), i64::from(i32::MAX)) as i32)
+    }
+    fn lead_turns(reference_turns: f32, counts: i64, per_turn: Q24) -> Q24 {
+        // The reference in 2^-16 of a turn (a 32-bit conversion: a 64-bit one is a
+        // library routine of its own), saturating at 2^15 turns either way (NaN to 0).
+        let reference = i64::from((reference_turns * 65_536.0) as i32) << 16;
+        let lead = reference.saturating_sub(counts);
+        let turns = (lead >> 32).clamp(i64::from(i32::MIN), i64::from(i32::MAX)) as i32;
+        Q24::from_turns(turns, lead as u32, per_turn)
     }
     fn recip(self) -> Option<Q24> {
         q24_recip(self.to_bits()).map(Q24::from_bits)
