@@ -239,6 +239,8 @@ struct Constants<T> {
     accel_to_alpha: f32,
     /// One electrical turn, m (two pole pitches).
     metres_per_turn: f32,
+    /// Electrical turns per metre: `1 / metres_per_turn`.
+    turns_per_metre: f32,
     /// [`Constants::metres_per_turn`] in the working type (m, within its LSB): the
     /// position in the working type ([`Drive::position`]).
     metres_per_turn_working: T,
@@ -359,6 +361,11 @@ pub struct Drive<T> {
 const HOLD_OBSERVER_SHARE: f32 = 0.25;
 /// See [`HOLD_OBSERVER_SHARE`].
 const HOLD_BANDWIDTH_SHARE: f32 = 0.5;
+/// Time constant (s) of the load learned along the motion while running sensorless
+/// (`Positioning::load_current`): several of the speed loop's periods and a fraction of
+/// a move's acceleration, so that it follows friction and a slow load, not the
+/// acceleration's residual.
+const LOAD_LEARNING_TIME_S: f32 = 0.05;
 
 /// `x` as a working value, or the configuration error naming `field` when the numeric
 /// type cannot hold it within 1 % (e.g. beyond fixed point's range, or NaN).
@@ -491,6 +498,7 @@ impl<T: Scalar> Drive<T> {
             speed_to_omega: omega_per_speed / base.omega_rad_s,
             accel_to_alpha: omega_per_speed / base.omega_rad_s / base.omega_rad_s,
             metres_per_turn: 2.0 * motor.pole_pitch_m,
+            turns_per_metre: 0.5 / motor.pole_pitch_m,
             metres_per_turn_working: T::from_f32(2.0 * motor.pole_pitch_m),
             rs: base.resistance(motor.rs_ohm),
             inv_psi_f: T::from_f32(1.0 / base.flux::<f32>(motor.psi_f_wb)),
@@ -556,6 +564,15 @@ impl<T: Scalar> Drive<T> {
                 exit_current: base.current(m.exit_current_a),
                 slew_step: base.current(m.current_slew_a_per_s * ts),
                 position_gain: m.position_bandwidth_rad_s,
+                position_gain_per_turn: representable(
+                    m.position_bandwidth_rad_s * 2.0 * motor.pole_pitch_m * omega_per_speed
+                        / base.omega_rad_s,
+                    "motion.position_bandwidth_rad_s",
+                )?,
+                speed_limit: representable(
+                    m.limits.max_speed_m_per_s * omega_per_speed / base.omega_rad_s,
+                    "motion.limits",
+                )?,
                 accel_current_per_m_s2: config.moving_mass_kg
                     / motor.thrust_constant_n_per_a()
                     / base.current_a,
@@ -565,12 +582,10 @@ impl<T: Scalar> Drive<T> {
                 retard_rad: 0.0,
                 retard_rate_rad_s: 0.0,
                 current_loop_rate: (config.current_bandwidth_rad_s * ts).min(1.0),
-                mass_kg: config.moving_mass_kg,
-                thrust_n_per_a: motor.thrust_constant_n_per_a(),
-                load_force_n: 0.0,
-                friction_ff: T::ZERO,
-                // 50 ms
-                load_filter_rate: (ts / 0.05).min(1.0),
+                newtons_per_unit_current: motor.thrust_constant_n_per_a() * base.current_a,
+                load_current: T::ZERO,
+                // 50 ms, at the speed loop's rate.
+                load_learning_rate: T::from_f32((speed_ts / LOAD_LEARNING_TIME_S).min(1.0)),
                 mover_offset_rad: 0.0,
                 rest_time_s: 0.0,
                 // 0.8 w_n at rest (full current); decaying over three of its periods.

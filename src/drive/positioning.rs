@@ -161,6 +161,11 @@ pub(super) struct Positioning<T> {
     pub(super) slew_step: T,
     /// Position-loop gain, 1/s.
     pub(super) position_gain: f32,
+    /// That gain as the speed command (electrical, working units) per electrical turn of
+    /// lead: `position_gain * 2 tau * speed_to_omega`.
+    pub(super) position_gain_per_turn: T,
+    /// The profile's speed limit (electrical, working units): the position loop's bound.
+    pub(super) speed_limit: T,
     /// Thrust current per m/s^2 of reference acceleration (A s^2/m, working current).
     pub(super) accel_current_per_m_s2: f32,
     /// Low-speed frame: `theta_ls = anchor_angle + (pi / tau) (x_ref - anchor_x -
@@ -202,18 +207,18 @@ pub(super) struct Positioning<T> {
     /// The current loop's bandwidth times the period (dimensionless, <= 1): that filter's
     /// rate per period.
     pub(super) current_loop_rate: f32,
-    /// Moving mass (kg) and thrust constant (N/A), for the expected load angle.
-    pub(super) mass_kg: f32,
-    pub(super) thrust_n_per_a: f32,
-    /// Thrust (N) the axis needed beyond acceleration while running sensorless (friction
-    /// and load, along the motion), filtered: the low-speed mode's load-angle estimate.
-    pub(super) load_force_n: f32,
-    /// With HFI moving in the low-speed mode, the learned load's thrust current as fed
-    /// forward (working current, along the motion), formed where the load is learned
-    /// (converted there, not in every period that feeds it forward).
-    pub(super) friction_ff: T,
-    /// Rate of that filter per period (dimensionless).
-    pub(super) load_filter_rate: f32,
+    /// Thrust per working unit of thrust current (N): the load learned along the motion
+    /// as a force, for the hold observer that starts from it.
+    pub(super) newtons_per_unit_current: f32,
+    /// Thrust current (working units) the axis needed beyond acceleration while running
+    /// sensorless (friction and load, along the motion), filtered: the low-speed mode's
+    /// load angle, and with HFI its feed-forward along the motion. Learned in the
+    /// working type, from the commanded q current less the acceleration's feed-forward,
+    /// so that learning it costs the fixed-point drive no conversion.
+    pub(super) load_current: T,
+    /// Rate of that filter per update (dimensionless, <= 1): it is updated once per
+    /// speed-loop period, at 50 ms.
+    pub(super) load_learning_rate: T,
     /// Settling dither: time at rest (s), angular frequency (rad/s), decay rate (1/s).
     pub(super) rest_time_s: f32,
     pub(super) dither_rad_s: f32,
@@ -267,14 +272,24 @@ impl<T: Scalar> Positioning<T> {
             || self.profile.speed_target().is_some_and(|t| t.abs() >= self.enter_m_per_s && v >= t.abs())
     }
 
-    /// The position loop's speed command, m/s: the setpoint's speed plus the gain times
-    /// the setpoint's lead on the position `x_m` (m), within the profile's speed limit.
-    /// A mover behind its reference (one that left HFI a few mm behind, or whose position
-    /// estimate moved at a hand-over) catches up where the profile runs below the
-    /// limit, on its deceleration, rather than past the axis's top speed while cruising.
-    fn speed_command_m_per_s(&self, sp: &Setpoint, x_m: f32) -> f32 {
-        let v_max = self.profile.limits().max_speed_m_per_s;
-        (sp.speed_m_per_s + self.position_gain * (sp.position_m - x_m)).clamp_to(-v_max, v_max)
+    /// The position loop's speed command (electrical, working units): the setpoint's
+    /// speed plus the gain times the setpoint's lead on the estimated position
+    /// (`position_counts`, the control angle unwrapped in 2^-32 of a turn), within the
+    /// profile's speed limit. A mover behind its reference (one that left HFI a few mm
+    /// behind, or whose position estimate moved at a hand-over) catches up where the
+    /// profile runs below the limit, on its deceleration, rather than past the axis's top
+    /// speed while cruising.
+    ///
+    /// The lead is formed by [`Scalar::lead_turns`]: for the fixed-point types in the
+    /// angle's integer counts, one soft-float product and a conversion on Cortex-M3; the
+    /// gain per turn, `2 pi k_x / omega_base`, holds in Q8.24 for any base speed above
+    /// 0.05 k_x, and the lead saturates at the type's range, beyond the limit.
+    #[inline(never)]
+    fn speed_command(&self, sp: &Setpoint, position_counts: i64, k: &Constants<T>) -> T {
+        let correction =
+            T::lead_turns(sp.position_m * k.turns_per_metre, position_counts, self.position_gain_per_turn);
+        (Drive::electrical_speed(k, sp.speed_m_per_s) + correction)
+            .clamp_to(-self.speed_limit, self.speed_limit)
     }
 }
 
@@ -371,8 +386,7 @@ impl<T: Scalar> Drive<T> {
             };
             let along = if v < 0.0 { ramp - thrust } else { thrust - ramp };
             if along.is_finite() && p.hfi.is_none() {
-                p.friction_ff = T::from_f32(along);
-                p.load_force_n = along * p.thrust_n_per_a * self.k.base.current_a;
+                p.load_current = T::from_f32(along);
             }
         }
         Some(self.enter_low_speed(estimate.theta_e, estimate.omega_e, estimate.speed_m_per_s.to_f32()))
@@ -558,8 +572,9 @@ impl<T: Scalar> Drive<T> {
         // At rest, where friction stopped the mover is not predictable (it may overshoot
         // the vector and stick): no load angle.
         let direction = if sp.speed_m_per_s == 0.0 { 0.0 } else { sp.speed_m_per_s.signum() };
-        let force_n = sp.accel_m_per_s2 * p.mass_kg + direction * p.load_force_n;
-        let load_angle = asin((force_n / (p.thrust_n_per_a * amplitude_a.max(1e-3))).clamp(-1.0, 1.0));
+        let force_a = (sp.accel_m_per_s2 * p.accel_current_per_m_s2 + direction * p.load_current.to_f32())
+            * self.k.base.current_a;
+        let load_angle = asin((force_a / amplitude_a.max(1e-3)).clamp(-1.0, 1.0));
         let vector = T::atan2(i_ref.q, i_ref.d);
         // The mover answers a change of the vector or of the force with the spring's
         // dynamics, not at once: the expected offset from the frame is filtered at the
@@ -584,7 +599,7 @@ impl<T: Scalar> Drive<T> {
             // while it lasts (seven decay times, e^-7 of the start).
             let t = p.rest_time_s;
             let dither = if at_rest && t * p.dither_decay_per_s < 7.0 {
-                let ratio = p.load_force_n.abs() / (p.thrust_n_per_a * amplitude_a.max(1e-3));
+                let ratio = p.load_current.abs().to_f32() * self.k.base.current_a / amplitude_a.max(1e-3);
                 let amp = (2.0 * asin(ratio.min(1.0))).min(0.2) * decay(t * p.dither_decay_per_s);
                 amp * sin_cos(p.dither_rad_s * t).0
             } else {
@@ -633,9 +648,9 @@ impl<T: Scalar> Drive<T> {
         let start = if p.hfi.is_some() {
             iq - iq_ff
         } else if sp.speed_m_per_s < 0.0 {
-            -p.friction_ff
+            -p.load_current
         } else {
-            p.friction_ff
+            p.load_current
         };
         if !positioning {
             // A speed drive: its speed loop on the speed reference, nothing fed forward.
@@ -657,8 +672,7 @@ impl<T: Scalar> Drive<T> {
         let Some(p) = &self.positioning else {
             return T::ZERO;
         };
-        let sp = p.profile.setpoint();
-        Self::electrical_speed(&self.k, p.speed_command_m_per_s(&sp, self.position_m()))
+        p.speed_command(&p.profile.setpoint(), self.position_counts, &self.k)
     }
 
     /// The acceleration feed-forward (thrust current, working units) of the setpoint `sp`.
@@ -741,7 +755,7 @@ impl<T: Scalar> Drive<T> {
             p.holding = false;
             // The hold's observer starts on the sensorless estimates and the load learned
             // along the motion.
-            let load_n = p.load_force_n * speed_m_per_s.signum();
+            let load_n = p.load_current.to_f32() * p.newtons_per_unit_current * speed_m_per_s.signum();
             if let Some(o) = &mut p.hold_observer {
                 o.preset(x_m, speed_m_per_s, load_n);
             }
@@ -760,7 +774,6 @@ impl<T: Scalar> Drive<T> {
     /// learned in the profile's period. Between, the acceleration feed-forward slews
     /// towards the last reference's, as every change of the current reference does.
     pub(super) fn positioning_references(&mut self, estimate: &Estimate<T>) -> Option<(Angle, T)> {
-        let n = self.k.speed_loop_divider;
         if let Some(sp) = self.advance_profile_if_due() {
             let p = self.positioning.as_mut()?;
             if sp.speed_m_per_s.abs() < p.enter_m_per_s {
@@ -773,14 +786,13 @@ impl<T: Scalar> Drive<T> {
             // Learn the thrust beyond acceleration (friction, load) along the motion, from
             // the thrust current the loops command (the measured one follows it within the
             // current loop's bandwidth, without its noise), once per speed-loop period.
+            // The acceleration's thrust current is this reference's feed-forward, formed
+            // above; all in the working type.
             if sp.speed_m_per_s != 0.0 {
-                let thrust = p.thrust_n_per_a * self.i_dq_ref.q.to_f32() * self.k.base.current_a;
-                let along = (thrust - p.mass_kg * sp.accel_m_per_s2) * sp.speed_m_per_s.signum();
-                if along.is_finite() {
-                    let rate = (p.load_filter_rate * f32::from(n)).min(1.0);
-                    p.load_force_n += rate * (along - p.load_force_n);
-                    // Its thrust current as HFI's low-speed mode feeds it forward.
-                    p.friction_ff = T::from_f32(p.load_force_n / p.thrust_n_per_a / self.k.base.current_a);
+                let beyond = self.i_dq_ref.q - p.accel_ff_target;
+                let along = if sp.speed_m_per_s < 0.0 { -beyond } else { beyond };
+                if along.is_valid() {
+                    p.load_current = p.load_current + (along - p.load_current).mul_unit(p.load_learning_rate);
                 }
             }
         }
@@ -864,8 +876,8 @@ impl<T: Scalar> Drive<T> {
             }
         }
         // The position estimate in the working type, for the hold observer in every period
-        // (in integers: no soft-float conversion on Cortex-M3); in m (f32) only in the
-        // speed loop's periods, for the position loop.
+        // (in integers: no soft-float conversion on Cortex-M3); the position loop reads
+        // the count itself (`Positioning::speed_command`).
         let x_hat = self.position();
         let Some(p) = &mut self.positioning else {
             return Some((theta, T::ZERO, step));
@@ -894,9 +906,8 @@ impl<T: Scalar> Drive<T> {
         if speed_loop_due {
             // The position loop's speed command, for the speed loop (and the overload
             // supervision, which sees the command of the last update).
-            let x_m = self.position_m();
             if let Some(p) = &self.positioning {
-                self.omega_ref = Self::electrical_speed(&self.k, p.speed_command_m_per_s(&sp, x_m));
+                self.omega_ref = p.speed_command(&sp, self.position_counts, &self.k);
             }
         }
         let limit = self.k.current_limit;
@@ -954,7 +965,7 @@ impl<T: Scalar> Drive<T> {
         let iq_ff = if at_rest {
             iq_ff
         } else {
-            iq_ff + if sp.speed_m_per_s < 0.0 { -p.friction_ff } else { p.friction_ff }
+            iq_ff + if sp.speed_m_per_s < 0.0 { -p.load_current } else { p.load_current }
         };
         let slew = p.slew_step;
         p.accel_ff_applied = p.accel_ff_applied + (iq_ff - p.accel_ff_applied).clamp_to(-slew, slew);
